@@ -1,0 +1,93 @@
+#include "cli_common.hpp"
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <iostream>
+#include <mutex>
+
+#include "../../src/volume/io_util.hpp"
+
+namespace adaptiso::cli {
+
+void VolumeInput::add(CLI::App* app) {
+  app->add_option("VOLUME", path, "Volume file (.nrrd .nhdr .nii[.gz] .mha .mhd .vti .vtk), DICOM folder, or raw file")->required();
+  auto* g = app->add_option_group("raw input", "For headerless raw files");
+  g->add_option("--dims", dims, "Raw: dimensions X,Y,Z");
+  g->add_option("--type", type, "Raw: uint8 int8 uint16 int16 uint32 int32 float32 float64");
+  g->add_option("--endian", endian, "Raw: little or big")->check(CLI::IsMember({"little", "big"}));
+  g->add_option("--spacing", spacing, "Raw: spacing X,Y,Z");
+  g->add_option("--header-bytes", header_bytes, "Raw: bytes to skip at the start of the file");
+}
+
+Volume VolumeInput::load() const {
+  ReadOptions o;
+  if (!dims.empty() || !type.empty()) {
+    if (dims.empty() || type.empty()) throw InputError(fmt::format("{}: raw input needs both --dims and --type", path));
+    RawOptions r;
+    auto d = detail::parse_numbers(dims, 3, "--dims");
+    for (int a = 0; a < 3; ++a) {
+      if (d[a] < 1 || d[a] != static_cast<double>(static_cast<std::int64_t>(d[a])))
+        throw InputError(fmt::format("--dims: {} is not a positive whole number", d[a]));
+      r.dims[a] = static_cast<std::int64_t>(d[a]);
+    }
+    auto t = parse_scalar_type(type);
+    if (!t) throw InputError(fmt::format("--type: unknown type '{}'", type));
+    r.type = *t;
+    r.big_endian = endian == "big";
+    if (!spacing.empty()) {
+      auto s = detail::parse_numbers(spacing, 3, "--spacing");
+      r.spacing = {s[0], s[1], s[2]};
+    }
+    r.header_bytes = header_bytes;
+    o.raw = r;
+  }
+  return read_volume(path, o);
+}
+
+void OutputFlags::add(CLI::App* app) {
+  app->add_flag("--json", json, "Print the statistics as one JSON object on stdout");
+  app->add_flag("--quiet,-q", quiet, "No progress output");
+}
+
+TerminalProgress::TerminalProgress(bool enabled) : enabled_(enabled && isatty(STDERR_FILENO)), start_(Clock::now()) {}
+TerminalProgress::~TerminalProgress() { finish(); }
+
+Progress TerminalProgress::callback() {
+  if (!enabled_) return {};
+  auto mtx = std::make_shared<std::mutex>();
+  return [this, mtx](std::string_view stage, double f) {
+    std::lock_guard lock(*mtx);
+    if (stage != last_stage_) {
+      last_stage_ = std::string(stage);
+      last_percent_ = -1;
+    }
+    int pct = static_cast<int>(f * 100);
+    if (pct == last_percent_ || seconds_since(start_) < 1.0) return;
+    last_percent_ = pct;
+    std::fprintf(stderr, "\r\033[K%s %3d%%", last_stage_.c_str(), pct);
+    std::fflush(stderr);
+    drawn_ = true;
+  };
+}
+
+void TerminalProgress::finish() {
+  if (drawn_) {
+    std::fprintf(stderr, "\r\033[K");
+    std::fflush(stderr);
+    drawn_ = false;
+  }
+}
+
+void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << std::endl; }
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+nlohmann::json volume_json(const Volume& v) {
+  auto r = value_range(v);
+  return {{"dims", v.dims},   {"spacing", v.spacing}, {"origin", v.origin}, {"direction", v.direction},
+          {"type", std::string(scalar_name(v.type))}, {"min", r.min}, {"max", r.max}, {"voxels", v.voxel_count()}};
+}
+
+}  // namespace adaptiso::cli

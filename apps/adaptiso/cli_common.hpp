@@ -1,0 +1,62 @@
+// Shared pieces of the adaptiso command line: volume-input options (raw), output options
+// (--json, --quiet), the terminal progress line, and the exit-code contract:
+// 0 success, 2 bad usage or unreadable input, 1 internal failure.
+#pragma once
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <string>
+
+#include "adaptiso/progress.hpp"
+#include "adaptiso/volume_io.hpp"
+
+namespace adaptiso::cli {
+
+struct VolumeInput {
+  std::string path;
+  std::string dims, type, endian = "little", spacing;
+  std::uint64_t header_bytes = 0;
+  void add(CLI::App* app);
+  Volume load() const;  // throws InputError
+};
+
+struct OutputFlags {
+  bool json = false;
+  bool quiet = false;
+  void add(CLI::App* app);
+};
+
+// A progress line on stderr, shown only on a terminal, without --quiet or --json, and only once a
+// stage has run for more than a second.
+class TerminalProgress {
+public:
+  explicit TerminalProgress(bool enabled);
+  ~TerminalProgress();
+  Progress callback();
+  void finish();
+
+private:
+  bool enabled_;
+  bool drawn_ = false;
+  std::chrono::steady_clock::time_point start_;
+  std::string last_stage_;
+  int last_percent_ = -1;
+};
+
+void print_json(const nlohmann::json& j);
+double seconds_since(std::chrono::steady_clock::time_point t0);
+nlohmann::json volume_json(const Volume& v);
+
+using Clock = std::chrono::steady_clock;
+
+// Command registration; each returns the callback run when the subcommand was chosen.
+void add_info(CLI::App& app);
+void add_generate(CLI::App& app);
+void add_reduce(CLI::App& app);
+void add_prepare(CLI::App& app);
+void add_export(CLI::App& app);
+void add_extract(CLI::App& app);
+void add_run(CLI::App& app);
+
+}  // namespace adaptiso::cli

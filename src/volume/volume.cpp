@@ -1,0 +1,194 @@
+// Volume model: element types, allocation with size checks, value range, histogram.
+#include "adaptiso/volume.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include <limits>
+
+namespace adaptiso {
+
+std::size_t scalar_size(ScalarType t) {
+  switch (t) {
+    case ScalarType::u8: case ScalarType::i8: return 1;
+    case ScalarType::u16: case ScalarType::i16: return 2;
+    case ScalarType::u32: case ScalarType::i32: case ScalarType::f32: return 4;
+    case ScalarType::f64: return 8;
+  }
+  return 8;
+}
+
+std::string_view scalar_name(ScalarType t) {
+  switch (t) {
+    case ScalarType::u8: return "uint8";
+    case ScalarType::i8: return "int8";
+    case ScalarType::u16: return "uint16";
+    case ScalarType::i16: return "int16";
+    case ScalarType::u32: return "uint32";
+    case ScalarType::i32: return "int32";
+    case ScalarType::f32: return "float32";
+    case ScalarType::f64: return "float64";
+  }
+  return "?";
+}
+
+std::optional<ScalarType> parse_scalar_type(std::string_view n) {
+  struct Alias { std::string_view name; ScalarType t; };
+  static constexpr Alias aliases[] = {
+      {"uint8", ScalarType::u8},   {"uchar", ScalarType::u8},   {"unsigned char", ScalarType::u8},
+      {"u8", ScalarType::u8},      {"int8", ScalarType::i8},    {"char", ScalarType::i8},
+      {"signed char", ScalarType::i8}, {"i8", ScalarType::i8},
+      {"uint16", ScalarType::u16}, {"ushort", ScalarType::u16}, {"unsigned short", ScalarType::u16},
+      {"u16", ScalarType::u16},    {"int16", ScalarType::i16},  {"short", ScalarType::i16},
+      {"i16", ScalarType::i16},    {"uint32", ScalarType::u32}, {"uint", ScalarType::u32},
+      {"unsigned int", ScalarType::u32}, {"u32", ScalarType::u32}, {"int32", ScalarType::i32},
+      {"int", ScalarType::i32},    {"i32", ScalarType::i32},    {"float32", ScalarType::f32},
+      {"float", ScalarType::f32},  {"f32", ScalarType::f32},    {"float64", ScalarType::f64},
+      {"double", ScalarType::f64}, {"f64", ScalarType::f64}};
+  for (const auto& a : aliases)
+    if (a.name == n) return a.t;
+  return std::nullopt;
+}
+
+double Volume::at(std::int64_t linear) const {
+  return visit_values(*this, [&](auto vals) { return static_cast<double>(vals[linear]); });
+}
+double Volume::at(std::int64_t i, std::int64_t j, std::int64_t k) const { return at(index(i, j, k)); }
+
+void Volume::set(std::int64_t linear, double v) {
+  visit_values(*this, [&]<class T>(std::span<const T>) {
+    T* p = reinterpret_cast<T*>(bytes.data()) + linear;
+    if constexpr (std::is_integral_v<T>) {
+      double r = std::round(v);
+      r = std::clamp(r, static_cast<double>(std::numeric_limits<T>::lowest()),
+                     static_cast<double>(std::numeric_limits<T>::max()));
+      *p = static_cast<T>(r);
+    } else {
+      *p = static_cast<T>(v);
+    }
+  });
+}
+
+Vec3 Volume::grid_to_world(const Vec3& g) const {
+  const auto& d = direction;
+  return {origin[0] + d[0] * g[0] + d[1] * g[1] + d[2] * g[2],
+          origin[1] + d[3] * g[0] + d[4] * g[1] + d[5] * g[2],
+          origin[2] + d[6] * g[0] + d[7] * g[1] + d[8] * g[2]};
+}
+
+Vec3 Volume::world_to_voxel(const Vec3& w) const {
+  // General 3×3 inverse: files may record directions that are not exactly orthonormal.
+  const auto& d = direction;
+  Vec3 r{w[0] - origin[0], w[1] - origin[1], w[2] - origin[2]};
+  double c00 = d[4] * d[8] - d[5] * d[7], c01 = d[5] * d[6] - d[3] * d[8], c02 = d[3] * d[7] - d[4] * d[6];
+  double det = d[0] * c00 + d[1] * c01 + d[2] * c02;
+  double inv[9] = {c00, d[2] * d[7] - d[1] * d[8], d[1] * d[5] - d[2] * d[4],
+                   c01, d[0] * d[8] - d[2] * d[6], d[2] * d[3] - d[0] * d[5],
+                   c02, d[1] * d[6] - d[0] * d[7], d[0] * d[4] - d[1] * d[3]};
+  Vec3 g{};
+  for (int a = 0; a < 3; ++a) g[a] = (inv[3 * a] * r[0] + inv[3 * a + 1] * r[1] + inv[3 * a + 2] * r[2]) / det;
+  return {g[0] / spacing[0], g[1] / spacing[1], g[2] / spacing[2]};
+}
+
+bool Volume::is_oblique() const {
+  static constexpr std::array<double, 9> id{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  for (int a = 0; a < 9; ++a)
+    if (std::abs(direction[a] - id[a]) > 1e-9) return true;
+  return false;
+}
+
+std::size_t checked_volume_bytes(Dims dims, std::size_t element_size, const std::string& what) {
+  for (int a = 0; a < 3; ++a)
+    if (dims[a] <= 0)
+      throw InputError(fmt::format("{}: dimensions {}x{}x{} must all be positive", what, dims[0], dims[1], dims[2]));
+  const std::uint64_t limit = [] {
+    long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+    return pages > 0 && page > 0 ? static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page)
+                                 : std::uint64_t{1} << 40;
+  }();
+  std::uint64_t bytes = element_size;
+  for (int a = 0; a < 3; ++a) {
+    if (static_cast<std::uint64_t>(dims[a]) > limit / bytes)
+      throw InputError(fmt::format("{}: dimensions {}x{}x{} are absurd (more bytes than this machine's memory)",
+                                   what, dims[0], dims[1], dims[2]));
+    bytes *= static_cast<std::uint64_t>(dims[a]);
+  }
+  return static_cast<std::size_t>(bytes);
+}
+
+Volume make_volume(Dims dims, ScalarType type) {
+  Volume v;
+  std::size_t n = checked_volume_bytes(dims, scalar_size(type), "volume");
+  v.dims = dims;
+  v.type = type;
+  v.bytes.assign(n, 0);
+  return v;
+}
+
+ValueRange value_range(const Volume& v) {
+  return visit_values(v, [&]<class T>(std::span<const T> vals) {
+    using MM = std::pair<T, T>;
+    if (vals.empty()) return ValueRange{};
+    MM mm = tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, vals.size(), 1 << 16), MM{vals[0], vals[0]},
+        [&](const tbb::blocked_range<std::size_t>& r, MM acc) {
+          T lo = acc.first, hi = acc.second;
+          for (std::size_t i = r.begin(); i < r.end(); ++i) {
+            lo = std::min(lo, vals[i]);
+            hi = std::max(hi, vals[i]);
+          }
+          return MM{lo, hi};
+        },
+        [](MM a, MM b) { return MM{std::min(a.first, b.first), std::max(a.second, b.second)}; });
+    return ValueRange{static_cast<double>(mm.first), static_cast<double>(mm.second)};
+  });
+}
+
+Histogram histogram(const Volume& v, int bins) {
+  if (bins < 1) throw InputError("histogram: the number of bins must be positive");
+  Histogram h;
+  auto r = value_range(v);
+  h.min = r.min;
+  h.max = r.max;
+  using Counts = std::vector<std::uint64_t>;
+  const double w = (r.max - r.min) / bins;
+  h.counts = visit_values(v, [&]<class T>(std::span<const T> vals) {
+    return tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, vals.size(), 1 << 16), Counts(bins, 0),
+        [&](const tbb::blocked_range<std::size_t>& rg, Counts c) {
+          for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
+            int b = w > 0 ? static_cast<int>((static_cast<double>(vals[i]) - r.min) / w) : 0;
+            c[std::clamp(b, 0, bins - 1)]++;
+          }
+          return c;
+        },
+        [](Counts a, const Counts& b) {
+          for (std::size_t i = 0; i < a.size(); ++i) a[i] += b[i];
+          return a;
+        });
+  });
+  return h;
+}
+
+void check_finite(const Volume& v, const std::string& what) {
+  if (v.type != ScalarType::f32 && v.type != ScalarType::f64) return;
+  visit_values(v, [&]<class T>(std::span<const T> vals) {
+    std::int64_t bad = 0, first = -1;
+    for (std::size_t i = 0; i < vals.size(); ++i)
+      if (!std::isfinite(static_cast<double>(vals[i]))) {
+        if (first < 0) first = static_cast<std::int64_t>(i);
+        ++bad;
+      }
+    if (bad) {
+      std::int64_t i = first % v.dims[0], j = (first / v.dims[0]) % v.dims[1], k = first / (v.dims[0] * v.dims[1]);
+      throw InputError(fmt::format("{}: {} voxel(s) are NaN or Inf (first at voxel {},{},{}); adaptiso needs finite values",
+                                   what, bad, i, j, k));
+    }
+  });
+}
+
+}  // namespace adaptiso
