@@ -17,7 +17,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   adaptiso::cli::add_info(app);
   adaptiso::cli::add_generate(app);
-  //ADD_reduce
+  adaptiso::cli::add_reduce(app);
   //ADD_prepare
   //ADD_export
   //ADD_extract

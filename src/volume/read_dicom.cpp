@@ -6,6 +6,7 @@
 #include <gdcmImageReader.h>
 #include <gdcmScanner.h>
 #include <gdcmTag.h>
+#include <gdcmTrace.h>
 
 #include <algorithm>
 #include <cmath>
@@ -43,6 +44,8 @@ struct Slice {
 }  // namespace
 
 Volume read_dicom_folder(const std::string& path) {
+  gdcm::Trace::WarningOff();  // GDCM prints a warning per tolerated quirk (e.g. padding after Pixel Data)
+  gdcm::Trace::DebugOff();
   namespace fs = std::filesystem;
   std::vector<std::string> files;
   if (fs::is_directory(path)) {

@@ -1,0 +1,130 @@
+// Test helpers: temporary folders, writing bytes, gzip/zlib/base64 encoders (independent of the
+// readers under test), access to ../shared/data, running the CLI.
+#pragma once
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "adaptiso/volume.hpp"
+
+namespace testutil {
+namespace fs = std::filesystem;
+
+inline fs::path temp_dir(const std::string& name) {
+  static std::random_device rd;
+  fs::path p = fs::temp_directory_path() / ("adaptiso_test_" + name + "_" + std::to_string(rd()));
+  fs::create_directories(p);
+  return p;
+}
+
+struct TempDir {
+  fs::path path;
+  explicit TempDir(const std::string& name) : path(temp_dir(name)) {}
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+  std::string operator/(const std::string& f) const { return (path / f).string(); }
+};
+
+inline void write_bytes(const std::string& path, const std::string& data) {
+  std::ofstream out(path, std::ios::binary);
+  out.write(data.data(), static_cast<std::streamsize>(data.size()));
+}
+
+inline std::string bytes_of(const adaptiso::Volume& v) { return std::string(v.bytes.begin(), v.bytes.end()); }
+
+inline std::string swapped(std::string s, std::size_t es) {
+  for (std::size_t i = 0; i + es <= s.size(); i += es) std::reverse(s.begin() + static_cast<long>(i), s.begin() + static_cast<long>(i + es));
+  return s;
+}
+
+// gzip (window bits 31) or zlib (15) compression.
+inline std::string compress(const std::string& s, bool gzip) {
+  z_stream zs{};
+  deflateInit2(&zs, 6, Z_DEFLATED, gzip ? 31 : 15, 8, Z_DEFAULT_STRATEGY);
+  std::string out(deflateBound(&zs, static_cast<uLong>(s.size())) + 64, '\0');
+  zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(s.data()));
+  zs.avail_in = static_cast<uInt>(s.size());
+  zs.next_out = reinterpret_cast<Bytef*>(out.data());
+  zs.avail_out = static_cast<uInt>(out.size());
+  deflate(&zs, Z_FINISH);
+  out.resize(zs.total_out);
+  deflateEnd(&zs);
+  return out;
+}
+
+inline std::string base64(const std::string& s) {
+  static const char* t = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string o;
+  std::size_t i = 0;
+  for (; i + 2 < s.size(); i += 3) {
+    unsigned v = (unsigned char)s[i] << 16 | (unsigned char)s[i + 1] << 8 | (unsigned char)s[i + 2];
+    o += t[v >> 18];
+    o += t[(v >> 12) & 63];
+    o += t[(v >> 6) & 63];
+    o += t[v & 63];
+  }
+  if (i + 1 == s.size()) {
+    unsigned v = (unsigned char)s[i] << 16;
+    o += t[v >> 18];
+    o += t[(v >> 12) & 63];
+    o += "==";
+  } else if (i + 2 == s.size()) {
+    unsigned v = (unsigned char)s[i] << 16 | (unsigned char)s[i + 1] << 8;
+    o += t[v >> 18];
+    o += t[(v >> 12) & 63];
+    o += t[(v >> 6) & 63];
+    o += '=';
+  }
+  return o;
+}
+
+// A small volume with distinct, type-representable values: v(i,j,k) = (i + 3j + 7k) mod 100 − 20
+// (non-negative for unsigned types).
+inline adaptiso::Volume pattern_volume(adaptiso::Dims d, adaptiso::ScalarType t) {
+  adaptiso::Volume v = adaptiso::make_volume(d, t);
+  bool uns = t == adaptiso::ScalarType::u8 || t == adaptiso::ScalarType::u16 || t == adaptiso::ScalarType::u32;
+  for (std::int64_t k = 0; k < d[2]; ++k)
+    for (std::int64_t j = 0; j < d[1]; ++j)
+      for (std::int64_t i = 0; i < d[0]; ++i) v.set(v.index(i, j, k), static_cast<double>((i + 3 * j + 7 * k) % 100) - (uns ? 0 : 20));
+  return v;
+}
+
+// ../shared/data (or $ADAPTISO_DATA); empty when absent.
+inline std::string data_dir() {
+  if (const char* e = std::getenv("ADAPTISO_DATA")) return fs::is_directory(e) ? e : "";
+  for (const char* c : {ADAPTISO_SOURCE_DIR "/../shared/data", "../shared/data"})
+    if (fs::is_directory(c)) return fs::canonical(c).string();
+  return "";
+}
+
+#define REQUIRE_DATA(dir)                                                                     \
+  const std::string dir = testutil::data_dir();                                               \
+  if (dir.empty()) GTEST_SKIP() << "shared data folder not found (set ADAPTISO_DATA); skipped"
+
+struct RunResult {
+  int code;
+  std::string out, err;
+};
+
+// Runs the adaptiso CLI with a shell-quoted argument string.
+inline RunResult run_cli(const std::string& args) {
+  TempDir t("cli");
+  std::string cmd = std::string(ADAPTISO_CLI) + " " + args + " > " + (t / "out") + " 2> " + (t / "err");
+  int rc = std::system(cmd.c_str());
+  auto slurp = [](const std::string& p) {
+    std::ifstream in(p);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  return {WIFEXITED(rc) ? WEXITSTATUS(rc) : 128, slurp(t / "out"), slurp(t / "err")};
+}
+
+}  // namespace testutil
