@@ -18,8 +18,8 @@ int main(int argc, char** argv) {
   adaptiso::cli::add_info(app);
   adaptiso::cli::add_generate(app);
   adaptiso::cli::add_reduce(app);
-  //ADD_prepare
-  //ADD_export
+  adaptiso::cli::add_prepare(app);
+  adaptiso::cli::add_export(app);
   //ADD_extract
   //ADD_run
   try {

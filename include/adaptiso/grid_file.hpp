@@ -1,0 +1,31 @@
+// adaptiso/grid_file.hpp — the preprocessed grid on disk (.adg), so preprocessing is paid once.
+//
+// Layout (little-endian):
+//   0   char[16]  magic "ADAPTISO-GRID\0\0\0"
+//   16  u32       version (1)
+//   20  u32       flags (0)
+//   24  u64       M, bytes of metadata
+//   32  u64       N, vertices
+//   40  u64       T, tetrahedra
+//   48  char[M]   metadata: UTF-8 JSON (source dims, spacing, origin, direction, value range,
+//                 reduction settings, timings)
+//       u32[N][3] ijk;  f64[N] values;  f32[N][3] gradients;  u32[T][4] tets
+//       u32       CRC-32 (zlib) of every preceding byte
+// Loading checks the magic, version, that the file size is exactly what the counts imply (so no
+// allocation exceeds the file), the checksum, tetrahedron indices and finite values, and refuses
+// anything else with InputError naming the file.
+#pragma once
+#include <string>
+
+#include "adaptiso/tet_grid.hpp"
+
+namespace adaptiso {
+
+void save_grid(const TetGrid& grid, const std::string& path, const std::string& extra_metadata_json = "{}");
+TetGrid load_grid(const std::string& path, std::string* metadata_json = nullptr);
+
+// VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
+// point data "value" and "gradient" (world frame). Written atomically.
+void write_vtu(const TetGrid& grid, const std::string& path);
+
+}  // namespace adaptiso

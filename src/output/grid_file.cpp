@@ -1,0 +1,200 @@
+// The .adg grid file (see grid_file.hpp) and the .vtu export.
+#include "adaptiso/grid_file.hpp"
+
+#include <zlib.h>
+
+#include <cmath>
+#include <cstring>
+#include <fmt/format.h>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "adaptiso/atomic_file.hpp"
+
+namespace adaptiso {
+namespace {
+
+constexpr char kMagic[16] = {'A', 'D', 'A', 'P', 'T', 'I', 'S', 'O', '-', 'G', 'R', 'I', 'D', 0, 0, 0};
+constexpr std::uint32_t kVersion = 1;
+constexpr std::uint64_t kHeader = 48;
+
+nlohmann::json source_json(const GridSource& s) {
+  return {{"dims", s.dims},       {"spacing", s.spacing},     {"origin", s.origin}, {"direction", s.direction},
+          {"type", s.type},       {"min", s.min},             {"max", s.max},       {"method", s.method},
+          {"max_error", s.max_error}, {"threshold", s.threshold}, {"file", s.file}};
+}
+
+class CrcWriter {
+public:
+  explicit CrcWriter(std::ostream& o) : out_(o) {}
+  void write(const void* p, std::size_t n) {
+    const auto* b = static_cast<const unsigned char*>(p);
+    for (std::size_t off = 0; off < n;) {
+      std::size_t k = std::min<std::size_t>(n - off, 1u << 30);
+      crc_ = crc32(crc_, b + off, static_cast<uInt>(k));
+      off += k;
+    }
+    out_.write(static_cast<const char*>(p), static_cast<std::streamsize>(n));
+  }
+  template <class T>
+  void put(const T& x) { write(&x, sizeof x); }
+  std::uint32_t crc() const { return static_cast<std::uint32_t>(crc_); }
+
+private:
+  std::ostream& out_;
+  uLong crc_ = crc32(0, nullptr, 0);
+};
+
+}  // namespace
+
+void save_grid(const TetGrid& g, const std::string& path, const std::string& extra) {
+  nlohmann::json meta = {{"source", source_json(g.source)}};
+  auto ex = nlohmann::json::parse(extra, nullptr, false);
+  if (!ex.is_discarded() && ex.is_object())
+    for (auto it = ex.begin(); it != ex.end(); ++it) meta[it.key()] = it.value();
+  const std::string m = meta.dump();
+  write_file_atomically(path, [&](std::ostream& out) {
+    CrcWriter w(out);
+    w.write(kMagic, 16);
+    w.put(kVersion);
+    w.put(std::uint32_t{0});
+    w.put(static_cast<std::uint64_t>(m.size()));
+    w.put(static_cast<std::uint64_t>(g.vertex_count()));
+    w.put(static_cast<std::uint64_t>(g.tet_count()));
+    w.write(m.data(), m.size());
+    w.write(g.ijk.data(), g.ijk.size() * sizeof g.ijk[0]);
+    w.write(g.values.data(), g.values.size() * sizeof(double));
+    w.write(g.gradients.data(), g.gradients.size() * sizeof g.gradients[0]);
+    w.write(g.tets.data(), g.tets.size() * sizeof g.tets[0]);
+    std::uint32_t c = w.crc();
+    out.write(reinterpret_cast<const char*>(&c), 4);
+  });
+}
+
+TetGrid load_grid(const std::string& path, std::string* metadata_json) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
+  const std::uint64_t size = static_cast<std::uint64_t>(in.tellg());
+  in.seekg(0);
+  if (size < kHeader + 4) throw InputError(fmt::format("{}: not an adaptiso grid file (too short)", path));
+  unsigned char h[kHeader];
+  in.read(reinterpret_cast<char*>(h), kHeader);
+  if (std::memcmp(h, kMagic, 16) != 0) throw InputError(fmt::format("{}: not an adaptiso grid file (bad magic)", path));
+  std::uint32_t version;
+  std::uint64_t M, N, T;
+  std::memcpy(&version, h + 16, 4);
+  std::memcpy(&M, h + 24, 8);
+  std::memcpy(&N, h + 32, 8);
+  std::memcpy(&T, h + 40, 8);
+  if (version != kVersion) throw InputError(fmt::format("{}: grid file version {} is not supported (this build reads {})", path, version, kVersion));
+  // The size the counts imply must be the file's size; checked without overflow before allocating.
+  const std::uint64_t per_vertex = 12 + 8 + 12, per_tet = 16;
+  if (M > size || N > size / per_vertex || T > size / per_tet || kHeader + 4 + M + N * per_vertex + T * per_tet != size)
+    throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
+  if (N > std::numeric_limits<std::uint32_t>::max()) throw InputError(fmt::format("{}: too many vertices", path));
+  uLong crc = crc32(crc32(0, nullptr, 0), h, kHeader);
+  auto read = [&](void* p, std::size_t n) {
+    in.read(static_cast<char*>(p), static_cast<std::streamsize>(n));
+    if (static_cast<std::size_t>(in.gcount()) != n) throw InputError(fmt::format("{}: grid file is truncated", path));
+    const auto* b = static_cast<const unsigned char*>(p);
+    for (std::size_t off = 0; off < n;) {
+      std::size_t k = std::min<std::size_t>(n - off, 1u << 30);
+      crc = crc32(crc, b + off, static_cast<uInt>(k));
+      off += k;
+    }
+  };
+  std::string meta(M, '\0');
+  read(meta.data(), M);
+  TetGrid g;
+  g.ijk.resize(N);
+  g.values.resize(N);
+  g.gradients.resize(N);
+  g.tets.resize(T);
+  read(g.ijk.data(), N * 12);
+  read(g.values.data(), N * 8);
+  read(g.gradients.data(), N * 12);
+  read(g.tets.data(), T * 16);
+  std::uint32_t stored;
+  in.read(reinterpret_cast<char*>(&stored), 4);
+  if (static_cast<std::uint32_t>(crc) != stored) throw InputError(fmt::format("{}: grid file is corrupt (checksum mismatch)", path));
+  auto j = nlohmann::json::parse(meta, nullptr, false);
+  if (j.is_discarded() || !j.contains("source")) throw InputError(fmt::format("{}: grid metadata is not valid JSON", path));
+  try {
+    const auto& s = j["source"];
+    g.source.dims = s.at("dims").get<Dims>();
+    g.source.spacing = s.at("spacing").get<Vec3>();
+    g.source.origin = s.at("origin").get<Vec3>();
+    g.source.direction = s.at("direction").get<std::array<double, 9>>();
+    g.source.type = s.at("type").get<std::string>();
+    g.source.min = s.at("min").get<double>();
+    g.source.max = s.at("max").get<double>();
+    g.source.method = s.at("method").get<std::string>();
+    g.source.max_error = s.at("max_error").get<double>();
+    g.source.threshold = s.at("threshold").get<double>();
+    g.source.file = s.at("file").get<std::string>();
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(fmt::format("{}: grid metadata is incomplete ({})", path, e.what()));
+  }
+  for (int a = 0; a < 3; ++a)
+    if (g.source.dims[a] < 1 || !(g.source.spacing[a] > 0)) throw InputError(fmt::format("{}: grid metadata has invalid dims or spacing", path));
+  for (const auto& t : g.tets)
+    for (auto v : t)
+      if (v >= N) throw InputError(fmt::format("{}: a tetrahedron references vertex {} of {}", path, v, N));
+  for (std::size_t i = 0; i < N; ++i) {
+    if (!std::isfinite(g.values[i])) throw InputError(fmt::format("{}: vertex {} has a non-finite value", path, i));
+    for (int a = 0; a < 3; ++a)
+      if (g.ijk[i][a] >= static_cast<std::uint64_t>(g.source.dims[a])) throw InputError(fmt::format("{}: vertex {} lies outside the volume", path, i));
+  }
+  if (metadata_json) *metadata_json = meta;
+  return g;
+}
+
+void write_vtu(const TetGrid& g, const std::string& path) {
+  const std::uint64_t n = g.vertex_count(), t = g.tet_count();
+  Volume geo;
+  geo.spacing = g.source.spacing;
+  geo.origin = g.source.origin;
+  geo.direction = g.source.direction;
+  std::vector<float> pts(n * 3), grad(n * 3);
+  for (std::uint64_t v = 0; v < n; ++v) {
+    Vec3 w = geo.grid_to_world(g.position(static_cast<std::uint32_t>(v)));
+    const auto& d = g.source.direction;
+    const auto& gr = g.gradients[v];
+    for (int a = 0; a < 3; ++a) {
+      pts[3 * v + a] = static_cast<float>(w[a]);
+      grad[3 * v + a] = static_cast<float>(d[3 * a] * gr[0] + d[3 * a + 1] * gr[1] + d[3 * a + 2] * gr[2]);
+    }
+  }
+  std::vector<std::uint64_t> offsets(t);
+  for (std::uint64_t i = 0; i < t; ++i) offsets[i] = 4 * (i + 1);
+  std::vector<std::uint8_t> types(t, 10);  // VTK_TETRA
+  struct Arr { const void* p; std::uint64_t bytes; };
+  std::vector<Arr> arrays = {{pts.data(), pts.size() * 4}, {g.tets.data(), t * 16}, {offsets.data(), t * 8},
+                             {types.data(), t}, {g.values.data(), n * 8}, {grad.data(), grad.size() * 4}};
+  std::vector<std::uint64_t> off;
+  std::uint64_t o = 0;
+  for (const auto& a : arrays) {
+    off.push_back(o);
+    o += 8 + a.bytes;
+  }
+  write_file_atomically(path, [&](std::ostream& out) {
+    out << "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n"
+        << fmt::format("<UnstructuredGrid>\n<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{}\">\n", n, t)
+        << fmt::format("<Points><DataArray type=\"Float32\" NumberOfComponents=\"3\" format=\"appended\" offset=\"{}\"/></Points>\n", off[0])
+        << "<Cells>\n"
+        << fmt::format("<DataArray type=\"UInt32\" Name=\"connectivity\" format=\"appended\" offset=\"{}\"/>\n", off[1])
+        << fmt::format("<DataArray type=\"UInt64\" Name=\"offsets\" format=\"appended\" offset=\"{}\"/>\n", off[2])
+        << fmt::format("<DataArray type=\"UInt8\" Name=\"types\" format=\"appended\" offset=\"{}\"/>\n", off[3]) << "</Cells>\n"
+        << "<PointData Scalars=\"value\" Vectors=\"gradient\">\n"
+        << fmt::format("<DataArray type=\"Float64\" Name=\"value\" format=\"appended\" offset=\"{}\"/>\n", off[4])
+        << fmt::format("<DataArray type=\"Float32\" Name=\"gradient\" NumberOfComponents=\"3\" format=\"appended\" offset=\"{}\"/>\n", off[5])
+        << "</PointData>\n</Piece>\n</UnstructuredGrid>\n<AppendedData encoding=\"raw\">\n_";
+    for (const auto& a : arrays) {
+      out.write(reinterpret_cast<const char*>(&a.bytes), 8);
+      out.write(static_cast<const char*>(a.p), static_cast<std::streamsize>(a.bytes));
+    }
+    out << "\n</AppendedData>\n</VTKFile>\n";
+  });
+}
+
+}  // namespace adaptiso

@@ -1,0 +1,239 @@
+// Tetrahedral grid (§2.2–2.3): Delaunay property checked with CGAL's exact kernel (Epeck, not the
+// triangulation's), tiling of the box in exact integer arithmetic, orientation, vertex use,
+// gradients of analytic fields, the grid file's round trip and its refusal of damaged files.
+#include <gtest/gtest.h>
+
+#include <CGAL/Exact_predicates_exact_constructions_kernel.h>
+
+#include <map>
+#include <random>
+#include <set>
+
+#include "adaptiso/gradients.hpp"
+#include "adaptiso/grid_file.hpp"
+#include "adaptiso/reduce.hpp"
+#include "adaptiso/synthetic.hpp"
+#include "adaptiso/tetrahedralize.hpp"
+#include "adaptiso/volume_io.hpp"
+#include <nlohmann/json.hpp>
+#include <numeric>
+
+#include "test_util.hpp"
+
+using namespace adaptiso;
+using EK = CGAL::Exact_predicates_exact_constructions_kernel;
+
+namespace {
+
+TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) {
+  TetGrid g;
+  g.source.dims = v.dims;
+  g.source.spacing = v.spacing;
+  g.source.type = std::string(scalar_name(v.type));
+  g.source.method = "test";
+  tetrahedralize(v, kept, g);
+  VertexRings r = vertex_rings(g);
+  compute_gradients(g, r);
+  return g;
+}
+
+EK::Point_3 ept(const TetGrid& g, std::uint32_t v) {
+  // Exact grid-frame coordinates: spacing · index computed in exact arithmetic from the doubles.
+  return EK::Point_3(EK::FT(g.source.spacing[0]) * static_cast<int>(g.ijk[v][0]),
+                     EK::FT(g.source.spacing[1]) * static_cast<int>(g.ijk[v][1]),
+                     EK::FT(g.source.spacing[2]) * static_cast<int>(g.ijk[v][2]));
+}
+
+// Checks every invariant of a grid; returns the number of interior faces checked.
+std::size_t check_grid(const Volume& v, const TetGrid& g) {
+  // Orientation and tiling, exactly.
+  EK::FT total = 0;
+  std::vector<int> used(g.vertex_count(), 0);
+  for (const auto& t : g.tets) {
+    auto o = CGAL::orientation(ept(g, t[0]), ept(g, t[1]), ept(g, t[2]), ept(g, t[3]));
+    EXPECT_EQ(o, CGAL::POSITIVE);
+    total += CGAL::volume(ept(g, t[0]), ept(g, t[1]), ept(g, t[2]), ept(g, t[3]));
+    total.exact();  // collapse the lazy expression DAG (it would otherwise grow one level per tet)
+    for (auto x : t) used[x] = 1;
+  }
+  EK::FT box = EK::FT(v.spacing[0]) * static_cast<int>(v.dims[0] - 1) * EK::FT(v.spacing[1]) * static_cast<int>(v.dims[1] - 1) *
+               EK::FT(v.spacing[2]) * static_cast<int>(v.dims[2] - 1);
+  EXPECT_TRUE(total == box) << CGAL::to_double(total) << " vs " << CGAL::to_double(box);
+  EXPECT_EQ(std::count(used.begin(), used.end(), 0), 0) << "unused vertices";
+  // Delaunay: for each interior face, the far vertex of the other tet is not strictly inside.
+  std::map<std::array<std::uint32_t, 3>, std::vector<std::pair<std::size_t, int>>> faces;
+  for (std::size_t i = 0; i < g.tets.size(); ++i)
+    for (int f = 0; f < 4; ++f) {
+      std::array<std::uint32_t, 3> k;
+      int n = 0;
+      for (int j = 0; j < 4; ++j)
+        if (j != f) k[n++] = g.tets[i][j];
+      std::sort(k.begin(), k.end());
+      faces[k].push_back({i, f});
+    }
+  std::size_t interior = 0;
+  for (const auto& [k, ts] : faces) {
+    EXPECT_LE(ts.size(), 2u);
+    if (ts.size() != 2) continue;
+    ++interior;
+    const auto& t = g.tets[ts[0].first];
+    std::uint32_t opp = g.tets[ts[1].first][ts[1].second];
+    auto s = CGAL::side_of_oriented_sphere(ept(g, t[0]), ept(g, t[1]), ept(g, t[2]), ept(g, t[3]), ept(g, opp));
+    EXPECT_NE(s, CGAL::ON_POSITIVE_SIDE) << "face " << k[0] << "," << k[1] << "," << k[2];
+  }
+  return interior;
+}
+
+std::vector<std::int64_t> all_voxels(const Volume& v) {
+  std::vector<std::int64_t> k(static_cast<std::size_t>(v.voxel_count()));
+  std::iota(k.begin(), k.end(), 0);
+  return k;
+}
+
+}  // namespace
+
+TEST(Delaunay, FullLatticeManyCosphericalPoints) {
+  Volume v = make_volume({6, 5, 4}, ScalarType::f32);
+  v.spacing = {1.0, 0.5, 2.5};
+  TetGrid g = build(v, all_voxels(v));
+  EXPECT_GT(check_grid(v, g), 100u);
+  EXPECT_EQ(g.vertex_count(), 120u);
+}
+
+TEST(Delaunay, RandomLatticeSubsets) {
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 5; ++trial) {
+    Volume v = make_volume({9, 7, 8}, ScalarType::f32);
+    std::vector<std::int64_t> kept;
+    for (std::int64_t i = 0; i < v.voxel_count(); ++i)
+      if (rng() % 4 == 0) kept.push_back(i);
+    auto c = volume_corners(v);
+    std::vector<std::int64_t> k;
+    std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
+    TetGrid g = build(v, k);
+    check_grid(v, g);
+  }
+}
+
+TEST(Delaunay, PaperSphereAndRealKeptSets) {
+  Volume s = make_synthetic("sphere", 50, ScalarType::i16);
+  ReduceOptions o;
+  o.max_error = 0.15;
+  o.relative = true;
+  auto r = reduce(s, o);
+  check_grid(s, build(s, r.kept));
+  REQUIRE_DATA(data);
+  Volume m = read_volume(data + "/mr_head_HeadMRVolume/HeadMRVolume.mhd");
+  o.max_error = 0.05;
+  auto rm = reduce(m, o);
+  check_grid(m, build(m, rm.kept));
+}
+
+TEST(Delaunay, FlatVolumeIsRefused) {
+  Volume v = make_volume({5, 5, 1}, ScalarType::f32);
+  TetGrid g;
+  g.source.dims = v.dims;
+  EXPECT_THROW(tetrahedralize(v, all_voxels(v), g), InputError);
+}
+
+TEST(Gradients, LinearFieldIsExact) {
+  Volume v = make_volume({9, 8, 7}, ScalarType::f64);
+  v.spacing = {0.5, 1.0, 2.0};
+  for (std::int64_t z = 0; z < 7; ++z)
+    for (std::int64_t y = 0; y < 8; ++y)
+      for (std::int64_t x = 0; x < 9; ++x) v.set(v.index(x, y, z), 3 + 2 * (0.5 * x) - 1.5 * y + 0.25 * (2.0 * z));
+  std::mt19937 rng(2);
+  std::vector<std::int64_t> kept;
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
+    if (rng() % 3 == 0) kept.push_back(i);
+  auto c = volume_corners(v);
+  std::vector<std::int64_t> k;
+  std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
+  TetGrid g = build(v, k);
+  for (const auto& gr : g.gradients) {
+    EXPECT_NEAR(gr[0], 2.0, 1e-5);
+    EXPECT_NEAR(gr[1], -1.5, 1e-5);
+    EXPECT_NEAR(gr[2], 0.25, 1e-5);
+  }
+  // And the piecewise-linear reconstruction of a linear field is exact everywhere.
+  auto e = piecewise_linear_error(v, g);
+  EXPECT_LT(e.max, 1e-9);
+  EXPECT_EQ(e.voxels, v.voxel_count());
+}
+
+TEST(Gradients, QuadraticFieldCloseToAnalytic) {
+  const std::int64_t n = 21;
+  Volume v = make_volume({n, n, n}, ScalarType::f64);
+  for (std::int64_t z = 0; z < n; ++z)
+    for (std::int64_t y = 0; y < n; ++y)
+      for (std::int64_t x = 0; x < n; ++x) v.set(v.index(x, y, z), 0.01 * (x * x + 2.0 * y * y) + 0.5 * z);
+  TetGrid g = build(v, all_voxels(v));
+  double worst = 0;
+  for (std::size_t i = 0; i < g.vertex_count(); ++i) {
+    const auto& p = g.ijk[i];
+    if (p[0] == 0 || p[1] == 0 || p[2] == 0 || p[0] == n - 1 || p[1] == n - 1 || p[2] == n - 1) continue;  // one-sided at the border
+    worst = std::max({worst, std::abs(g.gradients[i][0] - 0.02 * p[0]), std::abs(g.gradients[i][1] - 0.04 * p[1]),
+                      std::abs(g.gradients[i][2] - 0.5)});
+  }
+  EXPECT_LT(worst, 0.05);  // second-order terms over a 1-voxel ring
+}
+
+TEST(GridFile, RoundTripIsBitIdentical) {
+  testutil::TempDir t("grid");
+  Volume s = make_synthetic("sphere", 20, ScalarType::i16);
+  ReduceOptions o;
+  o.max_error = 30;
+  TetGrid g = build(s, reduce(s, o).kept);
+  save_grid(g, t / "a.adg");
+  TetGrid h = load_grid(t / "a.adg");
+  EXPECT_EQ(h.ijk, g.ijk);
+  EXPECT_EQ(h.values, g.values);
+  EXPECT_EQ(h.gradients, g.gradients);
+  EXPECT_EQ(h.tets, g.tets);
+  EXPECT_EQ(h.source.dims, g.source.dims);
+  save_grid(h, t / "b.adg");
+  std::ifstream a(t / "a.adg", std::ios::binary), b(t / "b.adg", std::ios::binary);
+  std::string sa((std::istreambuf_iterator<char>(a)), {}), sb((std::istreambuf_iterator<char>(b)), {});
+  EXPECT_EQ(sa, sb);
+}
+
+TEST(GridFile, EveryTruncationAndRandomCorruptionIsRefused) {
+  testutil::TempDir t("gridbad");
+  Volume s = make_synthetic("sphere", 8, ScalarType::i16);
+  ReduceOptions o;
+  o.max_error = 50;
+  TetGrid g = build(s, reduce(s, o).kept);
+  save_grid(g, t / "a.adg");
+  std::ifstream a(t / "a.adg", std::ios::binary);
+  const std::string full((std::istreambuf_iterator<char>(a)), {});
+  for (std::size_t len = 0; len < full.size(); ++len) {
+    testutil::write_bytes(t / "t.adg", full.substr(0, len));
+    EXPECT_THROW(load_grid(t / "t.adg"), InputError) << "length " << len;
+  }
+  std::mt19937 rng(9);
+  for (int trial = 0; trial < 300; ++trial) {
+    std::string c = full;
+    int flips = 1 + static_cast<int>(rng() % 4);
+    for (int f = 0; f < flips; ++f) c[rng() % c.size()] ^= static_cast<char>(1 + rng() % 255);
+    testutil::write_bytes(t / "c.adg", c);
+    EXPECT_THROW(load_grid(t / "c.adg"), InputError) << "trial " << trial;
+  }
+  testutil::write_bytes(t / "f.adg", "hello, not a grid at all, but long enough to have a header.............");
+  EXPECT_THROW(load_grid(t / "f.adg"), InputError);
+}
+
+TEST(PrepareCli, JsonFieldsAndExport) {
+  testutil::TempDir t("prep");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 30 -o " + (t / "s.nrrd")).code, 0);
+  auto r = testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error 0.15 --relative --json -o " + (t / "s.adg"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto j = nlohmann::json::parse(r.out);
+  for (const char* k : {"voxels", "kept", "tetrahedra", "pl_max_error", "pl_rms_error", "seconds"}) EXPECT_TRUE(j.contains(k)) << k;
+  for (const char* k : {"reduce", "tetrahedralize", "gradients"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  EXPECT_EQ(testutil::run_cli("export " + (t / "s.adg") + " -o " + (t / "s.vtu")).code, 0);
+  EXPECT_EQ(testutil::run_cli("export " + (t / "s.adg") + " -o " + (t / "s.ply")).code, 0);
+  testutil::write_bytes(t / "bad.adg", "garbage");
+  auto bad = testutil::run_cli("export " + (t / "bad.adg") + " -o " + (t / "x.vtu"));
+  EXPECT_EQ(bad.code, 2);
+  EXPECT_FALSE(std::filesystem::exists(t / "x.vtu"));
+}
