@@ -181,17 +181,16 @@ private:
 // it is dropped only when every one of them merged. Along an axis where the coordinate is an odd
 // multiple of L/2 one cube holds it; otherwise the cubes on both sides (only one at a side of the
 // extended cube), giving 4/2/1 inside, 2/1/1 on a side and 1/1/1 on an edge.
-bool dropped(const OctreeMerges& om, std::int64_t x, std::int64_t y, std::int64_t z) {
-  auto tz = [](std::int64_t c) { return c == 0 ? 64 : std::countr_zero(static_cast<std::uint64_t>(c)); };
-  int t = std::min({tz(x), tz(y), tz(z)});
+// tz = number of trailing zero bits of each coordinate (64 for 0), precomputed per axis.
+bool dropped(const OctreeMerges& om, const std::int64_t c[3], const int tz[3]) {
+  int t = std::min({tz[0], tz[1], tz[2]});
   if (t >= om.levels) return false;  // a corner of the root cube
   const int l = t + 1;
   const std::int64_t L = std::int64_t{1} << l, S = om.size;
-  const std::int64_t c[3] = {x, y, z};
   std::int64_t cand[3][2];
   int nc[3];
   for (int a = 0; a < 3; ++a) {
-    if ((c[a] >> t) & 1) {
+    if (tz[a] == t) {  // an odd multiple of L/2: inside one cube along this axis
       cand[a][0] = c[a] / L;
       nc[a] = 1;
     } else {
@@ -223,20 +222,41 @@ std::vector<std::int64_t> reconstruction_analysis(const Volume& vol, double max_
     tree.run();
     forced.assign(tree.forced.begin(), tree.forced.end());
   });
-  // Kept set: every voxel not dropped by its counters, plus the forced clipped corners.
+  // Kept set: every voxel not dropped by its counters (already in index order, slice by slice),
+  // merged with the forced clipped corners.
   const Dims d = vol.dims;
+  auto ctz = [](std::int64_t c) { return c == 0 ? 64 : std::countr_zero(static_cast<std::uint64_t>(c)); };
+  std::vector<int> tzx(static_cast<std::size_t>(d[0]));
+  for (std::int64_t x = 0; x < d[0]; ++x) tzx[static_cast<std::size_t>(x)] = ctz(x);
   std::vector<std::vector<std::int64_t>> per_slice(static_cast<std::size_t>(d[2]));
   tbb::parallel_for(std::int64_t{0}, d[2], [&](std::int64_t z) {
     auto& out = per_slice[static_cast<std::size_t>(z)];
-    for (std::int64_t y = 0; y < d[1]; ++y)
-      for (std::int64_t x = 0; x < d[0]; ++x)
-        if (!dropped(om, x, y, z)) out.push_back(x + d[0] * (y + d[1] * z));
+    int tz[3] = {0, 0, ctz(z)};
+    std::int64_t c[3] = {0, 0, z};
+    for (std::int64_t y = 0; y < d[1]; ++y) {
+      tz[1] = ctz(y);
+      c[1] = y;
+      for (std::int64_t x = 0; x < d[0]; ++x) {
+        tz[0] = tzx[static_cast<std::size_t>(x)];
+        c[0] = x;
+        if (!dropped(om, c, tz)) out.push_back(x + d[0] * (y + d[1] * z));
+      }
+    }
   });
+  std::size_t total = 0;
+  for (auto& s : per_slice) total += s.size();
   std::vector<std::int64_t> kept;
-  for (auto& s : per_slice) kept.insert(kept.end(), s.begin(), s.end());
-  kept.insert(kept.end(), forced.begin(), forced.end());
-  std::sort(kept.begin(), kept.end());
-  kept.erase(std::unique(kept.begin(), kept.end()), kept.end());
+  kept.reserve(total + forced.size());
+  for (auto& s : per_slice) {
+    kept.insert(kept.end(), s.begin(), s.end());
+    std::vector<std::int64_t>().swap(s);
+  }
+  std::sort(forced.begin(), forced.end());
+  forced.erase(std::unique(forced.begin(), forced.end()), forced.end());
+  std::vector<std::int64_t> merged;
+  merged.reserve(kept.size() + forced.size());
+  std::set_union(kept.begin(), kept.end(), forced.begin(), forced.end(), std::back_inserter(merged));
+  kept.swap(merged);
   report(progress, "reduce: reconstruction", 1.0);
   return kept;
 }
