@@ -19,12 +19,12 @@ void add_prepare(CLI::App& app) {
   auto rf = std::make_shared<ReduceFlags>();
   auto out = std::make_shared<OutputFlags>();
   auto output = std::make_shared<std::string>();
-  auto parallel = std::make_shared<bool>(false);
+  auto sequential = std::make_shared<bool>(false);
   in->add(cmd);
   rf->add(cmd);
   out->add(cmd);
   cmd->add_option("-o,--output", *output, "Grid file (.adg)")->required();
-  cmd->add_flag("--parallel-delaunay", *parallel, "Use CGAL's parallel triangulation");
+  cmd->add_flag("--sequential-delaunay", *sequential, "Use CGAL's sequential triangulation (the parallel one is the default)");
   cmd->callback([=] {
     auto t_all = Clock::now();
     Volume v = in->load();
@@ -41,7 +41,7 @@ void add_prepare(CLI::App& app) {
                 rf->method, r.max_error, r.threshold, in->path};
     t0 = Clock::now();
     TetrahedralizeOptions topt;
-    topt.parallel = *parallel;
+    topt.parallel = !*sequential;
     tetrahedralize(v, r.kept, g, topt, cb);
     double t_tet = seconds_since(t0);
     t0 = Clock::now();
