@@ -84,6 +84,17 @@ std::size_t check_grid(const Volume& v, const TetGrid& g) {
   return interior;
 }
 
+// A random subset of the voxels (about one in `every`) plus the 8 corners, sorted.
+std::vector<std::int64_t> random_kept(const Volume& v, std::mt19937& rng, unsigned every) {
+  std::vector<std::int64_t> kept;
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
+    if (rng() % every == 0) kept.push_back(i);
+  auto c = volume_corners(v);
+  std::vector<std::int64_t> k;
+  std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
+  return k;
+}
+
 std::vector<std::int64_t> all_voxels(const Volume& v) {
   std::vector<std::int64_t> k(static_cast<std::size_t>(v.voxel_count()));
   std::iota(k.begin(), k.end(), 0);
@@ -104,13 +115,7 @@ TEST(Delaunay, RandomLatticeSubsets) {
   std::mt19937 rng(5);
   for (int trial = 0; trial < 5; ++trial) {
     Volume v = make_volume({9, 7, 8}, ScalarType::f32);
-    std::vector<std::int64_t> kept;
-    for (std::int64_t i = 0; i < v.voxel_count(); ++i)
-      if (rng() % 4 == 0) kept.push_back(i);
-    auto c = volume_corners(v);
-    std::vector<std::int64_t> k;
-    std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
-    TetGrid g = build(v, k);
+    TetGrid g = build(v, random_kept(v, rng, 4));
     check_grid(v, g);
   }
 }
@@ -143,13 +148,7 @@ TEST(Gradients, LinearFieldIsExact) {
     for (std::int64_t y = 0; y < 8; ++y)
       for (std::int64_t x = 0; x < 9; ++x) v.set(v.index(x, y, z), 3 + 2 * (0.5 * x) - 1.5 * y + 0.25 * (2.0 * z));
   std::mt19937 rng(2);
-  std::vector<std::int64_t> kept;
-  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
-    if (rng() % 3 == 0) kept.push_back(i);
-  auto c = volume_corners(v);
-  std::vector<std::int64_t> k;
-  std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
-  TetGrid g = build(v, k);
+  TetGrid g = build(v, random_kept(v, rng, 3));
   for (const auto& gr : g.gradients) {
     EXPECT_NEAR(gr[0], 2.0, 1e-5);
     EXPECT_NEAR(gr[1], -1.5, 1e-5);
