@@ -14,5 +14,5 @@ echo "== ASan + UBSan build"
 cmake -S . -B build/asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DADAPTISO_SANITIZE=ON -DADAPTISO_BUILD_BENCH=OFF >/dev/null
 cmake --build build/asan -j "$JOBS"
 export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
-export LSAN_OPTIONS=suppressions=$(pwd)/tests/lsan.supp
+export LSAN_OPTIONS=suppressions=$(pwd)/tests/lsan.supp:print_suppressions=0
 (cd build/asan && ctest --output-on-failure -j "$JOBS" --timeout 1800)
