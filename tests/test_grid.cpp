@@ -183,14 +183,26 @@ TEST(GridFile, RoundTripIsBitIdentical) {
   ReduceOptions o;
   o.max_error = 30;
   TetGrid g = build(s, reduce(s, o).kept);
-  save_grid(g, t / "a.adg");
-  TetGrid h = load_grid(t / "a.adg");
+  IntervalTree idx = build_interval_tree(g, 5);
+  save_grid(g, t / "a.adg", "{}", &idx);
+  IntervalTree loaded;
+  TetGrid h = load_grid(t / "a.adg", nullptr, &loaded);
+  EXPECT_EQ(loaded.depth, idx.depth);
+  EXPECT_EQ(loaded.by_min, idx.by_min);
+  EXPECT_EQ(loaded.by_max, idx.by_max);
+  ASSERT_EQ(loaded.nodes.size(), idx.nodes.size());
+  for (std::size_t i = 0; i < idx.nodes.size(); ++i) {
+    EXPECT_EQ(loaded.nodes[i].split, idx.nodes[i].split);
+    EXPECT_EQ(loaded.nodes[i].begin, idx.nodes[i].begin);
+    EXPECT_EQ(loaded.nodes[i].lo, idx.nodes[i].lo);
+    EXPECT_EQ(loaded.nodes[i].hi, idx.nodes[i].hi);
+  }
   EXPECT_EQ(h.ijk, g.ijk);
   EXPECT_EQ(h.values, g.values);
   EXPECT_EQ(h.gradients, g.gradients);
   EXPECT_EQ(h.tets, g.tets);
   EXPECT_EQ(h.source.dims, g.source.dims);
-  save_grid(h, t / "b.adg");
+  save_grid(h, t / "b.adg", "{}", &loaded);
   std::ifstream a(t / "a.adg", std::ios::binary), b(t / "b.adg", std::ios::binary);
   std::string sa((std::istreambuf_iterator<char>(a)), {}), sb((std::istreambuf_iterator<char>(b)), {});
   EXPECT_EQ(sa, sb);
@@ -202,12 +214,15 @@ TEST(GridFile, EveryTruncationAndRandomCorruptionIsRefused) {
   ReduceOptions o;
   o.max_error = 50;
   TetGrid g = build(s, reduce(s, o).kept);
-  save_grid(g, t / "a.adg");
+  IntervalTree idx = build_interval_tree(g, 3);
+  save_grid(g, t / "a.adg", "{}", &idx);
+  IntervalTree loaded;
+  ASSERT_NO_THROW(load_grid(t / "a.adg", nullptr, &loaded));
   std::ifstream a(t / "a.adg", std::ios::binary);
   const std::string full((std::istreambuf_iterator<char>(a)), {});
   for (std::size_t len = 0; len < full.size(); ++len) {
     testutil::write_bytes(t / "t.adg", full.substr(0, len));
-    EXPECT_THROW(load_grid(t / "t.adg"), InputError) << "length " << len;
+    EXPECT_THROW(load_grid(t / "t.adg", nullptr, &loaded), InputError) << "length " << len;
   }
   std::mt19937 rng(9);
   for (int trial = 0; trial < 300; ++trial) {
@@ -215,7 +230,7 @@ TEST(GridFile, EveryTruncationAndRandomCorruptionIsRefused) {
     int flips = 1 + static_cast<int>(rng() % 4);
     for (int f = 0; f < flips; ++f) c[rng() % c.size()] ^= static_cast<char>(1 + rng() % 255);
     testutil::write_bytes(t / "c.adg", c);
-    EXPECT_THROW(load_grid(t / "c.adg"), InputError) << "trial " << trial;
+    EXPECT_THROW(load_grid(t / "c.adg", nullptr, &loaded), InputError) << "trial " << trial;
   }
   testutil::write_bytes(t / "f.adg", "hello, not a grid at all, but long enough to have a header.............");
   EXPECT_THROW(load_grid(t / "f.adg"), InputError);

@@ -6,73 +6,51 @@
 
 #include "adaptiso/gradients.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "adaptiso/interval_tree.hpp"
 #include "adaptiso/point_cloud.hpp"
 #include "adaptiso/tetrahedralize.hpp"
 #include "cli_common.hpp"
+#include "pipeline.hpp"
 #include "reduce_options.hpp"
 
 namespace adaptiso::cli {
 
 void add_prepare(CLI::App& app) {
-  auto* cmd = app.add_subcommand("prepare", "Reduce, tetrahedralize and compute gradients; save the grid (.adg)");
+  auto* cmd = app.add_subcommand("prepare", "Reduce, tetrahedralize, compute gradients and the extraction index; save the grid (.adg)");
   auto in = std::make_shared<VolumeInput>();
   auto rf = std::make_shared<ReduceFlags>();
+  auto pf = std::make_shared<PipelineFlags>();
   auto out = std::make_shared<OutputFlags>();
   auto output = std::make_shared<std::string>();
-  auto sequential = std::make_shared<bool>(false);
   in->add(cmd);
   rf->add(cmd);
+  pf->add(cmd);
   out->add(cmd);
   cmd->add_option("-o,--output", *output, "Grid file (.adg)")->required();
-  cmd->add_flag("--sequential-delaunay", *sequential, "Use CGAL's sequential triangulation (the parallel one is the default)");
   cmd->callback([=] {
     auto t_all = Clock::now();
     Volume v = in->load();
     double t_load = seconds_since(t_all);
     TerminalProgress tp(!out->quiet && !out->json);
-    auto cb = tp.callback();
-    ReduceOptions o = rf->options();
-    auto t0 = Clock::now();
-    ReduceResult r = reduce(v, o, cb);
-    double t_reduce = seconds_since(t0);
-    TetGrid g;
-    auto range = value_range(v);
-    g.source = {v.dims, v.spacing, v.origin, v.direction, std::string(scalar_name(v.type)), range.min, range.max,
-                rf->method, r.max_error, r.threshold, in->path};
-    t0 = Clock::now();
-    TetrahedralizeOptions topt;
-    topt.parallel = !*sequential;
-    tetrahedralize(v, r.kept, g, topt, cb);
-    double t_tet = seconds_since(t0);
-    t0 = Clock::now();
-    {
-      VertexRings rings = vertex_rings(g);
-      compute_gradients(g, rings, cb);
-    }
-    double t_grad = seconds_since(t0);
-    t0 = Clock::now();
-    ReconstructionError pl = piecewise_linear_error(v, g, cb);
-    double t_pl = seconds_since(t0);
+    Prepared p = prepare_grid(v, in->path, *rf, *pf, tp.callback());
     tp.finish();
-    nlohmann::json j = {{"voxels", v.voxel_count()},
-                        {"kept", g.vertex_count()},
-                        {"ratio", static_cast<double>(g.vertex_count()) / static_cast<double>(v.voxel_count())},
-                        {"tetrahedra", g.tet_count()},
-                        {"max_error", r.max_error},
-                        {"pl_max_error", pl.max},
-                        {"pl_rms_error", pl.rms},
-                        {"seconds", {{"load", t_load}, {"reduce", t_reduce}, {"tetrahedralize", t_tet}, {"gradients", t_grad}, {"pl_error", t_pl}}}};
-    t0 = Clock::now();
-    save_grid(g, *output, nlohmann::json{{"prepare", j}}.dump());
+    nlohmann::json j = p.stats;
+    j["seconds"]["load"] = t_load;
+    auto t0 = Clock::now();
+    save_grid(p.grid, *output, nlohmann::json{{"prepare", j}}.dump(), &p.index);
     j["seconds"]["save"] = seconds_since(t0);
     j["seconds"]["total"] = seconds_since(t_all);
     j["output"] = *output;
     j["bytes"] = std::filesystem::file_size(*output);
     if (out->json) return print_json(j);
     if (out->quiet) return;
+    const auto& s = j["seconds"];
     std::cout << fmt::format("kept {} of {} voxels, {} tetrahedra; piecewise-linear error max {:.6g} rms {:.6g} (bound {:.6g})\n",
-                             g.vertex_count(), v.voxel_count(), g.tet_count(), pl.max, pl.rms, r.max_error)
-              << fmt::format("reduce {:.3f} s, tetrahedralize {:.3f} s, gradients {:.3f} s\nwrote {}\n", t_reduce, t_tet, t_grad, *output);
+                             p.grid.vertex_count(), v.voxel_count(), p.grid.tet_count(), j["pl_max_error"].get<double>(),
+                             j["pl_rms_error"].get<double>(), j["max_error"].get<double>())
+              << fmt::format("reduce {:.3f} s, tetrahedralize {:.3f} s, gradients {:.3f} s, index {:.3f} s\nwrote {}\n",
+                             s["reduce"].get<double>(), s["tetrahedralize"].get<double>(), s["gradients"].get<double>(),
+                             s["index"].get<double>(), *output);
   });
 }
 
@@ -92,22 +70,7 @@ void add_export(CLI::App& app) {
     if (ext == ".vtu") {
       write_vtu(g, *output);
     } else if (ext == ".ply") {
-      Volume geo;
-      geo.dims = g.source.dims;
-      geo.spacing = g.source.spacing;
-      geo.origin = g.source.origin;
-      geo.direction = g.source.direction;
-      geo.type = ScalarType::f64;
-      // The point cloud writer reads values from a volume; build a sparse stand-in of the vertices.
-      std::vector<std::int64_t> kept(g.vertex_count());
-      Volume vals = geo;
-      vals.bytes.assign(static_cast<std::size_t>(geo.dims[0] * geo.dims[1] * geo.dims[2]) * 8, 0);
-      for (std::size_t i = 0; i < g.vertex_count(); ++i) {
-        kept[i] = geo.index(g.ijk[i][0], g.ijk[i][1], g.ijk[i][2]);
-        vals.set(kept[i], g.values[i]);
-      }
-      std::sort(kept.begin(), kept.end());
-      write_points_ply(*output, vals, kept);
+      write_points_ply(*output, g);
     } else {
       throw InputError(fmt::format("{}: unknown output type '{}' (use .vtu or .ply)", *output, ext));
     }

@@ -20,8 +20,8 @@ int main(int argc, char** argv) {
   adaptiso::cli::add_reduce(app);
   adaptiso::cli::add_prepare(app);
   adaptiso::cli::add_export(app);
-  //ADD_extract
-  //ADD_run
+  adaptiso::cli::add_extract(app);
+  adaptiso::cli::add_run(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -2,27 +2,34 @@
 //
 // Layout (little-endian):
 //   0   char[16]  magic "ADAPTISO-GRID\0\0\0"
-//   16  u32       version (1)
-//   20  u32       flags (0)
+//   16  u32       version (2; version 1 files, without the index, are still read)
+//   20  u32       flags (bit 0: the extraction index follows the tetrahedra)
 //   24  u64       M, bytes of metadata
 //   32  u64       N, vertices
 //   40  u64       T, tetrahedra
-//   48  char[M]   metadata: UTF-8 JSON (source dims, spacing, origin, direction, value range,
+//   48  u64       E, index entries (non-constant tetrahedra)       [version 2]
+//   56  u32       D, index depth; u32 reserved                      [version 2]
+//   64  char[M]   metadata: UTF-8 JSON (source dims, spacing, origin, direction, value range,
 //                 reduction settings, timings)
 //       u32[N][3] ijk;  f64[N] values;  f32[N][3] gradients;  u32[T][4] tets
+//       index: (f64 split, u64 begin, u64 end)[2^(D+1) - 1];  u32[E] by_min;  u32[E] by_max
 //       u32       CRC-32 (zlib) of every preceding byte
 // Loading checks the magic, version, that the file size is exactly what the counts imply (so no
 // allocation exceeds the file), the checksum, tetrahedron indices and finite values, and refuses
-// anything else with InputError naming the file.
+// anything else with InputError naming the file; the index is checked against the grid
+// (validate_interval_tree).
 #pragma once
 #include <string>
 
+#include "adaptiso/interval_tree.hpp"
 #include "adaptiso/tet_grid.hpp"
 
 namespace adaptiso {
 
-void save_grid(const TetGrid& grid, const std::string& path, const std::string& extra_metadata_json = "{}");
-TetGrid load_grid(const std::string& path, std::string* metadata_json = nullptr);
+void save_grid(const TetGrid& grid, const std::string& path, const std::string& extra_metadata_json = "{}",
+               const IntervalTree* index = nullptr);
+// With `index`, fills it from the file, or builds it when the file has none.
+TetGrid load_grid(const std::string& path, std::string* metadata_json = nullptr, IntervalTree* index = nullptr);
 
 // VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
 // point data "value" and "gradient" (world frame). Written atomically.

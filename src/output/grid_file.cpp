@@ -15,8 +15,10 @@ namespace adaptiso {
 namespace {
 
 constexpr char kMagic[16] = {'A', 'D', 'A', 'P', 'T', 'I', 'S', 'O', '-', 'G', 'R', 'I', 'D', 0, 0, 0};
-constexpr std::uint32_t kVersion = 1;
-constexpr std::uint64_t kHeader = 48;
+constexpr std::uint32_t kVersion = 2;
+constexpr std::uint64_t kHeaderV1 = 48, kHeader = 64;
+constexpr std::uint32_t kHasIndex = 1;
+constexpr std::uint64_t kNodeBytes = 24;  // f64 split, u64 begin, u64 end
 
 nlohmann::json source_json(const GridSource& s) {
   return {{"dims", s.dims},       {"spacing", s.spacing},     {"origin", s.origin}, {"direction", s.direction},
@@ -47,7 +49,7 @@ private:
 
 }  // namespace
 
-void save_grid(const TetGrid& g, const std::string& path, const std::string& extra) {
+void save_grid(const TetGrid& g, const std::string& path, const std::string& extra, const IntervalTree* index) {
   nlohmann::json meta = {{"source", source_json(g.source)}};
   auto ex = nlohmann::json::parse(extra, nullptr, false);
   if (!ex.is_discarded() && ex.is_object())
@@ -57,42 +59,70 @@ void save_grid(const TetGrid& g, const std::string& path, const std::string& ext
     CrcWriter w(out);
     w.write(kMagic, 16);
     w.put(kVersion);
-    w.put(std::uint32_t{0});
+    w.put(index ? kHasIndex : std::uint32_t{0});
     w.put(static_cast<std::uint64_t>(m.size()));
     w.put(static_cast<std::uint64_t>(g.vertex_count()));
     w.put(static_cast<std::uint64_t>(g.tet_count()));
+    w.put(static_cast<std::uint64_t>(index ? index->entries() : 0));
+    w.put(index ? index->depth : std::uint32_t{0});
+    w.put(std::uint32_t{0});
     w.write(m.data(), m.size());
     w.write(g.ijk.data(), g.ijk.size() * sizeof g.ijk[0]);
     w.write(g.values.data(), g.values.size() * sizeof(double));
     w.write(g.gradients.data(), g.gradients.size() * sizeof g.gradients[0]);
     w.write(g.tets.data(), g.tets.size() * sizeof g.tets[0]);
+    if (index) {
+      for (const auto& n : index->nodes) {
+        w.put(n.split);
+        w.put(n.begin);
+        w.put(n.end);
+      }
+      w.write(index->by_min.data(), index->by_min.size() * 4);
+      w.write(index->by_max.data(), index->by_max.size() * 4);
+    }
     std::uint32_t c = w.crc();
     out.write(reinterpret_cast<const char*>(&c), 4);
   });
 }
 
-TetGrid load_grid(const std::string& path, std::string* metadata_json) {
+TetGrid load_grid(const std::string& path, std::string* metadata_json, IntervalTree* index) {
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
   const std::uint64_t size = static_cast<std::uint64_t>(in.tellg());
   in.seekg(0);
-  if (size < kHeader + 4) throw InputError(fmt::format("{}: not an adaptiso grid file (too short)", path));
-  unsigned char h[kHeader];
-  in.read(reinterpret_cast<char*>(h), kHeader);
+  if (size < kHeaderV1 + 4) throw InputError(fmt::format("{}: not an adaptiso grid file (too short)", path));
+  unsigned char h[kHeader] = {};
+  in.read(reinterpret_cast<char*>(h), kHeaderV1);
   if (std::memcmp(h, kMagic, 16) != 0) throw InputError(fmt::format("{}: not an adaptiso grid file (bad magic)", path));
-  std::uint32_t version;
-  std::uint64_t M, N, T;
+  std::uint32_t version, flags, depth = 0;
+  std::uint64_t M, N, T, E = 0;
   std::memcpy(&version, h + 16, 4);
+  std::memcpy(&flags, h + 20, 4);
   std::memcpy(&M, h + 24, 8);
   std::memcpy(&N, h + 32, 8);
   std::memcpy(&T, h + 40, 8);
-  if (version != kVersion) throw InputError(fmt::format("{}: grid file version {} is not supported (this build reads {})", path, version, kVersion));
+  if (version != 1 && version != kVersion)
+    throw InputError(fmt::format("{}: grid file version {} is not supported (this build reads 1 and {})", path, version, kVersion));
+  std::uint64_t header = kHeaderV1;
+  if (version >= 2) {
+    header = kHeader;
+    if (size < kHeader + 4) throw InputError(fmt::format("{}: grid file is truncated", path));
+    in.read(reinterpret_cast<char*>(h + kHeaderV1), kHeader - kHeaderV1);
+    std::memcpy(&E, h + 48, 8);
+    std::memcpy(&depth, h + 56, 4);
+  }
+  const bool has_index = version >= 2 && (flags & kHasIndex);
+  if ((version == 1 && flags != 0) || (version >= 2 && (flags & ~kHasIndex)) || depth > 30 || (!has_index && (E || depth)))
+    throw InputError(fmt::format("{}: grid file is corrupt (bad header flags)", path));
+  const std::uint64_t nodes = has_index ? (std::uint64_t{2} << depth) - 1 : 0;
   // The size the counts imply must be the file's size; checked without overflow before allocating.
   const std::uint64_t per_vertex = 12 + 8 + 12, per_tet = 16;
-  if (M > size || N > size / per_vertex || T > size / per_tet || kHeader + 4 + M + N * per_vertex + T * per_tet != size)
+  if (M > size || N > size / per_vertex || T > size / per_tet || E > T || nodes > size / kNodeBytes ||
+      header + 4 + M + N * per_vertex + T * per_tet + nodes * kNodeBytes + E * 8 != size)
     throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
-  if (N > std::numeric_limits<std::uint32_t>::max()) throw InputError(fmt::format("{}: too many vertices", path));
-  uLong crc = crc32(crc32(0, nullptr, 0), h, kHeader);
+  if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
+    throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));
+  uLong crc = crc32(crc32(0, nullptr, 0), h, static_cast<uInt>(header));
   auto read = [&](void* p, std::size_t n) {
     in.read(static_cast<char*>(p), static_cast<std::streamsize>(n));
     if (static_cast<std::size_t>(in.gcount()) != n) throw InputError(fmt::format("{}: grid file is truncated", path));
@@ -114,6 +144,22 @@ TetGrid load_grid(const std::string& path, std::string* metadata_json) {
   read(g.values.data(), N * 8);
   read(g.gradients.data(), N * 12);
   read(g.tets.data(), T * 16);
+  IntervalTree tree;
+  if (has_index) {
+    tree.depth = depth;
+    tree.nodes.resize(nodes);
+    std::vector<unsigned char> raw(nodes * kNodeBytes);
+    read(raw.data(), raw.size());
+    for (std::uint64_t i = 0; i < nodes; ++i) {
+      std::memcpy(&tree.nodes[i].split, &raw[i * kNodeBytes], 8);
+      std::memcpy(&tree.nodes[i].begin, &raw[i * kNodeBytes + 8], 8);
+      std::memcpy(&tree.nodes[i].end, &raw[i * kNodeBytes + 16], 8);
+    }
+    tree.by_min.resize(E);
+    tree.by_max.resize(E);
+    read(tree.by_min.data(), E * 4);
+    read(tree.by_max.data(), E * 4);
+  }
   std::uint32_t stored;
   in.read(reinterpret_cast<char*>(&stored), 4);
   if (static_cast<std::uint32_t>(crc) != stored) throw InputError(fmt::format("{}: grid file is corrupt (checksum mismatch)", path));
@@ -144,6 +190,15 @@ TetGrid load_grid(const std::string& path, std::string* metadata_json) {
     if (!std::isfinite(g.values[i])) throw InputError(fmt::format("{}: vertex {} has a non-finite value", path, i));
     for (int a = 0; a < 3; ++a)
       if (g.ijk[i][a] >= static_cast<std::uint64_t>(g.source.dims[a])) throw InputError(fmt::format("{}: vertex {} lies outside the volume", path, i));
+  }
+  if (index) {
+    if (has_index) {
+      validate_interval_tree(tree, g, path);
+      finish_interval_tree(tree, g);
+      *index = std::move(tree);
+    } else {
+      *index = build_interval_tree(g);  // a version 1 file: build the index now
+    }
   }
   if (metadata_json) *metadata_json = meta;
   return g;

@@ -1,0 +1,49 @@
+// adaptiso/extract.hpp — iso-surfaces from the tetrahedral grid: marching tetrahedra (Lürig &
+// Ertl §2.4) over the active tetrahedra found by sweeping simplices.
+//
+// Rule for ties: a vertex whose value equals the iso-value counts as above it, so a tetrahedron
+// is cut iff min < iso <= max, and each cut edge joins a vertex below and one at or above. Each cut
+// grid edge gives exactly one mesh vertex (shared by every triangle using it), so a closed surface
+// is watertight and 2-manifold. Cut points are kept at least 1/1024 of the edge length away from
+// the edge's ends, so no triangle collapses when vertices lie exactly on the iso-value (the surface
+// then passes within that distance of them, as if the iso-value were lowered infinitesimally).
+// Normals are the linearly interpolated vertex gradients, normalised and negated: they point
+// towards lower values (outward for a bright object); triangles are counter-clockwise seen from
+// that side. Output order: triangles in the order of the active list, vertices by first use.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "adaptiso/interval_tree.hpp"
+#include "adaptiso/mesh.hpp"
+#include "adaptiso/tet_grid.hpp"
+
+namespace adaptiso {
+
+// Marching tetrahedra over the given tetrahedra (each must be active at iso). Replaces mesh.
+void march_tetrahedra(const TetGrid& grid, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh);
+
+struct ExtractStats {
+  double iso = 0;
+  std::size_t active = 0, triangles = 0, vertices = 0;
+  std::uint64_t walked = 0;  // list entries the sweep visited
+  double sweep_seconds = 0, march_seconds = 0;
+  bool in_range = true;      // false when iso lies outside [min, max] of the grid (empty mesh)
+};
+
+// One client's extraction: keeps its sweep state, so a small change of iso-value walks little.
+class Extractor {
+public:
+  Extractor(const TetGrid& grid, const IntervalTree& tree) : grid_(grid), tree_(tree) {}
+  ExtractStats extract(double iso, Mesh& mesh);
+  const std::vector<std::uint32_t>& active() const { return active_; }  // of the last extract
+  const SweepState& state() const { return state_; }
+
+private:
+  const TetGrid& grid_;
+  const IntervalTree& tree_;
+  SweepState state_;
+  std::vector<std::uint32_t> active_;
+};
+
+}  // namespace adaptiso

@@ -1,0 +1,80 @@
+// adaptiso/interval_tree.hpp — sweeping simplices (Lürig & Ertl §2.4): which tetrahedra does the
+// iso-surface cut?
+//
+// A tetrahedron with value range [tmin, tmax] is *active* at iso-value c when tmin < c <= tmax
+// (a vertex equal to c counts as above it, the one rule used everywhere). Constant tetrahedra are
+// never active and are left out. The tree is binary with a fixed depth over the value range; each
+// node has a split value chosen as the median of the midpoints of the tetrahedra that reach it (so
+// the tree is as balanced as the data allows), and a tetrahedron lives in the shallowest node whose
+// split it straddles (tmin < split < tmax), i.e. the smallest node whose interval covers it; leaves
+// keep the rest. Each node's tetrahedra appear twice: in `by_min` sorted by tmin and in `by_max`
+// sorted by tmax (ties by id), in the same [begin, end) range of both arrays.
+//
+// The tree is immutable and shared; a SweepState holds one client's position in it (the paper's
+// per-node positions of the iso-value in both lists and the per-tetrahedron flags, indexed by
+// tetrahedron id, which is the cross reference between the two lists). Moving the iso-value walks
+// only the list entries between the old and the new positions. Any number of threads may use one
+// tree with separate states.
+#pragma once
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "adaptiso/tet_grid.hpp"
+
+namespace adaptiso {
+
+struct IntervalTree {
+  struct Node {
+    double split = 0;                                      // values <= split go left
+    double lo = std::numeric_limits<double>::infinity();   // smallest tmin in the subtree
+    double hi = -std::numeric_limits<double>::infinity();  // largest tmax in the subtree
+    std::uint64_t begin = 0, end = 0;                      // this node's entries in by_min / by_max
+  };
+  std::uint32_t depth = 0;  // a root-only tree has depth 0
+  std::vector<Node> nodes;  // complete binary tree, 2^(depth+1) - 1 nodes; children of i: 2i+1, 2i+2
+  std::vector<std::uint32_t> by_min, by_max;
+
+  bool is_leaf(std::size_t i) const { return 2 * i + 1 >= nodes.size(); }
+  std::size_t entries() const { return by_min.size(); }
+};
+
+constexpr std::uint32_t kDefaultTreeDepth = 14;  // chosen by bench_extract (see README)
+
+// Builds the tree over grid.tets and grid.values; depth is reduced when the grid has fewer
+// tetrahedra than leaves. Parallel.
+IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth = kDefaultTreeDepth);
+
+// Checks a tree loaded from disk against its grid: sizes, ranges nested in pre-order, every
+// non-constant tetrahedron exactly once in each list, lists sorted, entries straddling their split.
+// Throws InputError(what + ...) on the first violation.
+void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const std::string& what);
+
+// Recomputes the derived per-node bounds (lo, hi) of a tree whose splits and lists were loaded.
+void finish_interval_tree(IntervalTree& tree, const TetGrid& grid);
+
+struct SweepState {
+  double iso = 0;
+  bool valid = false;                // false until the first sweep_to
+  std::vector<std::uint32_t> pmin;   // per node: entries of by_min with tmin < iso
+  std::vector<std::uint32_t> pmax;   // per node: entries of by_max with tmax < iso
+  std::vector<std::uint8_t> flags;   // per tetrahedron: bit 0 tmin < iso, bit 1 tmax >= iso
+  std::uint64_t walked = 0;          // list entries visited by the last sweep (statistics)
+};
+
+// Moves the state to iso: the first call initialises every node (binary searches, O(T)); later
+// calls walk only the entries whose tmin or tmax lies between the old and the new value, in the
+// nodes whose subtree range meets that interval.
+void sweep_to(const IntervalTree& tree, const TetGrid& grid, SweepState& state, double iso);
+
+// The active tetrahedra of a swept state, appended to out in a deterministic order (root to leaf,
+// list order within a node): prefixes and suffixes of the lists on the path, flags in the leaf.
+void active_tetrahedra(const IntervalTree& tree, const SweepState& state, std::vector<std::uint32_t>& out);
+
+// A fresh query without a state: binary searches on the root-to-leaf path. Same order as above.
+void query_active(const IntervalTree& tree, const TetGrid& grid, double iso, std::vector<std::uint32_t>& out);
+
+// The reference: test every tetrahedron (parallel), ascending ids.
+void scan_active(const TetGrid& grid, double iso, std::vector<std::uint32_t>& out);
+
+}  // namespace adaptiso

@@ -1,0 +1,369 @@
+// Extraction (§2.4): the interval tree against the brute-force scan, marching tetrahedra against
+// analytic fields (plane, sphere), mesh topology (watertight, manifold, oriented), the mesh files,
+// and the extract / run commands.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <numeric>
+#include <random>
+
+#include "adaptiso/extract.hpp"
+#include "adaptiso/gradients.hpp"
+#include "adaptiso/grid_file.hpp"
+#include "adaptiso/interval_tree.hpp"
+#include "adaptiso/mesh.hpp"
+#include "adaptiso/reduce.hpp"
+#include "adaptiso/synthetic.hpp"
+#include "adaptiso/tetrahedralize.hpp"
+#include "test_util.hpp"
+
+using namespace adaptiso;
+
+namespace {
+
+TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) {
+  TetGrid g;
+  auto r = value_range(v);
+  g.source.dims = v.dims;
+  g.source.spacing = v.spacing;
+  g.source.origin = v.origin;
+  g.source.direction = v.direction;
+  g.source.min = r.min;
+  g.source.max = r.max;
+  g.source.type = std::string(scalar_name(v.type));
+  g.source.method = "test";
+  tetrahedralize(v, kept, g);
+  VertexRings rings = vertex_rings(g);
+  compute_gradients(g, rings);
+  return g;
+}
+
+std::vector<std::int64_t> all_voxels(const Volume& v) {
+  std::vector<std::int64_t> k(static_cast<std::size_t>(v.voxel_count()));
+  std::iota(k.begin(), k.end(), 0);
+  return k;
+}
+
+// A random kept set (corners always) of a volume with small integer values: many ties, many
+// constant tetrahedra, many vertices exactly at the iso-values tried.
+TetGrid random_grid(std::mt19937& rng, int levels) {
+  Dims d{2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7)};
+  Volume v = make_volume(d, ScalarType::f32);
+  v.spacing = {1.0 + (rng() % 3) * 0.5, 1.0, 0.5 + (rng() % 2)};
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, double(rng() % levels));
+  std::vector<std::int64_t> kept;
+  auto corners = volume_corners(v);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
+    if (rng() % 3 != 0 || std::find(corners.begin(), corners.end(), i) != corners.end()) kept.push_back(i);
+  return build(v, kept);
+}
+
+std::vector<std::uint32_t> sorted(std::vector<std::uint32_t> a) {
+  std::sort(a.begin(), a.end());
+  return a;
+}
+
+struct Topology {
+  std::size_t boundary_edges = 0, nonmanifold_edges = 0, misoriented_edges = 0, degenerate = 0;
+  long long euler = 0;
+};
+
+// Edge use counts of an indexed mesh; an edge used once must lie on the volume's box.
+Topology topology(const Mesh& m, const GridSource& s, bool* boundary_ok = nullptr) {
+  std::map<std::pair<std::uint32_t, std::uint32_t>, std::pair<int, int>> edges;  // (a<b) → (uses a→b, uses b→a)
+  Topology t;
+  for (const auto& tri : m.triangles) {
+    if (tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2]) ++t.degenerate;
+    for (int e = 0; e < 3; ++e) {
+      std::uint32_t a = tri[e], b = tri[(e + 1) % 3];
+      auto& c = edges[{std::min(a, b), std::max(a, b)}];
+      (a < b ? c.first : c.second)++;
+    }
+  }
+  bool ok = true;
+  for (const auto& [k, c] : edges) {
+    int uses = c.first + c.second;
+    if (uses == 1) {
+      ++t.boundary_edges;
+      // Both ends on one face of the box (exactly: cut points on box edges have an exact coordinate).
+      bool on_face = false;
+      for (int a = 0; a < 3; ++a)
+        for (double f : {0.0, s.spacing[a] * double(s.dims[a] - 1)})
+          on_face |= m.positions[k.first][a] == float(f) && m.positions[k.second][a] == float(f);
+      ok &= on_face;
+    } else if (uses != 2) {
+      ++t.nonmanifold_edges;
+    } else if (c.first != 1) {
+      ++t.misoriented_edges;
+    }
+  }
+  if (boundary_ok) *boundary_ok = ok;
+  t.euler = static_cast<long long>(m.vertex_count()) - static_cast<long long>(edges.size()) + static_cast<long long>(m.triangle_count());
+  return t;
+}
+
+double triangle_area(const Mesh& m, const std::array<std::uint32_t, 3>& t) {
+  Mesh one;
+  one.positions = {m.positions[t[0]], m.positions[t[1]], m.positions[t[2]]};
+  one.triangles = {{0, 1, 2}};
+  return mesh_area(one);
+}
+
+}  // namespace
+
+TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 60; ++trial) {
+    const int levels = 2 + static_cast<int>(rng() % 6);
+    TetGrid g = random_grid(rng, levels);
+    const std::uint32_t depth = rng() % 7;
+    IntervalTree tree = build_interval_tree(g, depth);
+    ASSERT_NO_THROW(validate_interval_tree(tree, g, "test"));
+    SweepState state;
+    double iso = 0;
+    for (int step = 0; step < 40; ++step) {
+      switch (rng() % 5) {
+        case 0: iso = double(rng() % levels); break;                                  // exactly a vertex value
+        case 1: iso += ((rng() % 2) ? 1 : -1) * 0.25; break;                           // small steps up or down
+        case 2: iso = -3.0 + (rng() % 1000) * (levels + 6.0) / 1000; break;            // jumps, also outside the range
+        case 3: break;                                                                 // repeat
+        default: iso = std::nextafter(double(rng() % levels), (rng() % 2) ? 1e9 : -1e9);  // next to a value
+      }
+      sweep_to(tree, g, state, iso);
+      std::vector<std::uint32_t> inc, fresh, scan;
+      active_tetrahedra(tree, state, inc);
+      query_active(tree, g, iso, fresh);
+      scan_active(g, iso, scan);
+      ASSERT_EQ(inc, fresh) << "trial " << trial << " step " << step << " iso " << iso;  // same order too
+      ASSERT_EQ(sorted(inc), scan) << "trial " << trial << " step " << step << " iso " << iso;
+      // The same active list gives bit-identical meshes, whichever way it was found.
+      Mesh a, b;
+      march_tetrahedra(g, sorted(inc), iso, a);
+      march_tetrahedra(g, scan, iso, b);
+      ASSERT_EQ(a.positions, b.positions);
+      ASSERT_EQ(a.triangles, b.triangles);
+    }
+  }
+}
+
+TEST(IntervalTree, IsBalancedAndHoldsEachTetInItsSmallestNode) {
+  Volume v = make_synthetic("marschner-lobb", 24, ScalarType::f32);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g, 8);
+  EXPECT_EQ(tree.depth, 8u);
+  // The root's split sits at the median midpoint: each side gets at most half of the rest.
+  std::uint64_t left = tree.nodes[2].begin - tree.nodes[1].begin, total = tree.entries() - tree.nodes[0].end;
+  std::uint64_t right = total - left;
+  EXPECT_LE(std::max(left, right), total / 2 + total / 10 + 1);
+  // Smallest node: an interior node's entries straddle its split (validated); leaves go deeper than
+  // no interior node could hold them. Checked by the validator, which also must refuse damage.
+  EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
+  IntervalTree bad = tree;
+  std::swap(bad.by_min[0], bad.by_min[bad.by_min.size() - 1]);
+  EXPECT_THROW(validate_interval_tree(bad, g, "t"), InputError);
+  bad = tree;
+  bad.nodes[3].split += 1e9;
+  EXPECT_THROW(validate_interval_tree(bad, g, "t"), InputError);
+  bad = tree;
+  bad.by_max.pop_back();
+  EXPECT_THROW(validate_interval_tree(bad, g, "t"), InputError);
+}
+
+TEST(MarchingTets, LinearFieldGivesThePlaneWithItsNormal) {
+  Volume v = make_volume({9, 8, 7}, ScalarType::f64);
+  v.spacing = {0.5, 1.25, 2.0};
+  const double a = 1.5, b = -0.75, c = 0.4;  // value = a x + b y + c z in physical units
+  for (std::int64_t k = 0; k < 7; ++k)
+    for (std::int64_t j = 0; j < 8; ++j)
+      for (std::int64_t i = 0; i < 9; ++i) v.set(v.index(i, j, k), a * i * 0.5 + b * j * 1.25 + c * k * 2.0);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g);
+  Extractor ex(g, tree);
+  Mesh m;
+  const double norm = std::sqrt(a * a + b * b + c * c);
+  for (double iso : {0.1234, 1.00713, 2.71828}) {  // no vertex lies exactly on these
+    auto st = ex.extract(iso, m);
+    ASSERT_GT(st.triangles, 10u);
+    for (std::size_t i = 0; i < m.vertex_count(); ++i) {
+      const auto& p = m.positions[i];
+      EXPECT_NEAR(a * p[0] + b * p[1] + c * p[2], iso, 1e-5) << i;
+      EXPECT_NEAR(m.normals[i][0], -a / norm, 1e-5);
+      EXPECT_NEAR(m.normals[i][1], -b / norm, 1e-5);
+      EXPECT_NEAR(m.normals[i][2], -c / norm, 1e-5);
+    }
+    // Triangles face their normals (counter-clockwise seen from the lower side).
+    for (const auto& t : m.triangles) {
+      const auto &p0 = m.positions[t[0]], &p1 = m.positions[t[1]], &p2 = m.positions[t[2]];
+      double u[3], w[3];
+      for (int k = 0; k < 3; ++k) u[k] = double(p1[k]) - p0[k], w[k] = double(p2[k]) - p0[k];
+      double n[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+      EXPECT_LT(n[0] * a + n[1] * b + n[2] * c, 0);
+    }
+    auto topo = topology(m, g.source);
+    EXPECT_EQ(topo.nonmanifold_edges, 0u);
+    EXPECT_EQ(topo.misoriented_edges, 0u);
+    EXPECT_EQ(topo.euler, 1);  // a disc
+  }
+}
+
+TEST(MarchingTets, SphereIsClosedOrientedAndConverges) {
+  double prev_err = 1e9;
+  for (int n : {16, 28, 40}) {  // full grids: the reconstruction error shrinks with the voxel size
+    Volume v = make_synthetic("sphere", n, ScalarType::f32);
+    TetGrid g = build(v, all_voxels(v));
+    IntervalTree tree = build_interval_tree(g);
+    Extractor ex(g, tree);
+    Mesh m;
+    const double iso = 700;  // outside the core: value 1000 R / r, so r = R · 1000 / 700
+    ex.extract(iso, m);
+    auto topo = topology(m, g.source);
+    EXPECT_EQ(topo.boundary_edges, 0u) << n;
+    EXPECT_EQ(topo.nonmanifold_edges, 0u) << n;
+    EXPECT_EQ(topo.misoriented_edges, 0u) << n;
+    EXPECT_EQ(topo.degenerate, 0u) << n;
+    EXPECT_EQ(topo.euler, 2) << n;
+    // The sphere's centre and radius as the generator defines them (voxel units, spacing 1).
+    const double R = n / 4.0, r = R * 1000.0 / iso, c = (n - 1) / 2.0;
+    const double vol = mesh_volume(m), area = mesh_area(m);
+    EXPECT_GT(vol, 0) << "outward orientation gives a positive enclosed volume";
+    std::size_t outward = 0;
+    for (std::size_t i = 0; i < m.vertex_count(); ++i) {
+      const auto& p = m.positions[i];
+      const auto& q = m.normals[i];
+      outward += (p[0] - c) * q[0] + (p[1] - c) * q[1] + (p[2] - c) * q[2] > 0;
+    }
+    EXPECT_EQ(outward, m.vertex_count()) << n;
+    const double err = std::abs(vol / (4.0 / 3.0 * M_PI * r * r * r) - 1) + std::abs(area / (4 * M_PI * r * r) - 1);
+    EXPECT_LT(err, prev_err) << n;
+    prev_err = err;
+  }
+  EXPECT_LT(prev_err, 0.03);
+}
+
+TEST(MarchingTets, RandomGridsAreWatertightInsideTheBoxWithoutDegenerateTriangles) {
+  std::mt19937 rng(17);
+  std::size_t meshes = 0;
+  for (int trial = 0; trial < 80; ++trial) {
+    TetGrid g = random_grid(rng, 2 + static_cast<int>(rng() % 5));
+    IntervalTree tree = build_interval_tree(g, rng() % 6);
+    Extractor ex(g, tree);
+    Mesh m;
+    for (int q = 0; q < 6; ++q) {
+      // Half of the iso-values equal vertex values exactly: the tie rule must keep the mesh clean.
+      double iso = (q % 2) ? double(rng() % 5) : (rng() % 1000) / 200.0;
+      ex.extract(iso, m);
+      if (m.triangles.empty()) continue;
+      ++meshes;
+      bool boundary_ok = false;
+      auto topo = topology(m, g.source, &boundary_ok);
+      ASSERT_TRUE(boundary_ok) << "trial " << trial << " iso " << iso;
+      ASSERT_EQ(topo.nonmanifold_edges, 0u) << "trial " << trial << " iso " << iso;
+      ASSERT_EQ(topo.misoriented_edges, 0u) << "trial " << trial << " iso " << iso;
+      for (const auto& t : m.triangles) ASSERT_GT(triangle_area(m, t), 0) << "trial " << trial << " iso " << iso;
+    }
+  }
+  EXPECT_GT(meshes, 200u);
+}
+
+TEST(MarchingTets, OutsideTheRangeGivesAnEmptyMesh) {
+  Volume v = make_synthetic("sphere", 16, ScalarType::i16);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g);
+  Extractor ex(g, tree);
+  Mesh m;
+  auto st = ex.extract(g.source.max + 1, m);
+  EXPECT_FALSE(st.in_range);
+  EXPECT_EQ(st.triangles, 0u);
+  st = ex.extract(g.source.min, m);  // everything is at or above the minimum: nothing below
+  EXPECT_EQ(st.triangles, 0u);
+  EXPECT_THROW(ex.extract(std::nan(""), m), InputError);
+}
+
+TEST(MeshFiles, PlyRoundTripAndOtherFormats) {
+  testutil::TempDir t("mesh");
+  Volume v = make_synthetic("sphere", 20, ScalarType::i16);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g);
+  Extractor ex(g, tree);
+  Mesh m;
+  ex.extract(600, m);
+  ASSERT_GT(m.triangle_count(), 100u);
+  write_mesh(m, t / "a.ply");
+  Mesh r = read_ply(t / "a.ply");
+  EXPECT_EQ(r.positions, m.positions);
+  EXPECT_EQ(r.normals, m.normals);
+  EXPECT_EQ(r.triangles, m.triangles);
+  write_mesh(m, t / "a.stl");
+  EXPECT_EQ(std::filesystem::file_size(t / "a.stl"), 84 + 50 * m.triangle_count());
+  write_mesh(m, t / "a.obj");
+  std::ifstream obj(t / "a.obj");
+  std::size_t v_lines = 0, f_lines = 0;
+  for (std::string line; std::getline(obj, line);) {
+    v_lines += line.rfind("v ", 0) == 0;
+    f_lines += line.rfind("f ", 0) == 0;
+  }
+  EXPECT_EQ(v_lines, m.vertex_count());
+  EXPECT_EQ(f_lines, m.triangle_count());
+  write_mesh(m, t / "a.glb");
+  std::ifstream glb(t / "a.glb", std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(glb)), {});
+  ASSERT_GT(bytes.size(), 20u);
+  EXPECT_EQ(bytes.substr(0, 4), "glTF");
+  std::uint32_t total, json_len;
+  std::memcpy(&total, bytes.data() + 8, 4);
+  std::memcpy(&json_len, bytes.data() + 12, 4);
+  EXPECT_EQ(total, bytes.size());
+  auto j = nlohmann::json::parse(bytes.substr(20, json_len));
+  EXPECT_EQ(j["accessors"][0]["count"], m.vertex_count());
+  EXPECT_EQ(j["accessors"][2]["count"], 3 * m.triangle_count());
+  EXPECT_THROW(write_mesh(m, t / "a.xyz"), InputError);
+  // A damaged PLY is refused.
+  std::ifstream in(t / "a.ply", std::ios::binary);
+  std::string ply((std::istreambuf_iterator<char>(in)), {});
+  testutil::write_bytes(t / "cut.ply", ply.substr(0, ply.size() / 2));
+  EXPECT_THROW(read_ply(t / "cut.ply"), InputError);
+}
+
+TEST(ExtractCli, RunExtractSeveralIsoValuesAndBadInput) {
+  testutil::TempDir t("extract");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 50 -o " + (t / "s.nrrd")).code, 0);
+  auto r = testutil::run_cli("run " + (t / "s.nrrd") + " --relative --max-error 0.15 --iso 0.7 --json -o " + (t / "s.ply") +
+                             " --save-grid " + (t / "s.adg"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["surfaces"].size(), 1u);
+  const nlohmann::json s0 = j["surfaces"][0];
+  for (const char* k : {"iso", "triangles", "vertices", "active_tetrahedra", "seconds"}) EXPECT_TRUE(s0.contains(k)) << k;
+  Mesh m = read_ply(t / "s.ply");
+  EXPECT_EQ(m.triangle_count(), s0["triangles"].get<std::size_t>());
+  EXPECT_EQ(topology(m, GridSource{}).boundary_edges, 0u);
+
+  r = testutil::run_cli("extract " + (t / "s.adg") + " --relative --iso 0.7,0.72,2 --json -o " + (t / "m.obj"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["surfaces"].size(), 3u);
+  EXPECT_EQ(j["surfaces"][0]["triangles"], s0["triangles"]);  // same grid, same iso: same surface
+  EXPECT_TRUE(std::filesystem::exists(t / "m-0.7.obj"));
+  EXPECT_TRUE(std::filesystem::exists(t / "m-0.72.obj"));
+  EXPECT_FALSE(j["surfaces"][2]["in_range"].get<bool>());
+  EXPECT_EQ(j["surfaces"][2]["triangles"], 0);
+  r = testutil::run_cli("extract " + (t / "s.adg") + " --iso 900 -o " + (t / "m.ply"));
+  EXPECT_EQ(r.code, 0);
+  EXPECT_NE(r.out.find("triangles"), std::string::npos);
+
+  for (std::string bad : {"extract " + (t / "s.adg") + " --iso abc -o " + (t / "x.ply"),
+                          "extract " + (t / "s.adg") + " --iso 1 -o " + (t / "x.txt"),
+                          "extract " + (t / "s.nrrd") + " --iso 1 -o " + (t / "x.ply"),
+                          "extract " + (t / "missing.adg") + " --iso 1 -o " + (t / "x.ply"),
+                          "run " + (t / "s.nrrd") + " --iso nan -o " + (t / "x.ply")}) {
+    auto b = testutil::run_cli(bad);
+    EXPECT_EQ(b.code, 2) << bad;
+    EXPECT_EQ(std::count(b.err.begin(), b.err.end(), '\n'), 1) << bad << ": " << b.err;
+    EXPECT_FALSE(std::filesystem::exists(t / "x.ply"));
+  }
+}
