@@ -11,6 +11,7 @@
 #include <map>
 #include <numeric>
 #include <random>
+#include <set>
 
 #include "adaptiso/extract.hpp"
 #include "adaptiso/gradients.hpp"
@@ -268,6 +269,35 @@ TEST(MarchingTets, RandomGridsAreWatertightInsideTheBoxWithoutDegenerateTriangle
     }
   }
   EXPECT_GT(meshes, 200u);
+}
+
+TEST(MarchingTets, ParallelNumberingEqualsSequentialFirstUse) {
+  Volume v = make_synthetic("marschner-lobb", 20, ScalarType::f32);
+  TetGrid g = build(v, all_voxels(v));
+  std::vector<std::uint32_t> act;
+  const double iso = 0.5 * (g.source.min + g.source.max);
+  scan_active(g, iso, act);
+  Mesh one, many;
+  MarchScratch s1, s2;
+  s1.parallel_min_triangles = ~std::size_t{0};
+  s2.parallel_min_triangles = 1;
+  march_tetrahedra(g, act, iso, one, &s1);
+  for (int run = 0; run < 3; ++run) {
+    march_tetrahedra(g, act, iso, many, &s2);
+    ASSERT_EQ(one.triangles, many.triangles);
+    ASSERT_EQ(one.positions, many.positions);
+  }
+  // First-use order: scanning the corners, each new vertex is the next id.
+  std::uint32_t next = 0;
+  for (const auto& t : one.triangles)
+    for (auto id : t) {
+      ASSERT_LE(id, next);
+      if (id == next) ++next;
+    }
+  EXPECT_EQ(next, one.vertex_count());
+  // Distinct cut edges give distinct points.
+  std::set<std::array<float, 3>> pts(one.positions.begin(), one.positions.end());
+  EXPECT_EQ(pts.size(), one.vertex_count());
 }
 
 TEST(MarchingTets, OutsideTheRangeGivesAnEmptyMesh) {

@@ -9,9 +9,12 @@
 // then passes within that distance of them, as if the iso-value were lowered infinitesimally).
 // Normals are the linearly interpolated vertex gradients, normalised and negated: they point
 // towards lower values (outward for a bright object); triangles are counter-clockwise seen from
-// that side. Output order: triangles in the order of the active list, vertices by first use.
+// that side. Output order: triangles in the order of the active list, vertices by first use; the
+// Extractor sorts its active list by tetrahedron id, so its meshes are canonical (the same for any
+// history of iso-values) and memory access follows the grid's spatial order.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "adaptiso/interval_tree.hpp"
@@ -20,8 +23,27 @@
 
 namespace adaptiso {
 
+// Reusable buffers of march_tetrahedra (so repeated extractions do not fault in fresh pages).
+class EdgeMap;
+struct MarchScratch {
+  struct Chunk {
+    std::vector<std::uint64_t> slots, order;
+    std::vector<std::uint32_t> ids, local, owner, owner_id, global;
+    std::shared_ptr<EdgeMap> map;
+    std::size_t owned = 0;
+  };
+  std::vector<std::uint8_t> codes;
+  std::vector<std::uint64_t> first_triangle, keys, order;
+  std::vector<Chunk> chunks;
+  std::size_t parallel_min_triangles = 65536;  // below this, one chunk (tests lower it)
+};
+
 // Marching tetrahedra over the given tetrahedra (each must be active at iso). Replaces mesh.
-void march_tetrahedra(const TetGrid& grid, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh);
+void march_tetrahedra(const TetGrid& grid, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh,
+                      MarchScratch* scratch = nullptr);
+
+// Sorts a list of distinct tetrahedron ids ascending through a bitmap (O(T/64 + n), parallel).
+void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std::vector<std::uint64_t>& bitmap);
 
 struct ExtractStats {
   double iso = 0;
@@ -44,6 +66,8 @@ private:
   const IntervalTree& tree_;
   SweepState state_;
   std::vector<std::uint32_t> active_;
+  std::vector<std::uint64_t> bitmap_;
+  MarchScratch scratch_;
 };
 
 }  // namespace adaptiso

@@ -1,7 +1,8 @@
 // Marching tetrahedra (Lürig & Ertl §2.4) with shared vertices per cut edge; see extract.hpp.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_scan.h>
+#include <tbb/task_arena.h>
+#include <memory>
 
 #include <algorithm>
 #include <bit>
@@ -75,10 +76,14 @@ inline std::uint64_t edge_key(std::uint32_t below, std::uint32_t above) {
   return (std::uint64_t{below} << 32) | above;
 }
 
+}  // namespace
+
 // Open-addressing map from edge key to mesh vertex, numbering vertices by first use.
 class EdgeMap {
 public:
-  explicit EdgeMap(std::size_t expected) { rehash(std::bit_ceil(std::max<std::size_t>(64, expected * 2))); }
+  EdgeMap(std::size_t expected, std::vector<std::uint64_t>& slots, std::vector<std::uint32_t>& ids) : slots_(slots), ids_(ids) {
+    rehash(std::bit_ceil(std::max<std::size_t>(64, expected * 2)));
+  }
   std::uint32_t find_or_add(std::uint64_t key, std::vector<std::uint64_t>& order) {
     if (order.size() * 10 >= cap_ * 7) grow(order);
     std::size_t h = hash(key);
@@ -92,6 +97,14 @@ public:
       if (slots_[h] == key) return ids_[h];
     }
   }
+  // The id of key, or kNone.
+  std::uint32_t find(std::uint64_t key) const {
+    for (std::size_t h = hash(key);; h = (h + 1) & (cap_ - 1)) {
+      if (slots_[h] == kEmpty) return kNone;
+      if (slots_[h] == key) return ids_[h];
+    }
+  }
+  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
 
 private:
   static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
@@ -100,7 +113,7 @@ private:
     cap_ = cap;
     shift_ = 64 - std::countr_zero(cap);
     slots_.assign(cap, kEmpty);
-    ids_.assign(cap, 0);
+    ids_.resize(cap);
   }
   void grow(const std::vector<std::uint64_t>& order) {
     rehash(cap_ * 2);
@@ -113,18 +126,25 @@ private:
   }
   std::size_t cap_ = 0;
   int shift_ = 0;
-  std::vector<std::uint64_t> slots_;
-  std::vector<std::uint32_t> ids_;
+  std::vector<std::uint64_t>& slots_;
+  std::vector<std::uint32_t>& ids_;
 };
+
+namespace {
 
 constexpr double kEdgeMargin = 1.0 / 1024;
 
 }  // namespace
 
-void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh) {
+void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh, MarchScratch* scratch) {
+  MarchScratch local;
+  MarchScratch& sc = scratch ? *scratch : local;
   const std::size_t n = active.size();
-  std::vector<std::uint8_t> codes(n);
-  std::vector<std::uint64_t> first_tri(n + 1, 0);
+  auto& codes = sc.codes;
+  auto& first_tri = sc.first_triangle;
+  codes.resize(n);
+  first_tri.resize(n + 1);
+  first_tri[0] = 0;
   // 1. Case of every active tetrahedron; triangle offsets by a prefix sum (parallel).
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -137,7 +157,8 @@ void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active
   for (std::size_t i = 0; i < n; ++i) first_tri[i + 1] = first_tri[i] + kCases[codes[i]].triangles;
   const std::size_t T = first_tri[n];
   // 2. Corner keys (parallel), 3. shared vertices by first use (sequential: deterministic order).
-  std::vector<std::uint64_t> keys(3 * T);
+  auto& keys = sc.keys;
+  keys.resize(3 * T);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       const auto& t = g.tets[active[i]];
@@ -148,13 +169,57 @@ void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active
     }
   });
   mesh.triangles.resize(T);
-  std::vector<std::uint64_t> order;
-  order.reserve(T / 2 + 16);
-  {
-    EdgeMap map(T / 2 + 16);
-    for (std::size_t i = 0; i < T; ++i)
-      for (int e = 0; e < 3; ++e) mesh.triangles[i][e] = map.find_or_add(keys[3 * i + e], order);
-  }
+  auto& order = sc.order;
+  // Chunks of consecutive triangles number their edges locally (in parallel); an edge belongs to
+  // the first chunk that uses it; owned edges are numbered chunk by chunk in local first-use order.
+  // That is exactly the sequential first-use numbering, whatever the number of chunks.
+  const std::size_t C = T < sc.parallel_min_triangles ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+  sc.chunks.resize(C);
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
+    auto& ch = sc.chunks[c];
+    const std::size_t b = T * c / C, e = T * (c + 1) / C;
+    ch.order.clear();
+    ch.local.resize(3 * (e - b));
+    ch.map = std::make_shared<EdgeMap>((e - b) / 2 + 16, ch.slots, ch.ids);
+    for (std::size_t i = 3 * b; i < 3 * e; ++i) ch.local[i - 3 * b] = ch.map->find_or_add(keys[i], ch.order);
+  });
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // ownership: is the edge in an earlier chunk?
+    auto& ch = sc.chunks[c];
+    ch.owner.assign(ch.order.size(), static_cast<std::uint32_t>(c));
+    ch.owner_id.resize(ch.order.size());
+    ch.owned = 0;
+    for (std::size_t j = 0; j < ch.order.size(); ++j) {
+      ch.owner_id[j] = static_cast<std::uint32_t>(j);
+      for (std::size_t q = 0; q < c; ++q)
+        if (std::uint32_t id = sc.chunks[q].map->find(ch.order[j]); id != EdgeMap::kNone) {
+          ch.owner[j] = static_cast<std::uint32_t>(q);
+          ch.owner_id[j] = id;
+          break;
+        }
+      ch.owned += ch.owner[j] == c;
+    }
+  });
+  std::vector<std::size_t> offset(C + 1, 0);
+  for (std::size_t c = 0; c < C; ++c) offset[c + 1] = offset[c] + sc.chunks[c].owned;
+  order.resize(offset[C]);
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // global ids of owned edges
+    auto& ch = sc.chunks[c];
+    ch.global.resize(ch.order.size());
+    std::size_t next = offset[c];
+    for (std::size_t j = 0; j < ch.order.size(); ++j)
+      if (ch.owner[j] == c) {
+        order[next] = ch.order[j];
+        ch.global[j] = static_cast<std::uint32_t>(next++);
+      }
+  });
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // borrowed edges, then the triangles
+    auto& ch = sc.chunks[c];
+    for (std::size_t j = 0; j < ch.order.size(); ++j)
+      if (ch.owner[j] != c) ch.global[j] = sc.chunks[ch.owner[j]].global[ch.owner_id[j]];
+    const std::size_t b = T * c / C, e = T * (c + 1) / C;
+    for (std::size_t i = b; i < e; ++i)
+      for (int k = 0; k < 3; ++k) mesh.triangles[i][k] = ch.global[ch.local[3 * (i - b) + k]];
+  });
   // 4. Positions and normals by linear interpolation along each cut edge (parallel).
   const std::size_t V = order.size();
   mesh.positions.resize(V);
@@ -191,6 +256,25 @@ void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active
   });
 }
 
+void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std::vector<std::uint64_t>& bitmap) {
+  const std::size_t words = (tet_count + 63) / 64;
+  bitmap.assign(words, 0);
+  for (std::uint32_t t : ids) bitmap[t >> 6] |= std::uint64_t{1} << (t & 63);
+  const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(64, words / 4096));
+  std::vector<std::size_t> start(chunks + 1, 0);
+  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t c) {
+    std::size_t cnt = 0;
+    for (std::size_t w = words * c / chunks; w < words * (c + 1) / chunks; ++w) cnt += std::popcount(bitmap[w]);
+    start[c + 1] = cnt;
+  });
+  for (std::size_t c = 0; c < chunks; ++c) start[c + 1] += start[c];
+  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t c) {
+    std::uint32_t* out = ids.data() + start[c];
+    for (std::size_t w = words * c / chunks; w < words * (c + 1) / chunks; ++w)
+      for (std::uint64_t b = bitmap[w]; b; b &= b - 1) *out++ = static_cast<std::uint32_t>(w * 64 + std::countr_zero(b));
+  });
+}
+
 ExtractStats Extractor::extract(double iso, Mesh& mesh) {
   using Clock = std::chrono::steady_clock;
   ExtractStats st;
@@ -200,8 +284,9 @@ ExtractStats Extractor::extract(double iso, Mesh& mesh) {
   sweep_to(tree_, grid_, state_, iso);
   active_.clear();
   active_tetrahedra(tree_, state_, active_);
+  sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
   auto t1 = Clock::now();
-  march_tetrahedra(grid_, active_, iso, mesh);
+  march_tetrahedra(grid_, active_, iso, mesh, &scratch_);
   auto t2 = Clock::now();
   st.walked = state_.walked;
   st.active = active_.size();
