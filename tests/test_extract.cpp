@@ -115,6 +115,12 @@ double triangle_area(const Mesh& m, const std::array<std::uint32_t, 3>& t) {
   return mesh_area(one);
 }
 
+ExtractStats extract_into(Extractor& ex, double iso, Mesh& m) {
+  ExtractStats st = ex.extract(iso);
+  m = ex.mesh();
+  return st;
+}
+
 }  // namespace
 
 TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
@@ -125,6 +131,8 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
     const std::uint32_t depth = rng() % 7;
     IntervalTree tree = build_interval_tree(g, depth);
     ASSERT_NO_THROW(validate_interval_tree(tree, g, "test"));
+    Extractor incremental(g, tree);
+    incremental.max_changed_fraction = 1.0;  // always update the previous mesh, never march afresh
     SweepState state;
     double iso = 0;
     for (int step = 0; step < 40; ++step) {
@@ -148,8 +156,41 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
       march_tetrahedra(g, scan, iso, b);
       ASSERT_EQ(a.positions, b.positions);
       ASSERT_EQ(a.triangles, b.triangles);
+      // The Extractor's incrementally updated mesh is the same, bit for bit.
+      incremental.extract(iso);
+      ASSERT_EQ(incremental.last_was_incremental(), step > 0);
+      ASSERT_EQ(incremental.active(), scan);
+      ASSERT_EQ(incremental.mesh().triangles, a.triangles) << "trial " << trial << " step " << step;
+      ASSERT_EQ(incremental.mesh().positions, a.positions);
+      ASSERT_EQ(incremental.mesh().normals, a.normals);
     }
   }
+}
+
+TEST(Extractor, IncrementalStepsOnALargeGridMatchFreshExtraction) {
+  // Large enough for the parallel renumbering (several chunks) and many small steps.
+  Volume v = make_synthetic("marschner-lobb", 28, ScalarType::f32);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g);
+  Extractor ex(g, tree);
+  ex.parallel_min_triangles = 1;
+  double iso = 0.5 * (g.source.min + g.source.max);
+  const double range = g.source.max - g.source.min;
+  std::size_t incremental = 0;
+  for (int step = 0; step < 12; ++step) {
+    iso += (step % 3 == 2 ? -0.004 : 0.003) * range;
+    ex.extract(iso);
+    incremental += ex.last_was_incremental();
+    std::vector<std::uint32_t> act;
+    scan_active(g, iso, act);
+    Mesh ref;
+    MarchScratch sc;
+    sc.parallel_min_triangles = 1;
+    march_tetrahedra(g, act, iso, ref, &sc);
+    ASSERT_EQ(ex.mesh().triangles, ref.triangles) << step;
+    ASSERT_EQ(ex.mesh().positions, ref.positions) << step;
+  }
+  EXPECT_GE(incremental, 10u);
 }
 
 TEST(IntervalTree, IsBalancedAndHoldsEachTetInItsSmallestNode) {
@@ -188,7 +229,7 @@ TEST(MarchingTets, LinearFieldGivesThePlaneWithItsNormal) {
   Mesh m;
   const double norm = std::sqrt(a * a + b * b + c * c);
   for (double iso : {0.1234, 1.00713, 2.71828}) {  // no vertex lies exactly on these
-    auto st = ex.extract(iso, m);
+    auto st = extract_into(ex, iso, m);
     ASSERT_GT(st.triangles, 10u);
     for (std::size_t i = 0; i < m.vertex_count(); ++i) {
       const auto& p = m.positions[i];
@@ -221,7 +262,7 @@ TEST(MarchingTets, SphereIsClosedOrientedAndConverges) {
     Extractor ex(g, tree);
     Mesh m;
     const double iso = 700;  // outside the core: value 1000 R / r, so r = R · 1000 / 700
-    ex.extract(iso, m);
+    extract_into(ex, iso, m);
     auto topo = topology(m, g.source);
     EXPECT_EQ(topo.boundary_edges, 0u) << n;
     EXPECT_EQ(topo.nonmanifold_edges, 0u) << n;
@@ -257,7 +298,7 @@ TEST(MarchingTets, RandomGridsAreWatertightInsideTheBoxWithoutDegenerateTriangle
     for (int q = 0; q < 6; ++q) {
       // Half of the iso-values equal vertex values exactly: the tie rule must keep the mesh clean.
       double iso = (q % 2) ? double(rng() % 5) : (rng() % 1000) / 200.0;
-      ex.extract(iso, m);
+      extract_into(ex, iso, m);
       if (m.triangles.empty()) continue;
       ++meshes;
       bool boundary_ok = false;
@@ -306,12 +347,12 @@ TEST(MarchingTets, OutsideTheRangeGivesAnEmptyMesh) {
   IntervalTree tree = build_interval_tree(g);
   Extractor ex(g, tree);
   Mesh m;
-  auto st = ex.extract(g.source.max + 1, m);
+  auto st = extract_into(ex, g.source.max + 1, m);
   EXPECT_FALSE(st.in_range);
   EXPECT_EQ(st.triangles, 0u);
-  st = ex.extract(g.source.min, m);  // everything is at or above the minimum: nothing below
+  st = extract_into(ex, g.source.min, m);  // everything is at or above the minimum: nothing below
   EXPECT_EQ(st.triangles, 0u);
-  EXPECT_THROW(ex.extract(std::nan(""), m), InputError);
+  EXPECT_THROW(extract_into(ex, std::nan(""), m), InputError);
 }
 
 TEST(MeshFiles, PlyRoundTripAndOtherFormats) {
@@ -321,7 +362,7 @@ TEST(MeshFiles, PlyRoundTripAndOtherFormats) {
   IntervalTree tree = build_interval_tree(g);
   Extractor ex(g, tree);
   Mesh m;
-  ex.extract(600, m);
+  extract_into(ex, 600, m);
   ASSERT_GT(m.triangle_count(), 100u);
   write_mesh(m, t / "a.ply");
   Mesh r = read_ply(t / "a.ply");

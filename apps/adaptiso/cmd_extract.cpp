@@ -33,9 +33,9 @@ nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const st
                            const std::vector<double>& isos, const std::string& output, const OutputFlags& out) {
   Extractor ex(g, index);
   nlohmann::json results = nlohmann::json::array();
-  Mesh mesh;
   for (std::size_t i = 0; i < isos.size(); ++i) {
-    ExtractStats st = ex.extract(isos[i], mesh);
+    ExtractStats st = ex.extract(isos[i]);
+    const Mesh& mesh = ex.mesh();
     const std::string path = output_name(output, tokens[i], isos.size() > 1);
     auto t0 = Clock::now();
     write_mesh(mesh, path);

@@ -53,20 +53,36 @@ struct ExtractStats {
   bool in_range = true;      // false when iso lies outside [min, max] of the grid (empty mesh)
 };
 
-// One client's extraction: keeps its sweep state, so a small change of iso-value walks little.
+// One client's extraction. It keeps its sweep state and its last mesh: after a small change of
+// iso-value only the tetrahedra whose case changed are marched again, the rest of the mesh is
+// reused and only the vertex positions are interpolated anew. The result is identical (bit for
+// bit, same order) to a fresh march_tetrahedra over the active tetrahedra sorted by id.
 class Extractor {
 public:
   Extractor(const TetGrid& grid, const IntervalTree& tree) : grid_(grid), tree_(tree) {}
-  ExtractStats extract(double iso, Mesh& mesh);
-  const std::vector<std::uint32_t>& active() const { return active_; }  // of the last extract
+  ExtractStats extract(double iso);
+  const Mesh& mesh() const { return mesh_; }
+  const std::vector<std::uint32_t>& active() const { return active_; }  // of the last extract, ascending
   const SweepState& state() const { return state_; }
+  bool last_was_incremental() const { return incremental_; }
+  double max_changed_fraction = 0.25;  // above this share of re-marched tetrahedra, march afresh
+  std::size_t parallel_min_triangles = 65536;  // below this, number vertices in one chunk (tests lower it)
 
 private:
+  bool update(double iso);  // the incremental path; false when a fresh march is cheaper
+  void fresh(double iso);
+
   const TetGrid& grid_;
   const IntervalTree& tree_;
   SweepState state_;
-  std::vector<std::uint32_t> active_;
-  std::vector<std::uint64_t> bitmap_;
+  Mesh mesh_;
+  bool valid_ = false, incremental_ = false;
+  std::vector<std::uint32_t> active_, prev_active_;
+  std::vector<std::uint8_t> codes_, prev_codes_;
+  std::vector<std::uint64_t> first_tri_, prev_first_tri_, order_, prev_order_, bitmap_, new_keys_;
+  std::vector<std::array<std::uint32_t, 3>> prev_tris_, prov_;
+  std::vector<std::uint32_t> old_index_, first_chunk_, rank_;
+  std::vector<std::vector<std::uint32_t>> changed_;
   MarchScratch scratch_;
 };
 

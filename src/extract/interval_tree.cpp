@@ -227,11 +227,13 @@ void sweep_to(const IntervalTree& tree, const TetGrid& g, SweepState& s, double 
     s.pmin.assign(tree.nodes.size(), 0);
     s.pmax.assign(tree.nodes.size(), 0);
     s.flags.assign(g.tet_count(), 0);
-    tbb::parallel_for(std::size_t{0}, tree.nodes.size(), [&](std::size_t i) {
-      init_node(tree, g, s, i, iso);
-      const auto& n = tree.nodes[i];
-      for (std::uint64_t k = n.begin; k < n.begin + s.pmin[i]; ++k) s.flags[tree.by_min[k]] |= 1;
-      for (std::uint64_t k = n.begin + s.pmax[i]; k < n.end; ++k) s.flags[tree.by_max[k]] |= 2;
+    tbb::parallel_for(std::size_t{0}, tree.nodes.size(), [&](std::size_t i) { init_node(tree, g, s, i, iso); });
+    // Flags in tetrahedron order (coherent memory access), not list order; constant ones stay 0.
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, g.tet_count(), 16384), [&](const auto& r) {
+      for (std::size_t t = r.begin(); t < r.end(); ++t) {
+        Range q = tet_range(g, static_cast<std::uint32_t>(t));
+        if (q.lo < q.hi) s.flags[t] = static_cast<std::uint8_t>((q.lo < iso) | ((q.hi >= iso) << 1));
+      }
     });
     s.iso = iso;
     s.valid = true;

@@ -10,18 +10,10 @@
 #include <cmath>
 
 #include "adaptiso/extract.hpp"
+#include "extract/march_internal.hpp"
 
 namespace adaptiso {
 namespace {
-
-// A cut edge as local vertex indices: `below` (value < iso) and `above` (value >= iso).
-struct LocalEdge {
-  std::uint8_t below, above;
-};
-struct Case {
-  std::uint8_t triangles = 0;
-  LocalEdge tri[2][3];
-};
 
 // The 16 cases (bit k set = vertex k above), oriented on the reference tetrahedron
 // (0,0,0),(1,0,0),(0,1,0),(0,0,1), which is positively oriented like every grid tetrahedron, so the
@@ -69,72 +61,56 @@ std::array<Case, 16> make_cases() {
   return cases;
 }
 
+}  // namespace
+
 const std::array<Case, 16> kCases = make_cases();
 
-inline std::uint64_t edge_key(std::uint32_t below, std::uint32_t above) {
-  // Keep (below, above) order in the key: the same grid edge is always cut in the same direction.
-  return (std::uint64_t{below} << 32) | above;
-}
+namespace {
 
 }  // namespace
 
-// Open-addressing map from edge key to mesh vertex, numbering vertices by first use.
-class EdgeMap {
-public:
-  EdgeMap(std::size_t expected, std::vector<std::uint64_t>& slots, std::vector<std::uint32_t>& ids) : slots_(slots), ids_(ids) {
-    rehash(std::bit_ceil(std::max<std::size_t>(64, expected * 2)));
-  }
-  std::uint32_t find_or_add(std::uint64_t key, std::vector<std::uint64_t>& order) {
-    if (order.size() * 10 >= cap_ * 7) grow(order);
-    std::size_t h = hash(key);
-    for (;; h = (h + 1) & (cap_ - 1)) {
-      if (slots_[h] == kEmpty) {
-        slots_[h] = key;
-        ids_[h] = static_cast<std::uint32_t>(order.size());
-        order.push_back(key);
-        return ids_[h];
-      }
-      if (slots_[h] == key) return ids_[h];
-    }
-  }
-  // The id of key, or kNone.
-  std::uint32_t find(std::uint64_t key) const {
-    for (std::size_t h = hash(key);; h = (h + 1) & (cap_ - 1)) {
-      if (slots_[h] == kEmpty) return kNone;
-      if (slots_[h] == key) return ids_[h];
-    }
-  }
-  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
-
-private:
-  static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
-  std::size_t hash(std::uint64_t k) const { return static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ull) >> shift_); }
-  void rehash(std::size_t cap) {
-    cap_ = cap;
-    shift_ = 64 - std::countr_zero(cap);
-    slots_.assign(cap, kEmpty);
-    ids_.resize(cap);
-  }
-  void grow(const std::vector<std::uint64_t>& order) {
-    rehash(cap_ * 2);
-    for (std::uint32_t i = 0; i < order.size(); ++i) {
-      std::size_t h = hash(order[i]);
-      while (slots_[h] != kEmpty) h = (h + 1) & (cap_ - 1);
-      slots_[h] = order[i];
-      ids_[h] = i;
-    }
-  }
-  std::size_t cap_ = 0;
-  int shift_ = 0;
-  std::vector<std::uint64_t>& slots_;
-  std::vector<std::uint32_t>& ids_;
-};
 
 namespace {
 
 constexpr double kEdgeMargin = 1.0 / 1024;
 
 }  // namespace
+
+void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh) {
+  const std::size_t V = order.size();
+  mesh.positions.resize(V);
+  mesh.normals.resize(V);
+  const auto& s = g.source;
+  const auto& D = s.direction;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      const std::uint32_t a = static_cast<std::uint32_t>(order[i] >> 32), b = static_cast<std::uint32_t>(order[i]);
+      const double va = g.values[a], vb = g.values[b];
+      double t = (iso - va) / (vb - va);
+      t = std::clamp(t, kEdgeMargin, 1 - kEdgeMargin);
+      double p[3], nrm[3];
+      for (int k = 0; k < 3; ++k) {
+        const double pa = s.spacing[k] * g.ijk[a][k], pb = s.spacing[k] * g.ijk[b][k];
+        p[k] = pa + t * (pb - pa);
+        nrm[k] = -((1 - t) * g.gradients[a][k] + t * g.gradients[b][k]);
+      }
+      double len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
+      if (!(len > 0)) {  // gradients cancel: fall back to the edge direction, towards lower values
+        for (int k = 0; k < 3; ++k) nrm[k] = s.spacing[k] * (double(g.ijk[a][k]) - double(g.ijk[b][k]));
+        len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
+      }
+      double w[3], wn[3];
+      for (int k = 0; k < 3; ++k) {
+        w[k] = s.origin[k] + D[3 * k] * p[0] + D[3 * k + 1] * p[1] + D[3 * k + 2] * p[2];
+        wn[k] = D[3 * k] * nrm[0] + D[3 * k + 1] * nrm[1] + D[3 * k + 2] * nrm[2];
+      }
+      double wl = std::sqrt(wn[0] * wn[0] + wn[1] * wn[1] + wn[2] * wn[2]);
+      if (!(wl > 0)) wl = 1;
+      mesh.positions[i] = {float(w[0]), float(w[1]), float(w[2])};
+      mesh.normals[i] = {float(wn[0] / wl), float(wn[1] / wl), float(wn[2] / wl)};
+    }
+  });
+}
 
 void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh, MarchScratch* scratch) {
   MarchScratch local;
@@ -148,10 +124,7 @@ void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active
   // 1. Case of every active tetrahedron; triangle offsets by a prefix sum (parallel).
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const auto& t = g.tets[active[i]];
-      std::uint8_t c = 0;
-      for (int k = 0; k < 4; ++k) c |= static_cast<std::uint8_t>((g.values[t[k]] >= iso) << k);
-      codes[i] = c;
+      codes[i] = tet_code(g, active[i], iso);
     }
   });
   for (std::size_t i = 0; i < n; ++i) first_tri[i + 1] = first_tri[i] + kCases[codes[i]].triangles;
@@ -220,40 +193,7 @@ void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active
     for (std::size_t i = b; i < e; ++i)
       for (int k = 0; k < 3; ++k) mesh.triangles[i][k] = ch.global[ch.local[3 * (i - b) + k]];
   });
-  // 4. Positions and normals by linear interpolation along each cut edge (parallel).
-  const std::size_t V = order.size();
-  mesh.positions.resize(V);
-  mesh.normals.resize(V);
-  const auto& s = g.source;
-  const auto& D = s.direction;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const std::uint32_t a = static_cast<std::uint32_t>(order[i] >> 32), b = static_cast<std::uint32_t>(order[i]);
-      const double va = g.values[a], vb = g.values[b];
-      double t = (iso - va) / (vb - va);
-      t = std::clamp(t, kEdgeMargin, 1 - kEdgeMargin);
-      double p[3], nrm[3];
-      for (int k = 0; k < 3; ++k) {
-        const double pa = s.spacing[k] * g.ijk[a][k], pb = s.spacing[k] * g.ijk[b][k];
-        p[k] = pa + t * (pb - pa);
-        nrm[k] = -((1 - t) * g.gradients[a][k] + t * g.gradients[b][k]);
-      }
-      double len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
-      if (!(len > 0)) {  // gradients cancel: fall back to the edge direction, towards lower values
-        for (int k = 0; k < 3; ++k) nrm[k] = s.spacing[k] * (double(g.ijk[a][k]) - double(g.ijk[b][k]));
-        len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
-      }
-      double w[3], wn[3];
-      for (int k = 0; k < 3; ++k) {
-        w[k] = s.origin[k] + D[3 * k] * p[0] + D[3 * k + 1] * p[1] + D[3 * k + 2] * p[2];
-        wn[k] = D[3 * k] * nrm[0] + D[3 * k + 1] * nrm[1] + D[3 * k + 2] * nrm[2];
-      }
-      double wl = std::sqrt(wn[0] * wn[0] + wn[1] * wn[1] + wn[2] * wn[2]);
-      if (!(wl > 0)) wl = 1;
-      mesh.positions[i] = {float(w[0]), float(w[1]), float(w[2])};
-      mesh.normals[i] = {float(wn[0] / wl), float(wn[1] / wl), float(wn[2] / wl)};
-    }
-  });
+  interpolate_vertices(g, order, iso, mesh);
 }
 
 void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std::vector<std::uint64_t>& bitmap) {
@@ -273,28 +213,6 @@ void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std
     for (std::size_t w = words * c / chunks; w < words * (c + 1) / chunks; ++w)
       for (std::uint64_t b = bitmap[w]; b; b &= b - 1) *out++ = static_cast<std::uint32_t>(w * 64 + std::countr_zero(b));
   });
-}
-
-ExtractStats Extractor::extract(double iso, Mesh& mesh) {
-  using Clock = std::chrono::steady_clock;
-  ExtractStats st;
-  st.iso = iso;
-  st.in_range = iso >= grid_.source.min && iso <= grid_.source.max;
-  auto t0 = Clock::now();
-  sweep_to(tree_, grid_, state_, iso);
-  active_.clear();
-  active_tetrahedra(tree_, state_, active_);
-  sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
-  auto t1 = Clock::now();
-  march_tetrahedra(grid_, active_, iso, mesh, &scratch_);
-  auto t2 = Clock::now();
-  st.walked = state_.walked;
-  st.active = active_.size();
-  st.triangles = mesh.triangle_count();
-  st.vertices = mesh.vertex_count();
-  st.sweep_seconds = std::chrono::duration<double>(t1 - t0).count();
-  st.march_seconds = std::chrono::duration<double>(t2 - t1).count();
-  return st;
 }
 
 }  // namespace adaptiso

@@ -1,0 +1,89 @@
+// Pieces of marching tetrahedra shared by the fresh extraction and the Extractor's incremental
+// update (not part of the public API).
+#pragma once
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cstdint>
+#include <vector>
+
+#include "adaptiso/mesh.hpp"
+#include "adaptiso/tet_grid.hpp"
+
+namespace adaptiso {
+
+// A cut edge as local vertex indices: `below` (value < iso) and `above` (value >= iso).
+struct LocalEdge {
+  std::uint8_t below, above;
+};
+struct Case {
+  std::uint8_t triangles = 0;
+  LocalEdge tri[2][3];
+};
+extern const std::array<Case, 16> kCases;  // by code: bit k set = vertex k at or above the iso-value
+
+inline std::uint8_t tet_code(const TetGrid& g, std::uint32_t t, double iso) {
+  const auto& q = g.tets[t];
+  const double* v = g.values.data();
+  return static_cast<std::uint8_t>((v[q[0]] >= iso) | ((v[q[1]] >= iso) << 1) | ((v[q[2]] >= iso) << 2) | ((v[q[3]] >= iso) << 3));
+}
+
+// Keep (below, above) order in the key: for one iso-value a grid edge is always cut one way.
+inline std::uint64_t edge_key(std::uint32_t below, std::uint32_t above) { return (std::uint64_t{below} << 32) | above; }
+
+// Open-addressing map from edge key to mesh vertex, numbering vertices by first use.
+class EdgeMap {
+public:
+  EdgeMap(std::size_t expected, std::vector<std::uint64_t>& slots, std::vector<std::uint32_t>& ids) : slots_(slots), ids_(ids) {
+    rehash(std::bit_ceil(std::max<std::size_t>(64, expected * 2)));
+  }
+  std::uint32_t find_or_add(std::uint64_t key, std::vector<std::uint64_t>& order) {
+    if (order.size() * 10 >= cap_ * 7) grow(order);
+    std::size_t h = hash(key);
+    for (;; h = (h + 1) & (cap_ - 1)) {
+      if (slots_[h] == kEmpty) {
+        slots_[h] = key;
+        ids_[h] = static_cast<std::uint32_t>(order.size());
+        order.push_back(key);
+        return ids_[h];
+      }
+      if (slots_[h] == key) return ids_[h];
+    }
+  }
+  // The id of key, or kNone.
+  std::uint32_t find(std::uint64_t key) const {
+    for (std::size_t h = hash(key);; h = (h + 1) & (cap_ - 1)) {
+      if (slots_[h] == kEmpty) return kNone;
+      if (slots_[h] == key) return ids_[h];
+    }
+  }
+  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
+
+private:
+  static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
+  std::size_t hash(std::uint64_t k) const { return static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ull) >> shift_); }
+  void rehash(std::size_t cap) {
+    cap_ = cap;
+    shift_ = 64 - std::countr_zero(cap);
+    slots_.assign(cap, kEmpty);
+    ids_.resize(cap);
+  }
+  void grow(const std::vector<std::uint64_t>& order) {
+    rehash(cap_ * 2);
+    for (std::uint32_t i = 0; i < order.size(); ++i) {
+      std::size_t h = hash(order[i]);
+      while (slots_[h] != kEmpty) h = (h + 1) & (cap_ - 1);
+      slots_[h] = order[i];
+      ids_[h] = i;
+    }
+  }
+  std::size_t cap_ = 0;
+  int shift_ = 0;
+  std::vector<std::uint64_t>& slots_;
+  std::vector<std::uint32_t>& ids_;
+};
+
+// Positions and normals of the mesh vertices, one per cut edge key in `order` (parallel).
+void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh);
+
+}  // namespace adaptiso
