@@ -58,5 +58,6 @@ void add_prepare(CLI::App& app);
 void add_export(CLI::App& app);
 void add_extract(CLI::App& app);
 void add_run(CLI::App& app);
+void add_mc(CLI::App& app);
 
 }  // namespace adaptiso::cli

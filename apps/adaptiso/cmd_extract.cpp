@@ -6,6 +6,7 @@
 
 #include "adaptiso/extract.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh.hpp"
 #include "cli_common.hpp"
 #include "pipeline.hpp"
@@ -133,6 +134,51 @@ void add_run(CLI::App& app) {
                                j["pl_max_error"].get<double>(), j["max_error"].get<double>());
     j["surfaces"] = extract_all(p.grid, p.index, *isos, values, *output, *out);
     j["seconds"]["total"] = seconds_since(t_all);
+    if (out->json) print_json(j);
+  });
+}
+
+void add_mc(CLI::App& app) {
+  auto* cmd = app.add_subcommand("mc", "Full-resolution marching cubes (the reference surface)");
+  auto in = std::make_shared<VolumeInput>();
+  auto out = std::make_shared<OutputFlags>();
+  auto isos = std::make_shared<std::vector<std::string>>();
+  auto relative = std::make_shared<bool>(false);
+  auto output = std::make_shared<std::string>();
+  in->add(cmd);
+  out->add(cmd);
+  cmd->add_option("--iso", *isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
+      ->required()->delimiter(',');
+  cmd->add_flag("--relative", *relative, "Iso-values as fractions of the value range [min, max]");
+  cmd->add_option("-o,--output", *output, "Mesh file (.ply .obj .stl .glb)")->required();
+  cmd->callback([=] {
+    check_mesh_extension(*output);
+    auto t0 = Clock::now();
+    Volume v = in->load();
+    const double t_load = seconds_since(t0);
+    auto range = value_range(v);
+    auto values = parse_iso_values(*isos, *relative, range.min, range.max);
+    nlohmann::json j = {{"voxels", v.voxel_count()}, {"load_seconds", t_load}, {"surfaces", nlohmann::json::array()}};
+    for (std::size_t i = 0; i < values.size(); ++i) {
+      auto t1 = Clock::now();
+      MarchingCubesStats st;
+      Mesh m = marching_cubes(v, values[i], &st);
+      const double t_mc = seconds_since(t1);
+      const std::string path = output_name(*output, (*isos)[i], values.size() > 1);
+      write_mesh(m, path);
+      const bool in_range = values[i] >= range.min && values[i] <= range.max;
+      j["surfaces"].push_back({{"iso", values[i]}, {"in_range", in_range}, {"triangles", m.triangle_count()},
+                               {"vertices", m.vertex_count()}, {"cubes_cut", st.cubes_cut},
+                               {"ambiguous_faces", st.ambiguous_faces}, {"seconds", t_mc}, {"output", path}});
+      if (!out->json && !out->quiet) {
+        if (!in_range)
+          std::cout << fmt::format("iso {:.6g} lies outside the value range [{:.6g}, {:.6g}]: empty mesh, wrote {}\n", values[i],
+                                   range.min, range.max, path);
+        else
+          std::cout << fmt::format("iso {:.6g}: {} triangles, {} vertices (full-resolution marching cubes) in {:.4f} s; wrote {}\n",
+                                   values[i], m.triangle_count(), m.vertex_count(), t_mc, path);
+      }
+    }
     if (out->json) print_json(j);
   });
 }

@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   adaptiso::cli::add_export(app);
   adaptiso::cli::add_extract(app);
   adaptiso::cli::add_run(app);
+  adaptiso::cli::add_mc(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
