@@ -26,3 +26,10 @@ else
   echo "(no $DATA: skipping the real CT)"
 fi
 echo "outputs in $(pwd)/$OUT"
+echo
+# On the volume (not the .adg) the viewer can also show the full-resolution reference surface.
+if [ -f "$CT" ]; then
+  echo "browse it interactively:  $B view $CT --relative --max-error 0.02   (then open the printed URL)"
+else
+  echo "browse it interactively:  $B view $OUT/sphere50.nrrd --relative --max-error 0.15   (then open the printed URL)"
+fi

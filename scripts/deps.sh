@@ -1,10 +1,15 @@
 #!/usr/bin/env bash
 # Installs everything adaptiso needs to build and test on Debian 12 (idempotent; run as root).
 set -euo pipefail
+cd "$(dirname "$0")/.."
 PKGS=(build-essential cmake ninja-build pkg-config
       libcgal-dev libgmp-dev libmpfr-dev libboost-dev libeigen3-dev libtbb-dev
       libcli11-dev nlohmann-json3-dev libfmt-dev libteem-dev libnifti2-dev libgdcm-dev
-      libcpp-httplib-dev libtinygltf-dev zlib1g-dev libgtest-dev libgmock-dev libbenchmark-dev)
+      libcpp-httplib-dev libtinygltf-dev zlib1g-dev libgtest-dev libgmock-dev libbenchmark-dev
+      chromium)
+# The viewer page and its browser test need node and npm; a node install that already brings npm
+# (e.g. NodeSource's) is kept, Debian's packages are added otherwise.
+command -v npm >/dev/null 2>&1 || PKGS+=(nodejs npm)
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -14,4 +19,10 @@ if [ ${#missing[@]} -gt 0 ]; then
   export DEBIAN_FRONTEND=noninteractive
   apt-get update -qq
   apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+# three.js for the viewer page and playwright-core for its test, pinned by web/package-lock.json.
+if [ ! -f web/node_modules/three/build/three.module.js ] || [ ! -f web/node_modules/playwright-core/package.json ] ||
+   [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then
+  echo "installing the viewer's npm packages (web/)"
+  (cd web && npm ci --no-audit --no-fund --loglevel=error)
 fi

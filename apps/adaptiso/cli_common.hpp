@@ -59,5 +59,6 @@ void add_export(CLI::App& app);
 void add_extract(CLI::App& app);
 void add_run(CLI::App& app);
 void add_mc(CLI::App& app);
+void add_view(CLI::App& app);
 
 }  // namespace adaptiso::cli

@@ -1,0 +1,110 @@
+// End-to-end test of `adaptiso view` in a real browser: Debian's chromium, headless, driven by
+// playwright-core (nothing is downloaded). Loads the page for the paper's sphere, moves the slider,
+// checks the triangle count in #stats follows and matches /api/surface, checks the canvas is not
+// blank, and saves a screenshot. Usage: node viewer.test.mjs ADAPTISO_CLI ARTIFACT_DIR
+// Exit code 77 (skipped) only when node modules or chromium are missing.
+import { spawn, execFileSync } from 'node:child_process';
+import { createRequire } from 'node:module';
+import { existsSync, mkdirSync, mkdtempSync, rmSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { dirname, join } from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+const [cli, artifacts] = process.argv.slice(2);
+const here = dirname(fileURLToPath(import.meta.url));
+const web = join(here, '..', '..', 'web');
+const chromiumPath = process.env.CHROMIUM || '/usr/bin/chromium';
+let chromium;
+try {
+  ({ chromium } = createRequire(join(web, 'package.json'))('playwright-core'));
+} catch (e) {
+  console.log(`SKIP: playwright-core is not installed in ${web}/node_modules (run scripts/deps.sh)`);
+  process.exit(77);
+}
+if (!existsSync(chromiumPath)) {
+  console.log(`SKIP: no chromium at ${chromiumPath} (apt-get install chromium)`);
+  process.exit(77);
+}
+
+const fail = (msg) => { console.error(`FAIL: ${msg}`); cleanup(); process.exit(1); };
+const tmp = mkdtempSync(join(tmpdir(), 'adaptiso-view-'));
+let server, browser;
+function cleanup() {
+  if (server) server.kill('SIGTERM');
+  rmSync(tmp, { recursive: true, force: true });
+}
+setTimeout(() => fail('timed out after 150 s'), 150000).unref();
+
+execFileSync(cli, ['generate', 'sphere', '--size', '50', '-o', join(tmp, 'sphere.nrrd')]);
+server = spawn(cli, ['view', join(tmp, 'sphere.nrrd'), '--relative', '--max-error', '0.15', '--port', '0', '--web', web, '--quiet'],
+               { stdio: ['ignore', 'pipe', 'inherit'] });
+const url = await new Promise((ok, bad) => {
+  let out = '';
+  server.stdout.on('data', (d) => { out += d; const m = out.match(/http:\/\/[^\s]+\//); if (m) ok(m[0]); });
+  server.on('exit', (code) => bad(new Error(`server exited with ${code}`)));
+}).catch((e) => fail(e.message));
+
+async function apiTriangles(iso) {
+  const r = await fetch(`${url}api/surface?iso=${encodeURIComponent(iso)}&client=test-check`);
+  if (!r.ok) fail(`/api/surface answered ${r.status}`);
+  const buf = await r.arrayBuffer();
+  const [V, T] = new Uint32Array(buf, 0, 2);
+  if (Number(r.headers.get('X-Triangles')) !== T) fail('X-Triangles disagrees with the body');
+  return T;
+}
+
+try {
+  browser = await chromium.launch({ executablePath: chromiumPath, headless: true,
+    args: ['--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'] });
+  const page = await browser.newPage({ viewport: { width: 1000, height: 700 } });
+  const errors = [];
+  page.on('pageerror', (e) => errors.push(e.message));
+  await page.goto(url);
+  const stats = page.locator('#stats');
+  await page.waitForFunction(() => /triangles: [1-9]/.test(document.getElementById('stats').textContent), null, { timeout: 60000 });
+  const read = async () => ({ text: await stats.textContent(), iso: await stats.getAttribute('data-iso') });
+  const first = await read();
+  const t1 = Number(first.text.match(/triangles: (\d+)/)[1]);
+  if (t1 !== await apiTriangles(first.iso)) fail(`stats say ${t1} triangles, the API ${await apiTriangles(first.iso)} at iso ${first.iso}`);
+  // Drag the slider to 80 % of the range (input events, as a user's drag produces).
+  await page.evaluate(() => {
+    const s = document.getElementById('iso');
+    for (let v = Number(s.value); v <= 800; v += 25) { s.value = String(v); s.dispatchEvent(new Event('input')); }
+  });
+  await page.waitForFunction((old) => document.getElementById('stats').dataset.iso !== old &&
+    Math.abs(Number(document.getElementById('iso-value').value) - Number(document.getElementById('stats').dataset.iso)) <
+      1e-3 * Math.abs(Number(document.getElementById('stats').dataset.iso)), first.iso, { timeout: 30000 });
+  const second = await read();
+  const t2 = Number(second.text.match(/triangles: (\d+)/)[1]);
+  if (t2 === t1) fail(`the triangle count did not change when the slider moved (${t1})`);
+  const api2 = await apiTriangles(second.iso);
+  if (t2 !== api2) fail(`after the move: stats ${t2} triangles, API ${api2} at iso ${second.iso}`);
+  // The canvas shows something: the variance of its luminance is well above zero.
+  await page.waitForTimeout(500);
+  const variance = await page.evaluate(() => {
+    const src = document.getElementById('view');
+    const c = document.createElement('canvas');
+    c.width = 200; c.height = 140;
+    const ctx = c.getContext('2d');
+    ctx.drawImage(src, 0, 0, c.width, c.height);
+    const d = ctx.getImageData(0, 0, c.width, c.height).data;
+    let s = 0, s2 = 0; const n = d.length / 4;
+    for (let i = 0; i < d.length; i += 4) { const y = 0.3 * d[i] + 0.59 * d[i + 1] + 0.11 * d[i + 2]; s += y; s2 += y * y; }
+    return s2 / n - (s / n) ** 2;
+  });
+  if (!(variance > 20)) fail(`the canvas looks blank (luminance variance ${variance})`);
+  // Toggles: kept vertices and the full-resolution reference load without errors.
+  await page.check('#show-points');
+  await page.check('#show-reference');
+  await page.waitForFunction(() => /reference triangles: [1-9]/.test(document.getElementById('stats').textContent), null, { timeout: 30000 });
+  if (errors.length) fail(`page errors: ${errors.join('; ')}`);
+  mkdirSync(artifacts, { recursive: true });
+  await page.locator('#view').screenshot({ path: join(artifacts, 'viewer.png') });
+  console.log(`PASS: ${t1} → ${t2} triangles, canvas variance ${variance.toFixed(0)}, screenshot ${join(artifacts, 'viewer.png')}`);
+} catch (e) {
+  fail(e.stack || String(e));
+} finally {
+  if (browser) await browser.close();
+  cleanup();
+}
+process.exit(0);

@@ -1,0 +1,237 @@
+// adaptiso viewer page: talks to `adaptiso view` (README "Viewer API"), draws with three.js.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const $ = (id) => document.getElementById(id);
+const client = Math.random().toString(36).slice(2, 12);  // this page's sweep state on the server
+const canvas = $('view');
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x15171c);
+const camera = new THREE.PerspectiveCamera(40, 1, 0.01, 1e6);
+const controls = new OrbitControls(camera, canvas);
+scene.add(new THREE.HemisphereLight(0xffffff, 0x303040, 0.9));
+const headlight = new THREE.DirectionalLight(0xffffff, 1.6);
+camera.add(headlight);
+scene.add(camera);
+
+// Gouraud shading with the interpolated vertex gradients as normals (MeshLambertMaterial lights per vertex).
+const surfaceMaterial = new THREE.MeshLambertMaterial({ color: 0xd9b38c, side: THREE.DoubleSide });
+const referenceMaterial = new THREE.MeshLambertMaterial({ color: 0x6fa8dc, side: THREE.DoubleSide, transparent: true, opacity: 0.55 });
+const surface = new THREE.Mesh(new THREE.BufferGeometry(), surfaceMaterial);
+const reference = new THREE.Mesh(new THREE.BufferGeometry(), referenceMaterial);
+const points = new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({ size: 2, sizeAttenuation: false, vertexColors: true }));
+const tets = new THREE.LineSegments(new THREE.BufferGeometry(), new THREE.LineBasicMaterial({ color: 0x88ccff, transparent: true, opacity: 0.35 }));
+scene.add(surface, reference, points, tets);
+
+let info = null;
+const stats = { extract: 0, transfer: 0, triangles: 0, vertices: 0, active: 0, incremental: false, inRange: true, refTriangles: null };
+
+function resize() {
+  const w = window.innerWidth, h = window.innerHeight;
+  renderer.setSize(w, h, false);
+  camera.aspect = w / h;
+  camera.updateProjectionMatrix();
+}
+window.addEventListener('resize', resize);
+
+function render() {
+  controls.update();
+  renderer.render(scene, camera);
+  requestAnimationFrame(render);
+}
+
+function showStatus(text) { $('status').textContent = text; }
+
+function updateStats() {
+  if (!info) return;
+  const lines = [
+    `kept vertices: ${info.kept}`,
+    `tetrahedra: ${info.tetrahedra}`,
+    `triangles: ${stats.triangles}`,
+    `vertices: ${stats.vertices}`,
+    `active tetrahedra: ${stats.active}`,
+    `extraction: ${(stats.extract * 1000).toFixed(1)} ms${stats.incremental ? ' (incremental)' : ''}`,
+    `transfer: ${stats.transfer.toFixed(1)} ms`,
+  ];
+  if (!stats.inRange) lines.push('iso-value outside the value range: empty surface');
+  if (stats.refTriangles !== null) lines.push(`reference triangles: ${stats.refTriangles}`);
+  $('stats').textContent = lines.join('\n');
+  $('stats').dataset.iso = String(shownIso);  // the exact iso-value shown, for scripts and tests
+}
+
+// Binary mesh: u32 V, u32 T, f32 positions[3V], f32 normals[3V], u32 indices[3T].
+function decodeMesh(buffer) {
+  const head = new Uint32Array(buffer, 0, 2);
+  const V = head[0], T = head[1];
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.BufferAttribute(new Float32Array(buffer, 8, 3 * V), 3));
+  g.setAttribute('normal', new THREE.BufferAttribute(new Float32Array(buffer, 8 + 12 * V, 3 * V), 3));
+  g.setIndex(new THREE.BufferAttribute(new Uint32Array(buffer, 8 + 24 * V, 3 * T), 1));
+  return g;
+}
+
+function replaceGeometry(object, geometry) {
+  object.geometry.dispose();
+  object.geometry = geometry;
+}
+
+function isoFromSlider() {
+  const s = $('iso');
+  return info.min + (info.max - info.min) * (Number(s.value) / Number(s.max));
+}
+
+// At most one surface request in flight; while it runs only the latest wanted value is kept, so
+// requests never go stale and dragging updates the surface as fast as the server answers.
+let wanted = null, inFlight = false, shownIso = null;
+function requestSurface(iso) {
+  wanted = iso;
+  if (!inFlight) pump();
+}
+async function pump() {
+  if (wanted === null) return;
+  const iso = wanted;
+  wanted = null;
+  inFlight = true;
+  try {
+    const t0 = performance.now();
+    const r = await fetch(`api/surface?iso=${encodeURIComponent(iso)}&client=${client}`);
+    if (!r.ok) throw new Error(await r.text());
+    const buffer = await r.arrayBuffer();
+    stats.transfer = performance.now() - t0 - 1000 * Number(r.headers.get('X-Extract-Seconds'));
+    stats.extract = Number(r.headers.get('X-Extract-Seconds'));
+    stats.triangles = Number(r.headers.get('X-Triangles'));
+    stats.vertices = Number(r.headers.get('X-Vertices'));
+    stats.active = Number(r.headers.get('X-Active-Tetrahedra'));
+    stats.incremental = r.headers.get('X-Incremental') === '1';
+    stats.inRange = r.headers.get('X-In-Range') === '1';
+    replaceGeometry(surface, decodeMesh(buffer));
+    shownIso = iso;
+    updateStats();
+    if ($('show-tets').checked) loadTetrahedra(iso);
+    if ($('show-reference').checked) loadReference(iso);
+  } catch (e) {
+    showStatus(`error: ${e.message}`);
+  } finally {
+    inFlight = false;
+    if (wanted !== null) pump();
+  }
+}
+
+async function loadPoints() {
+  const r = await fetch('api/points');
+  const buffer = await r.arrayBuffer();
+  const N = new Uint32Array(buffer, 0, 1)[0];
+  const pos = new Float32Array(buffer, 4, 3 * N), val = new Float32Array(buffer, 4 + 12 * N, N);
+  const colors = new Float32Array(3 * N);
+  for (let i = 0; i < N; i++) {
+    const t = info.max > info.min ? (val[i] - info.min) / (info.max - info.min) : 0.5;
+    colors[3 * i] = 0.2 + 0.8 * t; colors[3 * i + 1] = 0.4 + 0.4 * (1 - Math.abs(2 * t - 1)); colors[3 * i + 2] = 1 - 0.8 * t;
+  }
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.BufferAttribute(pos, 3));
+  g.setAttribute('color', new THREE.BufferAttribute(colors, 3));
+  replaceGeometry(points, g);
+}
+
+async function loadTetrahedra(iso) {
+  const r = await fetch(`api/tetrahedra?iso=${encodeURIComponent(iso)}`);
+  if (!r.ok) { showStatus(await r.text()); return; }
+  const buffer = await r.arrayBuffer();
+  const [V, E] = new Uint32Array(buffer, 0, 2);
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.BufferAttribute(new Float32Array(buffer, 8, 3 * V), 3));
+  g.setIndex(new THREE.BufferAttribute(new Uint32Array(buffer, 8 + 12 * V, 2 * E), 1));
+  replaceGeometry(tets, g);
+}
+
+let sideOffset = 0;
+async function loadReference(iso) {
+  const r = await fetch(`api/reference?iso=${encodeURIComponent(iso)}`);
+  if (!r.ok) { showStatus(await r.text()); stats.refTriangles = null; return; }
+  replaceGeometry(reference, decodeMesh(await r.arrayBuffer()));
+  stats.refTriangles = Number(r.headers.get('X-Triangles'));
+  updateStats();
+}
+
+function applyVisibility() {
+  surface.visible = $('show-surface').checked;
+  points.visible = $('show-points').checked;
+  tets.visible = $('show-tets').checked;
+  reference.visible = $('show-reference').checked;
+  const side = $('reference-mode').value === 'side';
+  reference.position.set(side ? sideOffset : 0, 0, 0);
+  referenceMaterial.opacity = side ? 1 : 0.55;
+  referenceMaterial.transparent = !side;
+}
+
+function drawHistogram(h) {
+  const c = $('histogram'), ctx = c.getContext('2d');
+  ctx.clearRect(0, 0, c.width, c.height);
+  const logs = h.counts.map((n) => Math.log1p(n)), top = Math.max(...logs, 1);
+  const w = c.width / logs.length;
+  ctx.fillStyle = 'rgba(140, 160, 190, 0.55)';
+  logs.forEach((v, i) => { const bh = (v / top) * (c.height - 14); ctx.fillRect(i * w, c.height - 14 - bh, Math.max(w - 0.5, 0.5), bh); });
+}
+
+function frame(box) {
+  const center = box.getCenter(new THREE.Vector3()), size = box.getSize(new THREE.Vector3()).length();
+  controls.target.copy(center);
+  camera.position.copy(center).add(new THREE.Vector3(0.6, -0.9, 0.7).normalize().multiplyScalar(size * 1.3));
+  camera.up.set(0, 0, 1);
+  camera.near = size / 1000; camera.far = size * 100;
+  camera.updateProjectionMatrix();
+  sideOffset = box.getSize(new THREE.Vector3()).x * 1.15;
+}
+
+async function start() {
+  resize();
+  render();
+  for (;;) {  // the server may still be preparing the grid
+    try {
+      const r = await fetch('api/info');
+      info = await r.json();
+    } catch (e) { showStatus('server unreachable, retrying…'); }
+    if (info && info.state === 'ready') break;
+    if (info && info.state === 'failed') { showStatus(`preparation failed: ${info.error}`); return; }
+    if (info) showStatus(`preparing: ${info.stage} ${(100 * info.progress).toFixed(0)} %`);
+    await new Promise((ok) => setTimeout(ok, 300));
+  }
+  const d = info.dims, s = info.spacing;
+  showStatus(`${d.join('×')} voxels, values ${info.min} … ${info.max}; ${info.reduction.method}, max error ${Number(info.reduction.max_error).toPrecision(4)}`);
+  const box = new THREE.Box3();
+  const corner = (i, j, k) => {  // world = origin + direction · (spacing ⊙ index)
+    const g = [i * s[0], j * s[1], k * s[2]], D = info.direction, o = info.origin;
+    return new THREE.Vector3(o[0] + D[0] * g[0] + D[1] * g[1] + D[2] * g[2], o[1] + D[3] * g[0] + D[4] * g[1] + D[5] * g[2],
+                             o[2] + D[6] * g[0] + D[7] * g[1] + D[8] * g[2]);
+  };
+  for (const i of [0, d[0] - 1]) for (const j of [0, d[1] - 1]) for (const k of [0, d[2] - 1]) box.expandByPoint(corner(i, j, k));
+  frame(box);
+  drawHistogram(info.histogram);
+  $('show-reference').disabled = !info.reference;
+  const slider = $('iso'), field = $('iso-value');
+  slider.disabled = field.disabled = false;
+  field.step = String((info.max - info.min) / 1000 || 1);
+  const initial = info.min + 0.5 * (info.max - info.min);
+  slider.value = String(Math.round(Number(slider.max) * 0.5));
+  field.value = String(initial);
+  slider.addEventListener('input', () => { const v = isoFromSlider(); field.value = String(Number(v.toPrecision(6))); requestSurface(v); });
+  field.addEventListener('change', () => {
+    const v = Number(field.value);
+    if (!Number.isFinite(v)) return;
+    slider.value = String(Math.round(Number(slider.max) * (v - info.min) / ((info.max - info.min) || 1)));
+    requestSurface(v);
+  });
+  for (const id of ['show-surface', 'show-points', 'show-tets', 'show-reference', 'reference-mode'])
+    $(id).addEventListener('change', () => {
+      applyVisibility();
+      if (id === 'show-points' && $(id).checked && !points.geometry.attributes.position) loadPoints();
+      if (id === 'show-tets' && $(id).checked && shownIso !== null) loadTetrahedra(shownIso);
+      if (id === 'show-reference' && $(id).checked && shownIso !== null) loadReference(shownIso);
+    });
+  applyVisibility();
+  requestSurface(initial);
+}
+
+start();
