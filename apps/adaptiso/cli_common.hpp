@@ -60,5 +60,6 @@ void add_extract(CLI::App& app);
 void add_run(CLI::App& app);
 void add_mc(CLI::App& app);
 void add_view(CLI::App& app);
+void add_compare(CLI::App& app);
 
 }  // namespace adaptiso::cli

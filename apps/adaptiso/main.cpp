@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   adaptiso::cli::add_run(app);
   adaptiso::cli::add_mc(app);
   adaptiso::cli::add_view(app);
+  adaptiso::cli::add_compare(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
