@@ -139,7 +139,7 @@ void run_chunk(const Volume& v, const T* f, double iso, Chunk& ch, bool last) {
   const std::int64_t sxy = nx * ny;
   const std::size_t plane_x = static_cast<std::size_t>((nx - 1) * ny), plane_y = static_cast<std::size_t>(nx * (ny - 1));
   // Vertex ids of the x/y edges of the lower and upper plane, and of the z edges in between.
-  std::vector<std::uint32_t> lower(plane_x + plane_y, kNone), upper(plane_x + plane_y, kNone), zmap(static_cast<std::size_t>(sxy));
+  std::vector<std::uint32_t> lower(plane_x + plane_y, kNone), upper(plane_x + plane_y, kNone), zmap(static_cast<std::size_t>(sxy), kNone);
   std::vector<std::uint8_t> above_lo(static_cast<std::size_t>(sxy)), above_hi(static_cast<std::size_t>(sxy));
   const auto& s = v.spacing;
   const auto& D = v.direction;
@@ -186,13 +186,31 @@ void run_chunk(const Volume& v, const T* f, double iso, Chunk& ch, bool last) {
     const T* row = f + sxy * k;
     for (std::int64_t q = 0; q < sxy; ++q) out[static_cast<std::size_t>(q)] = static_cast<double>(row[q]) >= iso;
   };
+  // Per plane row: 0 all below, 1 all above, 2 mixed. A row of cubes whose four corner rows are
+  // uniform and equal holds no surface and is skipped without looking at its cubes.
+  std::vector<std::uint8_t> rows_lo(static_cast<std::size_t>(ny)), rows_hi(static_cast<std::size_t>(ny));
+  auto row_states = [&](const std::vector<std::uint8_t>& above, std::vector<std::uint8_t>& rows) {
+    for (std::int64_t j = 0; j < ny; ++j) {
+      const std::uint8_t* r = above.data() + j * nx;
+      std::uint8_t state = r[0];
+      for (std::int64_t i = 1; i < nx && state != 2; ++i)
+        if (r[i] != r[0]) state = 2;
+      rows[static_cast<std::size_t>(j)] = state;
+    }
+  };
+  // Map slots are reset individually after use (clearing whole planes per layer costs more).
+  std::vector<std::uint32_t*> written_z, written_lower, written_upper;
   fill_above(ch.k0, above_lo);
+  row_states(above_lo, rows_lo);
   for (std::int64_t k = ch.k0; k < ch.k1; ++k) {
     fill_above(k + 1, above_hi);
-    std::fill(zmap.begin(), zmap.end(), kNone);
-    std::fill(upper.begin(), upper.end(), kNone);
+    row_states(above_hi, rows_hi);
+    for (auto* w : written_z) *w = kNone;
+    written_z.clear();
     const bool top_is_foreign = !last && k + 1 == ch.k1;
-    for (std::int64_t j = 0; j + 1 < ny; ++j)
+    for (std::int64_t j = 0; j + 1 < ny; ++j) {
+      const std::uint8_t s0 = rows_lo[j];
+      if (s0 != 2 && rows_lo[j + 1] == s0 && rows_hi[j] == s0 && rows_hi[j + 1] == s0) continue;
       for (std::int64_t i = 0; i + 1 < nx; ++i) {
         const std::size_t q = static_cast<std::size_t>(i + nx * j);
         const std::uint8_t* lo = above_lo.data() + q;
@@ -226,15 +244,22 @@ void run_chunk(const Volume& v, const T* f, double iso, Chunk& ch, bool last) {
           }
           if (*slot == kNone) {
             *slot = make_vertex(ei, ej, ek, ce.axis);
+            (ce.axis == 2 ? written_z : top ? written_upper : written_lower).push_back(slot);
             ch.top_index.push_back(top && top_is_foreign ? static_cast<std::uint32_t>(map_index) : kNone);
           }
           ids[e] = *slot;
         }
         for (int t = 0; t < cc.triangles; ++t) ch.triangles.push_back({ids[cc.tri[t][0]], ids[cc.tri[t][1]], ids[cc.tri[t][2]]});
       }
+    }
     if (k == ch.k0) ch.bottom_map = lower;
+    // The old lower plane's buffer becomes the new upper one: reset the slots it used.
+    for (auto* w : written_lower) *w = kNone;
+    written_lower.swap(written_upper);
+    written_upper.clear();
     lower.swap(upper);
     above_lo.swap(above_hi);
+    rows_lo.swap(rows_hi);
   }
 }
 
