@@ -123,7 +123,7 @@ def datasets():
 
 
 def distance(mesh, ref, voxel):
-    d = run_json([ADAPTISO, "compare", mesh, ref, "--voxel", str(voxel), "--json"])
+    d = run_json([ADAPTISO, "compare", mesh, ref, "--voxel", str(voxel), "--max-samples", "1000000", "--json"])
     return {"mean_voxels": max(d["a_to_b"]["mean_voxels"], d["b_to_a"]["mean_voxels"]),
             "rms_voxels": max(d["a_to_b"]["rms_voxels"], d["b_to_a"]["rms_voxels"]),
             "p95_voxels": max(d["a_to_b"]["p95_voxels"], d["b_to_a"]["p95_voxels"]),

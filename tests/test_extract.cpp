@@ -8,7 +8,6 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
-#include <map>
 #include <numeric>
 #include <random>
 #include <set>
@@ -27,22 +26,7 @@ using namespace adaptiso;
 
 namespace {
 
-TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) {
-  TetGrid g;
-  auto r = value_range(v);
-  g.source.dims = v.dims;
-  g.source.spacing = v.spacing;
-  g.source.origin = v.origin;
-  g.source.direction = v.direction;
-  g.source.min = r.min;
-  g.source.max = r.max;
-  g.source.type = std::string(scalar_name(v.type));
-  g.source.method = "test";
-  tetrahedralize(v, kept, g);
-  VertexRings rings = vertex_rings(g);
-  compute_gradients(g, rings);
-  return g;
-}
+TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
 
 std::vector<std::int64_t> all_voxels(const Volume& v) {
   std::vector<std::int64_t> k(static_cast<std::size_t>(v.voxel_count()));
@@ -69,44 +53,7 @@ std::vector<std::uint32_t> sorted(std::vector<std::uint32_t> a) {
   return a;
 }
 
-struct Topology {
-  std::size_t boundary_edges = 0, nonmanifold_edges = 0, misoriented_edges = 0, degenerate = 0;
-  long long euler = 0;
-};
-
-// Edge use counts of an indexed mesh; an edge used once must lie on the volume's box.
-Topology topology(const Mesh& m, const GridSource& s, bool* boundary_ok = nullptr) {
-  std::map<std::pair<std::uint32_t, std::uint32_t>, std::pair<int, int>> edges;  // (a<b) → (uses a→b, uses b→a)
-  Topology t;
-  for (const auto& tri : m.triangles) {
-    if (tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2]) ++t.degenerate;
-    for (int e = 0; e < 3; ++e) {
-      std::uint32_t a = tri[e], b = tri[(e + 1) % 3];
-      auto& c = edges[{std::min(a, b), std::max(a, b)}];
-      (a < b ? c.first : c.second)++;
-    }
-  }
-  bool ok = true;
-  for (const auto& [k, c] : edges) {
-    int uses = c.first + c.second;
-    if (uses == 1) {
-      ++t.boundary_edges;
-      // Both ends on one face of the box (exactly: cut points on box edges have an exact coordinate).
-      bool on_face = false;
-      for (int a = 0; a < 3; ++a)
-        for (double f : {0.0, s.spacing[a] * double(s.dims[a] - 1)})
-          on_face |= m.positions[k.first][a] == float(f) && m.positions[k.second][a] == float(f);
-      ok &= on_face;
-    } else if (uses != 2) {
-      ++t.nonmanifold_edges;
-    } else if (c.first != 1) {
-      ++t.misoriented_edges;
-    }
-  }
-  if (boundary_ok) *boundary_ok = ok;
-  t.euler = static_cast<long long>(m.vertex_count()) - static_cast<long long>(edges.size()) + static_cast<long long>(m.triangle_count());
-  return t;
-}
+testutil::EdgeCensus topology(const Mesh& m, const GridSource& s) { return testutil::edge_census(m, s.dims, s.spacing); }
 
 double triangle_area(const Mesh& m, const std::array<std::uint32_t, 3>& t) {
   Mesh one;
@@ -247,8 +194,8 @@ TEST(MarchingTets, LinearFieldGivesThePlaneWithItsNormal) {
       EXPECT_LT(n[0] * a + n[1] * b + n[2] * c, 0);
     }
     auto topo = topology(m, g.source);
-    EXPECT_EQ(topo.nonmanifold_edges, 0u);
-    EXPECT_EQ(topo.misoriented_edges, 0u);
+    EXPECT_EQ(topo.nonmanifold, 0u);
+    EXPECT_EQ(topo.misoriented, 0u);
     EXPECT_EQ(topo.euler, 1);  // a disc
   }
 }
@@ -264,9 +211,9 @@ TEST(MarchingTets, SphereIsClosedOrientedAndConverges) {
     const double iso = 700;  // outside the core: value 1000 R / r, so r = R · 1000 / 700
     extract_into(ex, iso, m);
     auto topo = topology(m, g.source);
-    EXPECT_EQ(topo.boundary_edges, 0u) << n;
-    EXPECT_EQ(topo.nonmanifold_edges, 0u) << n;
-    EXPECT_EQ(topo.misoriented_edges, 0u) << n;
+    EXPECT_EQ(topo.boundary, 0u) << n;
+    EXPECT_EQ(topo.nonmanifold, 0u) << n;
+    EXPECT_EQ(topo.misoriented, 0u) << n;
     EXPECT_EQ(topo.degenerate, 0u) << n;
     EXPECT_EQ(topo.euler, 2) << n;
     // The sphere's centre and radius as the generator defines them (voxel units, spacing 1).
@@ -301,11 +248,10 @@ TEST(MarchingTets, RandomGridsAreWatertightInsideTheBoxWithoutDegenerateTriangle
       extract_into(ex, iso, m);
       if (m.triangles.empty()) continue;
       ++meshes;
-      bool boundary_ok = false;
-      auto topo = topology(m, g.source, &boundary_ok);
-      ASSERT_TRUE(boundary_ok) << "trial " << trial << " iso " << iso;
-      ASSERT_EQ(topo.nonmanifold_edges, 0u) << "trial " << trial << " iso " << iso;
-      ASSERT_EQ(topo.misoriented_edges, 0u) << "trial " << trial << " iso " << iso;
+      auto topo = topology(m, g.source);
+      ASSERT_TRUE(topo.boundary_on_box) << "trial " << trial << " iso " << iso;
+      ASSERT_EQ(topo.nonmanifold, 0u) << "trial " << trial << " iso " << iso;
+      ASSERT_EQ(topo.misoriented, 0u) << "trial " << trial << " iso " << iso;
       for (const auto& t : m.triangles) ASSERT_GT(triangle_area(m, t), 0) << "trial " << trial << " iso " << iso;
     }
   }
@@ -412,7 +358,7 @@ TEST(ExtractCli, RunExtractSeveralIsoValuesAndBadInput) {
   for (const char* k : {"iso", "triangles", "vertices", "active_tetrahedra", "seconds"}) EXPECT_TRUE(s0.contains(k)) << k;
   Mesh m = read_ply(t / "s.ply");
   EXPECT_EQ(m.triangle_count(), s0["triangles"].get<std::size_t>());
-  EXPECT_EQ(topology(m, GridSource{}).boundary_edges, 0u);
+  EXPECT_EQ(topology(m, GridSource{}).boundary, 0u);
 
   r = testutil::run_cli("extract " + (t / "s.adg") + " --relative --iso 0.7,0.72,2 --json -o " + (t / "m.obj"));
   ASSERT_EQ(r.code, 0) << r.err;

@@ -25,17 +25,7 @@ using EK = CGAL::Exact_predicates_exact_constructions_kernel;
 
 namespace {
 
-TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) {
-  TetGrid g;
-  g.source.dims = v.dims;
-  g.source.spacing = v.spacing;
-  g.source.type = std::string(scalar_name(v.type));
-  g.source.method = "test";
-  tetrahedralize(v, kept, g);
-  VertexRings r = vertex_rings(g);
-  compute_gradients(g, r);
-  return g;
-}
+TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
 
 EK::Point_3 ept(const TetGrid& g, std::uint32_t v) {
   // Exact grid-frame coordinates: spacing · index computed in exact arithmetic from the doubles.

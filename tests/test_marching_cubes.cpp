@@ -4,7 +4,6 @@
 #include <tbb/task_arena.h>
 
 #include <cmath>
-#include <map>
 #include <random>
 
 #include "adaptiso/marching_cubes.hpp"
@@ -15,39 +14,7 @@ using namespace adaptiso;
 
 namespace {
 
-struct Edges {
-  std::size_t boundary = 0, nonmanifold = 0, misoriented = 0;
-  bool boundary_on_box = true;
-  long long euler = 0;
-};
-
-Edges edge_census(const Mesh& m, const Volume& v) {
-  std::map<std::pair<std::uint32_t, std::uint32_t>, std::pair<int, int>> edges;
-  for (const auto& t : m.triangles)
-    for (int e = 0; e < 3; ++e) {
-      std::uint32_t a = t[e], b = t[(e + 1) % 3];
-      auto& c = edges[{std::min(a, b), std::max(a, b)}];
-      (a < b ? c.first : c.second)++;
-    }
-  Edges r;
-  for (const auto& [k, c] : edges) {
-    const int uses = c.first + c.second;
-    if (uses == 1) {
-      ++r.boundary;
-      bool on = false;
-      for (int a = 0; a < 3; ++a)
-        for (double f : {0.0, v.spacing[a] * double(v.dims[a] - 1)})
-          on |= m.positions[k.first][a] == float(f) && m.positions[k.second][a] == float(f);
-      r.boundary_on_box &= on;
-    } else if (uses != 2) {
-      ++r.nonmanifold;
-    } else if (c.first != 1) {
-      ++r.misoriented;
-    }
-  }
-  r.euler = (long long)m.vertex_count() - (long long)edges.size() + (long long)m.triangle_count();
-  return r;
-}
+testutil::EdgeCensus edge_census(const Mesh& m, const Volume& v) { return testutil::edge_census(m, v.dims, v.spacing); }
 
 }  // namespace
 

@@ -12,6 +12,11 @@
 #include <string>
 #include <vector>
 
+#include <map>
+
+#include "adaptiso/gradients.hpp"
+#include "adaptiso/mesh.hpp"
+#include "adaptiso/tetrahedralize.hpp"
 #include "adaptiso/volume.hpp"
 
 namespace testutil {
@@ -125,6 +130,63 @@ inline RunResult run_cli(const std::string& args) {
     return std::string(std::istreambuf_iterator<char>(in), {});
   };
   return {WIFEXITED(rc) ? WEXITSTATUS(rc) : 128, slurp(t / "out"), slurp(t / "err")};
+}
+
+// The tetrahedral grid of a volume's kept voxels with gradients (what prepare builds, minus the file).
+inline adaptiso::TetGrid build_grid(const adaptiso::Volume& v, const std::vector<std::int64_t>& kept) {
+  adaptiso::TetGrid g;
+  auto r = adaptiso::value_range(v);
+  g.source.dims = v.dims;
+  g.source.spacing = v.spacing;
+  g.source.origin = v.origin;
+  g.source.direction = v.direction;
+  g.source.min = r.min;
+  g.source.max = r.max;
+  g.source.type = std::string(adaptiso::scalar_name(v.type));
+  g.source.method = "test";
+  adaptiso::tetrahedralize(v, kept, g);
+  adaptiso::VertexRings rings = adaptiso::vertex_rings(g);
+  adaptiso::compute_gradients(g, rings);
+  return g;
+}
+
+// Edge census of an indexed triangle mesh: an edge used by two triangles in opposite directions is
+// manifold and consistently oriented; an edge used once is a boundary edge, which is allowed only
+// on a face of the volume's box (both ends share an exact box coordinate).
+struct EdgeCensus {
+  std::size_t boundary = 0, nonmanifold = 0, misoriented = 0, degenerate = 0;
+  bool boundary_on_box = true;
+  long long euler = 0;  // V - E + F
+};
+
+inline EdgeCensus edge_census(const adaptiso::Mesh& m, const adaptiso::Dims& dims, const adaptiso::Vec3& spacing) {
+  std::map<std::pair<std::uint32_t, std::uint32_t>, std::pair<int, int>> edges;  // (a<b) → (uses a→b, uses b→a)
+  EdgeCensus r;
+  for (const auto& t : m.triangles) {
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++r.degenerate;
+    for (int e = 0; e < 3; ++e) {
+      std::uint32_t a = t[e], b = t[(e + 1) % 3];
+      auto& c = edges[{std::min(a, b), std::max(a, b)}];
+      (a < b ? c.first : c.second)++;
+    }
+  }
+  for (const auto& [k, c] : edges) {
+    const int uses = c.first + c.second;
+    if (uses == 1) {
+      ++r.boundary;
+      bool on = false;
+      for (int a = 0; a < 3; ++a)
+        for (double f : {0.0, spacing[a] * double(dims[a] - 1)})
+          on |= m.positions[k.first][a] == float(f) && m.positions[k.second][a] == float(f);
+      r.boundary_on_box &= on;
+    } else if (uses != 2) {
+      ++r.nonmanifold;
+    } else if (c.first != 1) {
+      ++r.misoriented;
+    }
+  }
+  r.euler = (long long)m.vertex_count() - (long long)edges.size() + (long long)m.triangle_count();
+  return r;
 }
 
 }  // namespace testutil

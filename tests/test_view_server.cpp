@@ -33,16 +33,7 @@ Fixture sphere_grid() {
   ReduceOptions o;
   o.relative = true;
   o.max_error = 0.05;
-  auto r = reduce(*f.volume, o);
-  f.grid = std::make_shared<TetGrid>();
-  auto range = value_range(*f.volume);
-  f.grid->source.dims = f.volume->dims;
-  f.grid->source.min = range.min;
-  f.grid->source.max = range.max;
-  f.grid->source.method = "reconstruction";
-  tetrahedralize(*f.volume, r.kept, *f.grid);
-  VertexRings rings = vertex_rings(*f.grid);
-  compute_gradients(*f.grid, rings);
+  f.grid = std::make_shared<TetGrid>(testutil::build_grid(*f.volume, reduce(*f.volume, o).kept));
   f.index = std::make_shared<IntervalTree>(build_interval_tree(*f.grid));
   return f;
 }

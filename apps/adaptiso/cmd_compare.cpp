@@ -14,6 +14,7 @@ void add_compare(CLI::App& app) {
   auto a = std::make_shared<std::string>(), b = std::make_shared<std::string>();
   auto voxel = std::make_shared<double>(1.0);
   auto samples = std::make_shared<std::size_t>(200'000);
+  auto max_samples = std::make_shared<std::size_t>(4'000'000);
   auto out = std::make_shared<OutputFlags>();
   cmd->add_option("A", *a, "First mesh (.ply)")->required();
   cmd->add_option("B", *b, "Second mesh (.ply)")->required();
@@ -21,13 +22,15 @@ void add_compare(CLI::App& app) {
       ->capture_default_str()->check(CLI::PositiveNumber);
   cmd->add_option("--samples", *samples, "Minimum samples per direction (at least 4 per triangle are taken)")
       ->capture_default_str()->check(CLI::Range(std::size_t{1000}, std::size_t{100'000'000}));
+  cmd->add_option("--max-samples", *max_samples, "Most samples per direction (besides the vertices)")
+      ->capture_default_str()->check(CLI::Range(std::size_t{1000}, std::size_t{100'000'000}));
   out->add(cmd);
   cmd->callback([=] {
     auto t0 = Clock::now();
     Mesh ma = read_ply(*a), mb = read_ply(*b);
     DistanceOptions o;
     o.min_samples = *samples;
-    o.max_samples = std::max(o.max_samples, *samples);
+    o.max_samples = std::max(*max_samples, *samples);
     SurfaceDistance d = surface_distance(ma, mb, o);
     auto stats = [&](const DistanceStats& s) {
       return nlohmann::json{{"samples", s.samples}, {"mean", s.mean},          {"rms", s.rms},          {"p95", s.p95},

@@ -26,6 +26,7 @@
 
 #include "adaptiso/mesh.hpp"
 #include "peer_vtk.hpp"
+#include "timing.hpp"
 #include "adaptiso/volume_io.hpp"
 
 using namespace adaptiso;
@@ -33,17 +34,6 @@ using Clock = std::chrono::steady_clock;
 
 static int repeat = 3;
 
-template <class F>
-double best_time(F f) {
-  f();  // warm-up
-  double best = 1e30;
-  for (int r = 0; r < repeat; ++r) {
-    auto t0 = Clock::now();
-    f();
-    best = std::min(best, std::chrono::duration<double>(Clock::now() - t0).count());
-  }
-  return best;
-}
 
 Mesh to_mesh(const PeerMesh& p) {
   Mesh m;
@@ -131,7 +121,7 @@ int main(int argc, char** argv) {
       std::vector<openvdb::Vec3s> pts;
       std::vector<openvdb::Vec3I> tris;
       std::vector<openvdb::Vec4I> quads;
-      double t = best_time([&] {
+      double t = best_of(repeat, [&] {
         pts.clear(), tris.clear(), quads.clear();
         openvdb::tools::volumeToMesh(*grid, pts, tris, quads, 0.0, adaptivity);
       });
@@ -157,7 +147,7 @@ int main(int argc, char** argv) {
     std::vector<unsigned int> idx(m.triangle_count() * 3), out(idx.size());
     std::memcpy(idx.data(), m.triangles.data(), idx.size() * 4);
     std::size_t n = 0;
-    double t = best_time([&] {
+    double t = best_of(repeat, [&] {
       n = meshopt_simplify(out.data(), idx.data(), idx.size(), &m.positions[0][0], m.vertex_count(), 12, target * 3, 1.0f);
     });
     Mesh s;

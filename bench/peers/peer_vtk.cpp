@@ -1,5 +1,6 @@
 // VTK peers (see peer_vtk.hpp). Built as C++17.
 #include "peer_vtk.hpp"
+#include "timing.hpp"
 
 #include <vtkCellArray.h>
 #include <vtkCellArrayIterator.h>
@@ -24,17 +25,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-template <class F>
-double best_time(int repeat, F f) {
-  f();
-  double best = 1e30;
-  for (int r = 0; r < repeat; ++r) {
-    auto t0 = Clock::now();
-    f();
-    best = std::min(best, std::chrono::duration<double>(Clock::now() - t0).count());
-  }
-  return best;
-}
 
 vtkSmartPointer<vtkImageData> image(const float* values, const int dims[3], const double spacing[3]) {
   auto img = vtkSmartPointer<vtkImageData>::New();
@@ -79,7 +69,7 @@ double vtk_flying_edges(const float* values, const int dims[3], const double spa
   fe->SetInputData(img);
   fe->SetValue(0, iso);
   fe->ComputeNormalsOn();
-  double t = best_time(repeat, [&] { fe->Modified(); fe->Update(); });
+  double t = best_of(repeat, [&] { fe->Modified(); fe->Update(); });
   to_mesh(fe->GetOutput(), out);
   backend = vtkSMPTools::GetBackend();
   return t;
@@ -91,7 +81,7 @@ double vtk_marching_cubes(const float* values, const int dims[3], const double s
   mc->SetInputData(img);
   mc->SetValue(0, iso);
   mc->ComputeNormalsOn();
-  double t = best_time(repeat, [&] { mc->Modified(); mc->Update(); });
+  double t = best_of(repeat, [&] { mc->Modified(); mc->Update(); });
   to_mesh(mc->GetOutput(), out);
   return t;
 }
@@ -117,7 +107,7 @@ void vtk_grid_contours(const std::string& vtu, const std::vector<double>& isos, 
   std::printf("{\"method\":\"vtkContour3DLinearGrid+vtkSpanSpace\",\"stage\":\"setup\",\"load_seconds\":%.3f,\"first_seconds\":%.3f}\n", load, first);
   for (double iso : isos) {
     c->SetValue(0, iso);
-    double t = best_time(repeat, [&] { c->Modified(); c->Update(); });
+    double t = best_of(repeat, [&] { c->Modified(); c->Update(); });
     vtkPolyData* out = vtkPolyData::SafeDownCast(c->GetOutputDataObject(0));
     std::printf("{\"method\":\"vtkContour3DLinearGrid+vtkSpanSpace\",\"iso\":%.9g,\"triangles\":%lld,\"seconds\":%.6f,\"threads\":%u}\n", iso,
                 out ? (long long)out->GetNumberOfCells() : 0LL, t, std::thread::hardware_concurrency());

@@ -31,6 +31,9 @@ void save_grid(const TetGrid& grid, const std::string& path, const std::string& 
 // With `index`, fills it from the file, or builds it when the file has none.
 TetGrid load_grid(const std::string& path, std::string* metadata_json = nullptr, IntervalTree* index = nullptr);
 
+// Bytes the grid and its index occupy in memory (= the file without header and metadata), per vertex.
+double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index);
+
 // VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
 // point data "value" and "gradient" (world frame). Written atomically.
 void write_vtu(const TetGrid& grid, const std::string& path);

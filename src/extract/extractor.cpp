@@ -142,7 +142,10 @@ ExtractStats Extractor::extract(double iso) {
   auto t0 = Clock::now();
   scratch_.parallel_min_triangles = parallel_min_triangles;
   sweep_to(tree_, grid_, state_, iso);
-  // Keep the previous extraction for the incremental update.
+  // Keep the previous extraction for the incremental update. Should anything below throw, the
+  // buffers are half swapped: the next call then starts afresh.
+  const bool had_previous = valid_;
+  valid_ = false;
   active_.swap(prev_active_);
   codes_.swap(prev_codes_);
   first_tri_.swap(prev_first_tri_);
@@ -152,7 +155,7 @@ ExtractStats Extractor::extract(double iso) {
   active_tetrahedra(tree_, state_, active_);
   sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
   auto t1 = Clock::now();
-  incremental_ = valid_ && update(iso);
+  incremental_ = had_previous && update(iso);
   if (!incremental_) fresh(iso);
   valid_ = true;
   auto t2 = Clock::now();

@@ -135,9 +135,9 @@ void validate_interval_tree(const IntervalTree& tree, const TetGrid& g, const st
   // Ranges: pre-order, own entries first, children follow; keys inside the interval inherited from
   // the ancestors' splits; interior entries straddle their split.
   std::vector<std::uint32_t> node_of(T, std::numeric_limits<std::uint32_t>::max());
-  struct Item { std::size_t i; std::uint64_t cursor; double lo, hi; };
+  struct Item { std::size_t i; double lo, hi; };  // node, and the key interval its ancestors allow
   std::uint64_t cursor = 0;
-  std::vector<Item> stack{{0, 0, -std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()}};
+  std::vector<Item> stack{{0, -std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()}};
   while (!stack.empty()) {
     Item it = stack.back();
     stack.pop_back();
@@ -160,8 +160,8 @@ void validate_interval_tree(const IntervalTree& tree, const TetGrid& g, const st
       }
     }
     if (!leaf) {  // push right first so the left subtree is visited next (pre-order)
-      stack.push_back({2 * it.i + 2, 0, std::max(it.lo, n.split), it.hi});
-      stack.push_back({2 * it.i + 1, 0, it.lo, std::min(it.hi, n.split)});
+      stack.push_back({2 * it.i + 2, std::max(it.lo, n.split), it.hi});
+      stack.push_back({2 * it.i + 1, it.lo, std::min(it.hi, n.split)});
     }
   }
   if (cursor != tree.by_min.size()) fail("node ranges do not cover the lists");

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "adaptiso/error.hpp"
+#include "extract/march_internal.hpp"
 
 namespace adaptiso {
 namespace {
@@ -171,15 +172,10 @@ void run_chunk(const Volume& v, const T* f, double iso, Chunk& ch, bool last) {
       for (int a = 0; a < 3; ++a) nrm[a] = 0;
       nrm[axis] = a_below ? -1 : 1;
     }
-    double wp[3], wn[3];
-    for (int a = 0; a < 3; ++a) {
-      wp[a] = v.origin[a] + D[3 * a] * p[0] + D[3 * a + 1] * p[1] + D[3 * a + 2] * p[2];
-      wn[a] = D[3 * a] * nrm[0] + D[3 * a + 1] * nrm[1] + D[3 * a + 2] * nrm[2];
-    }
-    double wl = std::sqrt(wn[0] * wn[0] + wn[1] * wn[1] + wn[2] * wn[2]);
-    if (!(wl > 0)) wl = 1;
-    ch.positions.push_back({float(wp[0]), float(wp[1]), float(wp[2])});
-    ch.normals.push_back({float(wn[0] / wl), float(wn[1] / wl), float(wn[2] / wl)});
+    std::array<float, 3> wp, wn;
+    to_world(v.origin, D, p, nrm, wp, wn);
+    ch.positions.push_back(wp);
+    ch.normals.push_back(wn);
     return static_cast<std::uint32_t>(ch.positions.size() - 1);
   };
   auto fill_above = [&](std::int64_t k, std::vector<std::uint8_t>& out) {

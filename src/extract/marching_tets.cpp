@@ -99,15 +99,7 @@ void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& or
         for (int k = 0; k < 3; ++k) nrm[k] = s.spacing[k] * (double(g.ijk[a][k]) - double(g.ijk[b][k]));
         len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
       }
-      double w[3], wn[3];
-      for (int k = 0; k < 3; ++k) {
-        w[k] = s.origin[k] + D[3 * k] * p[0] + D[3 * k + 1] * p[1] + D[3 * k + 2] * p[2];
-        wn[k] = D[3 * k] * nrm[0] + D[3 * k + 1] * nrm[1] + D[3 * k + 2] * nrm[2];
-      }
-      double wl = std::sqrt(wn[0] * wn[0] + wn[1] * wn[1] + wn[2] * wn[2]);
-      if (!(wl > 0)) wl = 1;
-      mesh.positions[i] = {float(w[0]), float(w[1]), float(w[2])};
-      mesh.normals[i] = {float(wn[0] / wl), float(wn[1] / wl), float(wn[2] / wl)};
+      to_world(s.origin, D, p, nrm, mesh.positions[i], mesh.normals[i]);
     }
   });
 }

@@ -204,6 +204,11 @@ TetGrid load_grid(const std::string& path, std::string* metadata_json, IntervalT
   return g;
 }
 
+double grid_bytes_per_vertex(const TetGrid& g, const IntervalTree& index) {
+  const double bytes = g.vertex_count() * (12.0 + 8 + 12) + g.tet_count() * 16.0 + index.entries() * 8.0 + index.nodes.size() * 24.0;
+  return g.vertex_count() ? bytes / static_cast<double>(g.vertex_count()) : 0;
+}
+
 void write_vtu(const TetGrid& g, const std::string& path) {
   const std::uint64_t n = g.vertex_count(), t = g.tet_count();
   Volume geo;

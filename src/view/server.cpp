@@ -18,6 +18,7 @@
 #include "adaptiso/extract.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh.hpp"
+#include "adaptiso/number.hpp"
 
 namespace adaptiso {
 namespace fs = std::filesystem;
@@ -43,15 +44,9 @@ struct BadRequest : std::runtime_error {
 double parse_iso(const httplib::Request& req) {
   if (!req.has_param("iso")) throw BadRequest("missing parameter iso");
   const std::string s = req.get_param_value("iso");
-  std::size_t used = 0;
-  double x = 0;
-  try {
-    x = std::stod(s, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (s.empty() || used != s.size() || !std::isfinite(x)) throw BadRequest(fmt::format("iso must be a finite number, not '{}'", s.substr(0, 40)));
-  return x;
+  auto x = parse_finite(s);
+  if (!x) throw BadRequest(fmt::format("iso must be a finite number, not '{}'", s.substr(0, 40)));
+  return *x;
 }
 
 std::string client_id(const httplib::Request& req) {
