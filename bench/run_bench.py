@@ -36,6 +36,9 @@ ap.add_argument("--curve-errors", default="0.005,0.01,0.02,0.05,0.1,0.15,0.3",
 ap.add_argument("--curve-dataset", default="ct_head_headsq_quarter")
 ap.add_argument("--sweep-dataset", default="ct_bunny_stanford", help="where the iso sweep plot is measured")
 ap.add_argument("--repeat", type=int, default=3)
+ap.add_argument("--replot", help="only rewrite the report and plots from this results JSON")
+ap.add_argument("--append", help="keep this results JSON's records of the datasets not run now")
+ap.add_argument("--max-samples", default="1000000", help="surface distance: most samples per direction")
 ap.add_argument("datasets", nargs="*")
 args = ap.parse_args()
 
@@ -123,7 +126,7 @@ def datasets():
 
 
 def distance(mesh, ref, voxel):
-    d = run_json([ADAPTISO, "compare", mesh, ref, "--voxel", str(voxel), "--max-samples", "1000000", "--json"])
+    d = run_json([ADAPTISO, "compare", mesh, ref, "--voxel", str(voxel), "--max-samples", args.max_samples, "--json"])
     return {"mean_voxels": max(d["a_to_b"]["mean_voxels"], d["b_to_a"]["mean_voxels"]),
             "rms_voxels": max(d["a_to_b"]["rms_voxels"], d["b_to_a"]["rms_voxels"]),
             "p95_voxels": max(d["a_to_b"]["p95_voxels"], d["b_to_a"]["p95_voxels"]),
@@ -172,6 +175,7 @@ def bench_dataset(name, path, isos, errors):
                 sp = info["spacing"]
                 r = run_json(["/usr/bin/python3", SKIMAGE, raw, *map(str, d), *map(str, sp), repr(iso), f"{W}/{tag}_skimage.ply",
                               str(args.repeat)])
+                subprocess.run([PEER, "world", path, f"{W}/{tag}_skimage.ply"], check=True)
                 record(kind="mesh", dataset=name, iso=iso, method="scikit-image marching_cubes", triangles=r["triangles"],
                        seconds=r["seconds"], distance=distance(f"{W}/{tag}_skimage.ply", ref, voxel))
         except Exception as e:  # a failing peer must not hide the others
@@ -232,6 +236,43 @@ def bench_dataset(name, path, isos, errors):
             record(kind="sweep", dataset=name, method="vtkFlyingEdges3D", iso=r["iso"], triangles=r["triangles"], seconds=r["seconds"])
 
 
+def summary_tables():
+    """One row per dataset and iso-value: adaptiso beside flying edges and the decimating peers."""
+    def find(ds, iso, pred):
+        return next((r for r in records if r.get("kind") == "mesh" and r["dataset"] == ds and r.get("iso") == iso and pred(r["method"])), None)
+    out = ["## Summary", "",
+           "| dataset | iso | FE triangles | adaptiso triangles | adaptiso mean / p95 distance | adaptiso time × FE | VTK grid contour × adaptiso "
+           "| adaptiso mc × FE | OpenVDB 0.5: triangles, mean | FE + meshoptimizer 2 %: triangles, mean |",
+           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for ds in [r["dataset"] for r in records if r["kind"] == "dataset"]:
+        for iso in sorted({r["iso"] for r in records if r.get("kind") == "mesh" and r["dataset"] == ds}):
+            fe = find(ds, iso, lambda m: m == "vtkFlyingEdges3D")
+            ad = find(ds, iso, lambda m: m.startswith("adaptiso (error"))
+            vg = find(ds, iso, lambda m: m.startswith("VTK contour"))
+            mc = find(ds, iso, lambda m: m.startswith("adaptiso mc"))
+            vdb = find(ds, iso, lambda m: m == "OpenVDB volumeToMesh 0.5")
+            mo = find(ds, iso, lambda m: m == "flying edges + meshoptimizer 2 %")
+            if not (fe and ad and mc):
+                continue
+            cell = lambda r: f"{r['triangles']:,}, {r['distance']['mean_voxels']:.3f}" if r and r.get("distance") else ""
+            out.append(f"| {ds} | {iso:g} | {fe['triangles']:,} | {ad['triangles']:,} | {ad['distance']['mean_voxels']:.3f} / "
+                       f"{ad['distance']['p95_voxels']:.3f} | {ad['seconds'] / fe['seconds']:.3g} | "
+                       f"{(vg['seconds'] / ad['seconds']) if vg else float('nan'):.3g} | {mc['seconds'] / fe['seconds']:.3g} | {cell(vdb)} | {cell(mo)} |")
+    out += ["", "| dataset | error | kept | % of voxels | tetrahedra | reduce s | tetrahedralize s | gradients s | index s | pl max / bound |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for p in [r for r in records if r["kind"] == "prepare"]:
+        t = p["seconds"]
+        out.append(f"| {p['dataset']} | {p['error']:g} | {p['kept']:,} | {100 * p['ratio']:.2f} | {p['tetrahedra']:,} | {t['reduce']:.2f} | "
+                   f"{t['tetrahedralize']:.2f} | {t['gradients']:.2f} | {t['index']:.2f} | {p['pl_max_error']:g} / {p['max_error']:g} |")
+    out += ["", "| dataset | iso | fresh ms | new client ms | step 0.1 % ms (× fresh, × new client) | step 1 % ms | tree query ms | scan ms | active % |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in [r for r in records if r["kind"] == "mesh" and r["method"].startswith("adaptiso (error")]:
+        out.append(f"| {r['dataset']} | {r['iso']:g} | {r['seconds'] * 1e3:.1f} | {r['first_client_seconds'] * 1e3:.1f} | "
+                   f"{r['step_small'] * 1e3:.1f} ({r['step_small'] / r['seconds']:.2f}, {r['step_small'] / r['first_client_seconds']:.2f}) | "
+                   f"{r['step_large'] * 1e3:.1f} | {r['query_tree'] * 1e3:.3f} | {r['query_scan'] * 1e3:.2f} | {100 * r['active_fraction']:.2f} |")
+    return out
+
+
 def write_report(stamp):
     meta = {"date": stamp, "machine": platform.node(), "cpu": platform.processor() or platform.machine(), "threads": os.cpu_count(),
             "python": platform.python_version()}
@@ -240,6 +281,7 @@ def write_report(stamp):
     md = [f"# adaptiso vs peers — {stamp}", "", f"Machine: {meta['cpu']}, {meta['threads']} threads. Times exclude I/O; "
           "`× FE` is the time relative to vtkFlyingEdges3D in the same run; distances are to the full-resolution "
           "marching-cubes surface, in voxels (max of both directions).", ""]
+    md += summary_tables() + [""]
     for ds in [r for r in records if r["kind"] == "dataset"]:
         name = ds["dataset"]
         md += [f"## {name} ({'×'.join(map(str, ds['dims']))}, values {ds['min']:g} … {ds['max']:g})", ""]
@@ -284,9 +326,9 @@ def write_report(stamp):
         groups = {}
         for r in pts:
             key = re.sub(r" \(.*\)| [0-9.]+$", "", r["method"])
-            groups.setdefault(key, []).append((r["triangles"], r["distance"]["mean_voxels"]))
-        ad = sorted([(r["triangles"], r["distance"]["mean_voxels"]) for r in curve] +
-                    [(r["triangles"], r["distance"]["mean_voxels"]) for r in pts if r["method"].startswith("adaptiso (error")])
+            groups.setdefault(key, []).append((r["triangles"], max(r["distance"]["mean_voxels"], 1e-3)))
+        ad = sorted([(r["triangles"], max(r["distance"]["mean_voxels"], 1e-3)) for r in curve] +
+                    [(r["triangles"], max(r["distance"]["mean_voxels"], 1e-3)) for r in pts if r["method"].startswith("adaptiso (error")])
         groups.pop("adaptiso", None)
         for k, v in groups.items():
             v.sort()
@@ -294,7 +336,8 @@ def write_report(stamp):
         if ad:
             ax.plot([a for a, _ in ad], [b for _, b in ad], "s-", color="black", label="adaptiso (relative error sweep)")
         ax.set_xscale("log")
-        ax.set_yscale("symlog", linthresh=0.01)
+        ax.set_yscale("log")
+        ax.set_ylim(bottom=1e-3)
         ax.set_xlabel("triangles")
         ax.set_ylabel("mean distance to full-resolution surface (voxels)")
         ax.set_title(f"{ds}, iso {iso:g}" if iso is not None else ds)
@@ -317,7 +360,15 @@ def write_report(stamp):
         fig.savefig(os.path.join(args.out, f"{stamp}-sweep.png"), dpi=110)
 
 
+if args.replot:
+    saved = json.load(open(args.replot))
+    records = saved["records"]
+    write_report(os.path.splitext(os.path.basename(args.replot))[0])
+    sys.exit(0)
 stamp = datetime.date.today().isoformat()
+if args.append:
+    rerun = {n for n, _, _ in datasets()}
+    records = [r for r in json.load(open(args.append))["records"] if r.get("dataset") not in rerun]
 errors = [float(e) for e in args.errors.split(",")]
 try:
     for name, path, isos in datasets():

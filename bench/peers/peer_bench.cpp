@@ -7,6 +7,7 @@
 //   peer_bench simplify MESH.ply TRIANGLES OUT.ply   meshoptimizer simplification to a triangle count
 //   peer_bench vtkgrid GRID.vtu ISO[,ISO...]   vtkContour3DLinearGrid with a vtkSpanSpace scalar tree
 //   peer_bench vtksweep VOLUME ISO[,ISO...]    flying edges per iso-value
+//   peer_bench world VOLUME MESH.ply           rewrite a grid-frame mesh (scikit-image's) in world coordinates
 //   peer_bench dump VOLUME OUT.raw             float32 raw copy (for scikit-image)
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Dense.h>
@@ -34,6 +35,15 @@ using Clock = std::chrono::steady_clock;
 
 static int repeat = 3;
 
+
+// Peers mesh in the grid frame (spacing ⊙ index); adaptiso writes world coordinates (origin and
+// direction applied). Bring peer meshes into the same frame before comparing.
+void to_world(const Volume& v, Mesh& m) {
+  for (auto& p : m.positions) {
+    Vec3 w = v.grid_to_world({p[0], p[1], p[2]});
+    p = {float(w[0]), float(w[1]), float(w[2])};
+  }
+}
 
 Mesh to_mesh(const PeerMesh& p) {
   Mesh m;
@@ -77,12 +87,21 @@ int main(int argc, char** argv) {
     std::string backend;
     double t = vtk_flying_edges(f.data(), dims, v.spacing.data(), iso, repeat, pm, backend);
     Mesh m = to_mesh(pm);
+    to_world(v, m);
     write_mesh(m, prefix + "flying_edges.ply");
     print("vtkFlyingEdges3D", "\"smp\":\"" + backend + "\",", m.triangle_count(), t);
     t = vtk_marching_cubes(f.data(), dims, v.spacing.data(), iso, repeat, pm);
     m = to_mesh(pm);
+    to_world(v, m);
     write_mesh(m, prefix + "marching_cubes.ply");
     print("vtkMarchingCubes", "", m.triangle_count(), t);
+    return 0;
+  }
+  if (cmd == "world") {  // peer_bench world VOLUME MESH.ply: rewrite a grid-frame mesh in world coordinates
+    Volume v = read_volume(argv[2]);
+    Mesh m = read_ply(argv[3]);
+    to_world(v, m);
+    write_mesh(m, argv[3]);
     return 0;
   }
   if (cmd == "vtksweep") {  // flying edges per iso-value, for the sweep plot
@@ -132,6 +151,7 @@ int main(int argc, char** argv) {
         m.triangles.push_back({q[0], q[1], q[2]});
         m.triangles.push_back({q[0], q[2], q[3]});
       }
+      to_world(v, m);
       char name[64];
       std::snprintf(name, sizeof name, "openvdb_%.2f.ply", adaptivity);
       write_mesh(m, prefix + name);

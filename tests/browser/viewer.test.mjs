@@ -35,8 +35,13 @@ function cleanup() {
 }
 setTimeout(() => fail('timed out after 150 s'), 150000).unref();
 
-execFileSync(cli, ['generate', 'sphere', '--size', '50', '-o', join(tmp, 'sphere.nrrd')]);
-server = spawn(cli, ['view', join(tmp, 'sphere.nrrd'), '--relative', '--max-error', '0.15', '--port', '0', '--web', web, '--quiet'],
+// ADAPTISO_VIEW_VOLUME runs the same checks on another volume (e.g. a CT from ../shared/data).
+let volume = process.env.ADAPTISO_VIEW_VOLUME;
+if (!volume) {
+  volume = join(tmp, 'sphere.nrrd');
+  execFileSync(cli, ['generate', 'sphere', '--size', '50', '-o', volume]);
+}
+server = spawn(cli, ['view', volume, '--relative', '--max-error', process.env.ADAPTISO_VIEW_ERROR || '0.15', '--port', '0', '--web', web, '--quiet'],
                { stdio: ['ignore', 'pipe', 'inherit'] });
 const url = await new Promise((ok, bad) => {
   let out = '';
