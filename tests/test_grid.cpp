@@ -241,3 +241,35 @@ TEST(PrepareCli, JsonFieldsAndExport) {
   EXPECT_EQ(bad.code, 2);
   EXPECT_FALSE(std::filesystem::exists(t / "x.vtu"));
 }
+
+TEST(GridFile, FilesWithoutAnIndexAndVersion1FilesGetOneBuiltOnLoad) {
+  testutil::TempDir t("gridv1");
+  Volume s = make_synthetic("sphere", 12, ScalarType::i16);
+  ReduceOptions o;
+  o.max_error = 40;
+  TetGrid g = build(s, reduce(s, o).kept);
+  save_grid(g, t / "plain.adg");  // version 2 without the index
+  IntervalTree idx;
+  TetGrid h = load_grid(t / "plain.adg", nullptr, &idx);
+  IntervalTree expect = build_interval_tree(h);
+  EXPECT_EQ(idx.by_min, expect.by_min);
+  EXPECT_EQ(idx.by_max, expect.by_max);
+  // The same content as a version 1 file: 48-byte header, version 1, flags 0, fresh checksum.
+  std::ifstream in(t / "plain.adg", std::ios::binary);
+  std::string v2((std::istreambuf_iterator<char>(in)), {});
+  std::string v1 = v2.substr(0, 48) + v2.substr(64, v2.size() - 64 - 4);
+  const std::uint32_t one = 1;
+  std::memcpy(v1.data() + 16, &one, 4);
+  const std::uint32_t crc = static_cast<std::uint32_t>(crc32(crc32(0, nullptr, 0), reinterpret_cast<const Bytef*>(v1.data()),
+                                                             static_cast<uInt>(v1.size())));
+  v1.append(reinterpret_cast<const char*>(&crc), 4);
+  testutil::write_bytes(t / "v1.adg", v1);
+  IntervalTree idx1;
+  TetGrid h1 = load_grid(t / "v1.adg", nullptr, &idx1);
+  EXPECT_EQ(h1.tets, g.tets);
+  EXPECT_EQ(idx1.by_min, expect.by_min);
+  std::string bad = v1;
+  bad[20] = 1;  // a version 1 file cannot announce an index
+  testutil::write_bytes(t / "v1bad.adg", bad);
+  EXPECT_THROW(load_grid(t / "v1bad.adg", nullptr, &idx1), InputError);
+}
