@@ -327,8 +327,7 @@ TEST(MeshFiles, PlyRoundTripAndOtherFormats) {
   EXPECT_EQ(v_lines, m.vertex_count());
   EXPECT_EQ(f_lines, m.triangle_count());
   write_mesh(m, t / "a.glb");
-  std::ifstream glb(t / "a.glb", std::ios::binary);
-  std::string bytes((std::istreambuf_iterator<char>(glb)), {});
+  const std::string bytes = testutil::read_bytes(t / "a.glb");
   ASSERT_GT(bytes.size(), 20u);
   EXPECT_EQ(bytes.substr(0, 4), "glTF");
   std::uint32_t total, json_len;
@@ -340,8 +339,7 @@ TEST(MeshFiles, PlyRoundTripAndOtherFormats) {
   EXPECT_EQ(j["accessors"][2]["count"], 3 * m.triangle_count());
   EXPECT_THROW(write_mesh(m, t / "a.xyz"), InputError);
   // A damaged PLY is refused.
-  std::ifstream in(t / "a.ply", std::ios::binary);
-  std::string ply((std::istreambuf_iterator<char>(in)), {});
+  const std::string ply = testutil::read_bytes(t / "a.ply");
   testutil::write_bytes(t / "cut.ply", ply.substr(0, ply.size() / 2));
   EXPECT_THROW(read_ply(t / "cut.ply"), InputError);
 }

@@ -193,9 +193,7 @@ TEST(GridFile, RoundTripIsBitIdentical) {
   EXPECT_EQ(h.tets, g.tets);
   EXPECT_EQ(h.source.dims, g.source.dims);
   save_grid(h, t / "b.adg", "{}", &loaded);
-  std::ifstream a(t / "a.adg", std::ios::binary), b(t / "b.adg", std::ios::binary);
-  std::string sa((std::istreambuf_iterator<char>(a)), {}), sb((std::istreambuf_iterator<char>(b)), {});
-  EXPECT_EQ(sa, sb);
+  EXPECT_EQ(testutil::read_bytes(t / "a.adg"), testutil::read_bytes(t / "b.adg"));
 }
 
 TEST(GridFile, EveryTruncationAndRandomCorruptionIsRefused) {
@@ -208,8 +206,7 @@ TEST(GridFile, EveryTruncationAndRandomCorruptionIsRefused) {
   save_grid(g, t / "a.adg", "{}", &idx);
   IntervalTree loaded;
   ASSERT_NO_THROW(load_grid(t / "a.adg", nullptr, &loaded));
-  std::ifstream a(t / "a.adg", std::ios::binary);
-  const std::string full((std::istreambuf_iterator<char>(a)), {});
+  const std::string full = testutil::read_bytes(t / "a.adg");
   for (std::size_t len = 0; len < full.size(); ++len) {
     testutil::write_bytes(t / "t.adg", full.substr(0, len));
     EXPECT_THROW(load_grid(t / "t.adg", nullptr, &loaded), InputError) << "length " << len;
@@ -255,8 +252,7 @@ TEST(GridFile, FilesWithoutAnIndexAndVersion1FilesGetOneBuiltOnLoad) {
   EXPECT_EQ(idx.by_min, expect.by_min);
   EXPECT_EQ(idx.by_max, expect.by_max);
   // The same content as a version 1 file: 48-byte header, version 1, flags 0, fresh checksum.
-  std::ifstream in(t / "plain.adg", std::ios::binary);
-  std::string v2((std::istreambuf_iterator<char>(in)), {});
+  const std::string v2 = testutil::read_bytes(t / "plain.adg");
   std::string v1 = v2.substr(0, 48) + v2.substr(64, v2.size() - 64 - 4);
   const std::uint32_t one = 1;
   std::memcpy(v1.data() + 16, &one, 4);

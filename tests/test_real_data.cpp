@@ -22,8 +22,7 @@ struct Sidecar {
 };
 
 Sidecar parse_sidecar(const fs::path& txt) {
-  std::ifstream in(txt);
-  std::string s((std::istreambuf_iterator<char>(in)), {});
+  const std::string s = testutil::read_bytes(txt);
   Sidecar c;
   c.name = txt.stem().string();
   std::smatch m;

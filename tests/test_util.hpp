@@ -44,6 +44,11 @@ inline void write_bytes(const std::string& path, const std::string& data) {
   out.write(data.data(), static_cast<std::streamsize>(data.size()));
 }
 
+inline std::string read_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
 inline std::string bytes_of(const adaptiso::Volume& v) { return std::string(v.bytes.begin(), v.bytes.end()); }
 
 inline std::string swapped(std::string s, std::size_t es) {
@@ -125,11 +130,7 @@ inline RunResult run_cli(const std::string& args) {
   TempDir t("cli");
   std::string cmd = std::string(ADAPTISO_CLI) + " " + args + " > " + (t / "out") + " 2> " + (t / "err");
   int rc = std::system(cmd.c_str());
-  auto slurp = [](const std::string& p) {
-    std::ifstream in(p);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
-  return {WIFEXITED(rc) ? WEXITSTATUS(rc) : 128, slurp(t / "out"), slurp(t / "err")};
+  return {WIFEXITED(rc) ? WEXITSTATUS(rc) : 128, read_bytes(t / "out"), read_bytes(t / "err")};
 }
 
 // The tetrahedral grid of a volume's kept voxels with gradients (what prepare builds, minus the file).

@@ -21,23 +21,46 @@ std::string output_name(const std::string& path, const std::string& token, bool 
   return (p.parent_path() / (p.stem().string() + "-" + token + p.extension().string())).string();
 }
 
-void check_mesh_extension(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  for (auto& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb")
-    throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", path, ext));
+// --iso and -o of the commands that write iso-surface meshes (extract, run, mc).
+struct MeshOutputFlags {
+  std::vector<std::string> isos;  // as typed: they also name the outputs
+  std::string output;
+  void add(CLI::App* app) {
+    app->add_option("--iso", isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
+        ->required()->delimiter(',');
+    app->add_option("-o,--output", output, "Mesh file (.ply .obj .stl .glb); with several iso-values each name gets -<iso> before the extension")
+        ->required();
+  }
+  // Refuses an unknown mesh type before any long work.
+  void check() const {
+    std::string ext = std::filesystem::path(output).extension().string();
+    for (auto& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb")
+      throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", output, ext));
+  }
+  std::vector<double> values(bool relative, double min, double max) const { return parse_iso_values(isos, relative, min, max); }
+  std::string path(std::size_t i) const { return output_name(output, isos[i], isos.size() > 1); }
+};
+
+// The human-readable line for one surface; `how` describes where its triangles came from.
+void print_surface(double iso, bool in_range, double min, double max, std::size_t triangles, std::size_t vertices,
+                   const std::string& how, double seconds, const std::string& path) {
+  if (!in_range)
+    std::cout << fmt::format("iso {:.6g} lies outside the value range [{:.6g}, {:.6g}]: empty mesh, wrote {}\n", iso, min, max, path);
+  else
+    std::cout << fmt::format("iso {:.6g}: {} triangles, {} vertices {} in {:.4f} s; wrote {}\n", iso, triangles, vertices, how, seconds, path);
 }
 
 // Extracts every iso-value with one Extractor (so consecutive values sweep incrementally), writes
 // the meshes and returns the per-value statistics.
-nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const std::vector<std::string>& tokens,
-                           const std::vector<double>& isos, const std::string& output, const OutputFlags& out) {
+nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const MeshOutputFlags& mesh_out,
+                           const std::vector<double>& isos, const OutputFlags& out) {
   Extractor ex(g, index);
   nlohmann::json results = nlohmann::json::array();
   for (std::size_t i = 0; i < isos.size(); ++i) {
     ExtractStats st = ex.extract(isos[i]);
     const Mesh& mesh = ex.mesh();
-    const std::string path = output_name(output, tokens[i], isos.size() > 1);
+    const std::string path = mesh_out.path(i);
     auto t0 = Clock::now();
     write_mesh(mesh, path);
     const double t_write = seconds_since(t0);
@@ -52,14 +75,9 @@ nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const st
                        {"march_seconds", st.march_seconds},
                        {"write_seconds", t_write},
                        {"output", path}});
-    if (!out.json && !out.quiet) {
-      if (!st.in_range)
-        std::cout << fmt::format("iso {:.6g} lies outside the value range [{:.6g}, {:.6g}]: empty mesh, wrote {}\n", st.iso,
-                                 g.source.min, g.source.max, path);
-      else
-        std::cout << fmt::format("iso {:.6g}: {} triangles, {} vertices from {} active tetrahedra in {:.4f} s; wrote {}\n", st.iso,
-                                 st.triangles, st.vertices, st.active, st.sweep_seconds + st.march_seconds, path);
-    }
+    if (!out.json && !out.quiet)
+      print_surface(st.iso, st.in_range, g.source.min, g.source.max, st.triangles, st.vertices,
+                    fmt::format("from {} active tetrahedra", st.active), st.sweep_seconds + st.march_seconds, path);
   }
   return results;
 }
@@ -69,25 +87,22 @@ nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const st
 void add_extract(CLI::App& app) {
   auto* cmd = app.add_subcommand("extract", "Extract iso-surfaces from a grid file (.adg) into meshes (.ply .obj .stl .glb)");
   auto input = std::make_shared<std::string>();
-  auto isos = std::make_shared<std::vector<std::string>>();
+  auto mesh_out = std::make_shared<MeshOutputFlags>();
   auto relative = std::make_shared<bool>(false);
-  auto output = std::make_shared<std::string>();
   auto out = std::make_shared<OutputFlags>();
   cmd->add_option("GRID", *input, "Grid file (.adg) written by prepare")->required();
-  cmd->add_option("--iso", *isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
-      ->required()->delimiter(',');
+  mesh_out->add(cmd);
   cmd->add_flag("--relative", *relative, "Iso-values as fractions of the value range [min, max]");
-  cmd->add_option("-o,--output", *output, "Mesh file; with several iso-values each name gets -<iso> before the extension")->required();
   out->add(cmd);
   cmd->callback([=] {
-    check_mesh_extension(*output);
+    mesh_out->check();
     auto t0 = Clock::now();
     IntervalTree index;
     TetGrid g = load_grid(*input, nullptr, &index);
     const double t_load = seconds_since(t0);
-    auto values = parse_iso_values(*isos, *relative, g.source.min, g.source.max);
+    auto values = mesh_out->values(*relative, g.source.min, g.source.max);
     nlohmann::json j = {{"grid", *input}, {"vertices", g.vertex_count()}, {"tetrahedra", g.tet_count()}, {"load_seconds", t_load}};
-    j["surfaces"] = extract_all(g, index, *isos, values, *output, *out);
+    j["surfaces"] = extract_all(g, index, *mesh_out, values, *out);
     if (out->json) print_json(j);
   });
 }
@@ -98,25 +113,22 @@ void add_run(CLI::App& app) {
   auto rf = std::make_shared<ReduceFlags>();
   auto pf = std::make_shared<PipelineFlags>();
   auto out = std::make_shared<OutputFlags>();
-  auto isos = std::make_shared<std::vector<std::string>>();
-  auto output = std::make_shared<std::string>();
+  auto mesh_out = std::make_shared<MeshOutputFlags>();
   auto save = std::make_shared<std::string>();
   in->add(cmd);
   rf->add(cmd);
   pf->add(cmd);
   out->add(cmd);
-  cmd->add_option("--iso", *isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
-      ->required()->delimiter(',');
-  cmd->add_option("-o,--output", *output, "Mesh file (.ply .obj .stl .glb)")->required();
+  mesh_out->add(cmd);
   cmd->add_option("--save-grid", *save, "Also save the prepared grid (.adg) for later extract or view");
   cmd->callback([=] {
-    check_mesh_extension(*output);
+    mesh_out->check();
     auto t_all = Clock::now();
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
     auto range = value_range(v);
     // Parse before the long preprocessing so a typo fails at once.
-    auto values = parse_iso_values(*isos, rf->o.relative, range.min, range.max);
+    auto values = mesh_out->values(rf->o.relative, range.min, range.max);
     TerminalProgress tp(!out->quiet && !out->json);
     Prepared p = prepare_grid(v, in->path, *rf, *pf, tp.callback());
     tp.finish();
@@ -132,7 +144,7 @@ void add_run(CLI::App& app) {
       std::cout << fmt::format("kept {} of {} voxels ({:.2f} %), {} tetrahedra; piecewise-linear error max {:.6g} (bound {:.6g})\n",
                                p.grid.vertex_count(), v.voxel_count(), 100.0 * j["ratio"].get<double>(), p.grid.tet_count(),
                                j["pl_max_error"].get<double>(), j["max_error"].get<double>());
-    j["surfaces"] = extract_all(p.grid, p.index, *isos, values, *output, *out);
+    j["surfaces"] = extract_all(p.grid, p.index, *mesh_out, values, *out);
     j["seconds"]["total"] = seconds_since(t_all);
     if (out->json) print_json(j);
   });
@@ -142,42 +154,34 @@ void add_mc(CLI::App& app) {
   auto* cmd = app.add_subcommand("mc", "Full-resolution marching cubes (the reference surface)");
   auto in = std::make_shared<VolumeInput>();
   auto out = std::make_shared<OutputFlags>();
-  auto isos = std::make_shared<std::vector<std::string>>();
+  auto mesh_out = std::make_shared<MeshOutputFlags>();
   auto relative = std::make_shared<bool>(false);
-  auto output = std::make_shared<std::string>();
   in->add(cmd);
   out->add(cmd);
-  cmd->add_option("--iso", *isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
-      ->required()->delimiter(',');
+  mesh_out->add(cmd);
   cmd->add_flag("--relative", *relative, "Iso-values as fractions of the value range [min, max]");
-  cmd->add_option("-o,--output", *output, "Mesh file (.ply .obj .stl .glb)")->required();
   cmd->callback([=] {
-    check_mesh_extension(*output);
+    mesh_out->check();
     auto t0 = Clock::now();
     Volume v = in->load();
     const double t_load = seconds_since(t0);
     auto range = value_range(v);
-    auto values = parse_iso_values(*isos, *relative, range.min, range.max);
+    auto values = mesh_out->values(*relative, range.min, range.max);
     nlohmann::json j = {{"voxels", v.voxel_count()}, {"load_seconds", t_load}, {"surfaces", nlohmann::json::array()}};
     for (std::size_t i = 0; i < values.size(); ++i) {
       auto t1 = Clock::now();
       MarchingCubesStats st;
       Mesh m = marching_cubes(v, values[i], &st);
       const double t_mc = seconds_since(t1);
-      const std::string path = output_name(*output, (*isos)[i], values.size() > 1);
+      const std::string path = mesh_out->path(i);
       write_mesh(m, path);
       const bool in_range = values[i] >= range.min && values[i] <= range.max;
       j["surfaces"].push_back({{"iso", values[i]}, {"in_range", in_range}, {"triangles", m.triangle_count()},
                                {"vertices", m.vertex_count()}, {"cubes_cut", st.cubes_cut},
                                {"ambiguous_faces", st.ambiguous_faces}, {"seconds", t_mc}, {"output", path}});
-      if (!out->json && !out->quiet) {
-        if (!in_range)
-          std::cout << fmt::format("iso {:.6g} lies outside the value range [{:.6g}, {:.6g}]: empty mesh, wrote {}\n", values[i],
-                                   range.min, range.max, path);
-        else
-          std::cout << fmt::format("iso {:.6g}: {} triangles, {} vertices (full-resolution marching cubes) in {:.4f} s; wrote {}\n",
-                                   values[i], m.triangle_count(), m.vertex_count(), t_mc, path);
-      }
+      if (!out->json && !out->quiet)
+        print_surface(values[i], in_range, range.min, range.max, m.triangle_count(), m.vertex_count(),
+                      "(full-resolution marching cubes)", t_mc, path);
     }
     if (out->json) print_json(j);
   });

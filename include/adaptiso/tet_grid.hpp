@@ -41,6 +41,7 @@ struct TetGrid {
   Vec3 position(std::uint32_t v) const {
     return {source.spacing[0] * ijk[v][0], source.spacing[1] * ijk[v][1], source.spacing[2] * ijk[v][2]};
   }
+  Vec3 world_position(std::uint32_t v) const { return grid_to_world(source.origin, source.direction, position(v)); }
 };
 
 }  // namespace adaptiso

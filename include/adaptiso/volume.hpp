@@ -92,6 +92,12 @@ decltype(auto) visit_values(const Volume& v, F&& f) {
   return f(v.values<double>());
 }
 
+// origin + direction · g, with direction row-major (its columns are the index axes' directions).
+inline Vec3 grid_to_world(const Vec3& origin, const std::array<double, 9>& d, const Vec3& g) {
+  return {origin[0] + d[0] * g[0] + d[1] * g[1] + d[2] * g[2], origin[1] + d[3] * g[0] + d[4] * g[1] + d[5] * g[2],
+          origin[2] + d[6] * g[0] + d[7] * g[1] + d[8] * g[2]};
+}
+
 struct ValueRange {
   double min = 0, max = 0;
 };

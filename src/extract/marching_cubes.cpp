@@ -122,7 +122,6 @@ std::array<CubeCase, 256> make_cube_cases() {
 
 const std::array<CubeCase, 256> kCubeCases = make_cube_cases();
 constexpr std::uint32_t kNone = ~std::uint32_t{0};
-constexpr double kEdgeMargin = 1.0 / 1024;
 
 struct Chunk {
   std::int64_t k0 = 0, k1 = 0;  // cube layers [k0, k1)

@@ -65,17 +65,6 @@ std::array<Case, 16> make_cases() {
 
 const std::array<Case, 16> kCases = make_cases();
 
-namespace {
-
-}  // namespace
-
-
-namespace {
-
-constexpr double kEdgeMargin = 1.0 / 1024;
-
-}  // namespace
-
 void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh) {
   const std::size_t V = order.size();
   mesh.positions.resize(V);

@@ -211,13 +211,9 @@ double grid_bytes_per_vertex(const TetGrid& g, const IntervalTree& index) {
 
 void write_vtu(const TetGrid& g, const std::string& path) {
   const std::uint64_t n = g.vertex_count(), t = g.tet_count();
-  Volume geo;
-  geo.spacing = g.source.spacing;
-  geo.origin = g.source.origin;
-  geo.direction = g.source.direction;
   std::vector<float> pts(n * 3), grad(n * 3);
   for (std::uint64_t v = 0; v < n; ++v) {
-    Vec3 w = geo.grid_to_world(g.position(static_cast<std::uint32_t>(v)));
+    Vec3 w = g.world_position(static_cast<std::uint32_t>(v));
     const auto& d = g.source.direction;
     const auto& gr = g.gradients[v];
     for (int a = 0; a < 3; ++a) {

@@ -267,14 +267,10 @@ void ViewServer::Impl::routes() {
     const std::uint32_t N = static_cast<std::uint32_t>(g->vertex_count());
     std::string out(4 + 16 * std::size_t{N}, '\0');
     std::memcpy(out.data(), &N, 4);
-    Volume geo;
-    geo.spacing = g->source.spacing;
-    geo.origin = g->source.origin;
-    geo.direction = g->source.direction;
     float* pos = reinterpret_cast<float*>(out.data() + 4);
     float* val = pos + 3 * std::size_t{N};
     for (std::uint32_t i = 0; i < N; ++i) {
-      Vec3 w = geo.grid_to_world(g->position(i));
+      Vec3 w = g->world_position(i);
       for (int a = 0; a < 3; ++a) pos[3 * i + a] = static_cast<float>(w[a]);
       val[i] = static_cast<float>(g->values[i]);
     }
@@ -312,13 +308,9 @@ void ViewServer::Impl::routes() {
     std::string out(8 + 12 * std::size_t{V} + 8 * std::size_t{E}, '\0');
     std::memcpy(out.data(), &V, 4);
     std::memcpy(out.data() + 4, &E, 4);
-    Volume geo;
-    geo.spacing = g->source.spacing;
-    geo.origin = g->source.origin;
-    geo.direction = g->source.direction;
     float* pos = reinterpret_cast<float*>(out.data() + 8);
     for (std::uint32_t i = 0; i < V; ++i) {
-      Vec3 w = geo.grid_to_world(g->position(verts[i]));
+      Vec3 w = g->world_position(verts[i]);
       for (int a = 0; a < 3; ++a) pos[3 * i + a] = static_cast<float>(w[a]);
     }
     std::uint32_t* pairs = reinterpret_cast<std::uint32_t*>(out.data() + 8 + 12 * std::size_t{V});

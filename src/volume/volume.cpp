@@ -73,12 +73,7 @@ void Volume::set(std::int64_t linear, double v) {
   });
 }
 
-Vec3 Volume::grid_to_world(const Vec3& g) const {
-  const auto& d = direction;
-  return {origin[0] + d[0] * g[0] + d[1] * g[1] + d[2] * g[2],
-          origin[1] + d[3] * g[0] + d[4] * g[1] + d[5] * g[2],
-          origin[2] + d[6] * g[0] + d[7] * g[1] + d[8] * g[2]};
-}
+Vec3 Volume::grid_to_world(const Vec3& g) const { return adaptiso::grid_to_world(origin, direction, g); }
 
 Vec3 Volume::world_to_voxel(const Vec3& w) const {
   // General 3×3 inverse: files may record directions that are not exactly orthonormal.
