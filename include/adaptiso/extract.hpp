@@ -54,19 +54,34 @@ struct ExtractStats {
 };
 
 // One client's extraction. It keeps its sweep state and its last mesh: after a small change of
-// iso-value only the tetrahedra whose case changed are marched again, the rest of the mesh is
-// reused and only the vertex positions are interpolated anew. The result is identical (bit for
-// bit, same order) to a fresh march_tetrahedra over the active tetrahedra sorted by id.
+// iso-value only the tetrahedra that entered, left or changed case are marched again (found from
+// the entries the sweep walked and a per-tetrahedron interval of iso-values that keep its case),
+// the rest of the mesh is reused and only the vertex positions are interpolated anew. Triangles
+// are always in the canonical order (by tetrahedron id, as a fresh march_tetrahedra over the active
+// tetrahedra sorted by id) and every vertex has the same position and normal, bit for bit, as the
+// fresh march gives its cut edge; vertex numbering is first use after a fresh march and then
+// stable: an incremental step keeps surviving vertices in place, puts new ones into freed slots and
+// moves vertices from the end into the remaining holes (deterministic for a given history).
+struct EdgeEnds;  // a cut edge's gathered ends (internal)
 class Extractor {
 public:
-  Extractor(const TetGrid& grid, const IntervalTree& tree) : grid_(grid), tree_(tree) {}
+  Extractor(const TetGrid& grid, const IntervalTree& tree);
+  ~Extractor();
+  Extractor(const Extractor&) = delete;
+  Extractor& operator=(const Extractor&) = delete;
   ExtractStats extract(double iso);
   const Mesh& mesh() const { return mesh_; }
   const std::vector<std::uint32_t>& active() const { return active_; }  // of the last extract, ascending
+  // Per mesh vertex, its cut edge as (below vertex << 32 | above vertex), grid vertex ids.
+  const std::vector<std::uint64_t>& vertex_edges() const { return keys_; }
   const SweepState& state() const { return state_; }
   bool last_was_incremental() const { return incremental_; }
   double max_changed_fraction = 0.25;  // above this share of re-marched tetrahedra, march afresh
   std::size_t parallel_min_triangles = 65536;  // below this, number vertices in one chunk (tests lower it)
+
+  struct Gap {  // the case of a tetrahedron stays the same for iso-values in (below, above]
+    double below, above;
+  };
 
 private:
   bool update(double iso);  // the incremental path; false when a fresh march is cheaper
@@ -77,12 +92,16 @@ private:
   SweepState state_;
   Mesh mesh_;
   bool valid_ = false, incremental_ = false;
-  std::vector<std::uint32_t> active_, prev_active_;
+  std::vector<std::uint32_t> active_, prev_active_, old_index_, left_, candidates_, refs_, dead_, tail_, new_refs_;
   std::vector<std::uint8_t> codes_, prev_codes_;
-  std::vector<std::uint64_t> first_tri_, prev_first_tri_, order_, prev_order_, bitmap_, new_keys_;
-  std::vector<std::array<std::uint32_t, 3>> prev_tris_, prov_;
-  std::vector<std::uint32_t> old_index_, first_chunk_, rank_;
+  std::vector<Gap> gaps_, prev_gaps_;
+  std::vector<std::uint64_t> first_tri_, prev_first_tri_, keys_, bitmap_, new_keys_;
+  std::vector<std::array<std::uint32_t, 3>> prev_tris_, new_tris_;
   std::vector<std::vector<std::uint32_t>> changed_;
+  std::vector<std::uint64_t> block_tris_;
+  std::vector<MarchScratch::Chunk> chunks_;
+  std::vector<std::vector<std::array<std::uint32_t, 3>>> chunk_tris_;
+  std::vector<EdgeEnds> ends_;  // per mesh vertex, for re-interpolation
   MarchScratch scratch_;
 };
 

@@ -60,6 +60,12 @@ struct SweepState {
   std::vector<std::uint32_t> pmax;   // per node: entries of by_max with tmax < iso
   std::vector<std::uint8_t> flags;   // per tetrahedron: bit 0 tmin < iso, bit 1 tmax >= iso
   std::uint64_t walked = 0;          // list entries visited by the last sweep (statistics)
+  // Tetrahedra whose flags the last (non-initial) sweep changed, unsorted and possibly repeated, so a
+  // client can update its active set in O(changes); incomplete (and cleared) once there would be
+  // more than touched_limit of them, or after the initial sweep.
+  std::vector<std::uint32_t> touched;
+  bool touched_complete = false;
+  std::size_t touched_limit = ~std::size_t{0};
 };
 
 // Moves the state to iso: the first call initialises every node (binary searches, O(T)); later

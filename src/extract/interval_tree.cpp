@@ -216,7 +216,17 @@ std::uint64_t walk_node(const IntervalTree& tree, const TetGrid& g, SweepState& 
   }
   s.pmin[i] = p;
   s.pmax[i] = q;
-  return (p > p0 ? p - p0 : p0 - p) + (q > q0 ? q - q0 : q0 - q);
+  const std::uint32_t walked = (p > p0 ? p - p0 : p0 - p) + (q > q0 ? q - q0 : q0 - q);
+  if (s.touched_complete) {
+    if (s.touched.size() + walked > s.touched_limit) {
+      s.touched_complete = false;
+      s.touched.clear();
+    } else {
+      s.touched.insert(s.touched.end(), mn + std::min(p, p0), mn + std::max(p, p0));
+      s.touched.insert(s.touched.end(), mx + std::min(q, q0), mx + std::max(q, q0));
+    }
+  }
+  return walked;
 }
 
 }  // namespace
@@ -238,9 +248,13 @@ void sweep_to(const IntervalTree& tree, const TetGrid& g, SweepState& s, double 
     s.iso = iso;
     s.valid = true;
     s.walked = tree.entries();
+    s.touched.clear();
+    s.touched_complete = false;
     return;
   }
   s.walked = 0;
+  s.touched.clear();
+  s.touched_complete = true;
   if (iso == s.iso) return;
   // A key crosses when it lies in [L, H); prune subtrees whose keys all lie outside.
   const double L = std::min(iso, s.iso), H = std::max(iso, s.iso);

@@ -100,7 +100,47 @@ inline void to_world(const Vec3& origin, const std::array<double, 9>& D, const d
 // iso-value do not collapse triangles (extract.hpp, marching_cubes.hpp).
 constexpr double kEdgeMargin = 1.0 / 1024;
 
+// A cut edge's two ends, gathered once from the grid: values, world positions and world-frame
+// gradients. Re-interpolating at another iso-value then streams through one record per vertex
+// instead of reading six scattered grid arrays (the Extractor keeps these between steps).
+struct EdgeEnds {
+  double va, vb;                   // a below, b at or above the iso-value
+  Vec3 wa, wb;
+  std::array<float, 3> ga, gb;
+};
+
+inline EdgeEnds gather_edge(const TetGrid& g, std::uint64_t key) {
+  const std::uint32_t a = static_cast<std::uint32_t>(key >> 32), b = static_cast<std::uint32_t>(key);
+  const auto& D = g.source.direction;
+  auto rotate = [&](const std::array<float, 3>& v) {  // a direction: no origin
+    const Vec3 m = grid_to_world({0, 0, 0}, D, {v[0], v[1], v[2]});
+    return std::array<float, 3>{float(m[0]), float(m[1]), float(m[2])};
+  };
+  return {g.values[a], g.values[b], g.world_position(a), g.world_position(b), rotate(g.gradients[a]), rotate(g.gradients[b])};
+}
+
+// The mesh vertex on a cut edge: linear interpolation of position and gradient (§2.4); the normal
+// is the negated, normalised gradient (towards lower values), or the edge direction towards the
+// lower end where the gradients cancel.
+inline void interpolate_edge(const EdgeEnds& e, double iso, std::array<float, 3>& p, std::array<float, 3>& n) {
+  const double t = std::clamp((iso - e.va) / (e.vb - e.va), kEdgeMargin, 1 - kEdgeMargin);
+  double m[3];
+  for (int k = 0; k < 3; ++k) {
+    p[k] = static_cast<float>(e.wa[k] + t * (e.wb[k] - e.wa[k]));
+    m[k] = -((1 - t) * e.ga[k] + t * e.gb[k]);
+  }
+  double len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+  if (!(len > 0)) {
+    for (int k = 0; k < 3; ++k) m[k] = e.wa[k] - e.wb[k];
+    len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+  }
+  const double inv = 1 / len;
+  for (int k = 0; k < 3; ++k) n[k] = static_cast<float>(m[k] * inv);
+}
+
 // Positions and normals of the mesh vertices, one per cut edge key in `order` (parallel).
 void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh);
+// The same from gathered edge ends (bit-identical results).
+void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& mesh);
 
 }  // namespace adaptiso

@@ -69,27 +69,17 @@ void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& or
   const std::size_t V = order.size();
   mesh.positions.resize(V);
   mesh.normals.resize(V);
-  const auto& s = g.source;
-  const auto& D = s.direction;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const std::uint32_t a = static_cast<std::uint32_t>(order[i] >> 32), b = static_cast<std::uint32_t>(order[i]);
-      const double va = g.values[a], vb = g.values[b];
-      double t = (iso - va) / (vb - va);
-      t = std::clamp(t, kEdgeMargin, 1 - kEdgeMargin);
-      double p[3], nrm[3];
-      for (int k = 0; k < 3; ++k) {
-        const double pa = s.spacing[k] * g.ijk[a][k], pb = s.spacing[k] * g.ijk[b][k];
-        p[k] = pa + t * (pb - pa);
-        nrm[k] = -((1 - t) * g.gradients[a][k] + t * g.gradients[b][k]);
-      }
-      double len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
-      if (!(len > 0)) {  // gradients cancel: fall back to the edge direction, towards lower values
-        for (int k = 0; k < 3; ++k) nrm[k] = s.spacing[k] * (double(g.ijk[a][k]) - double(g.ijk[b][k]));
-        len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
-      }
-      to_world(s.origin, D, p, nrm, mesh.positions[i], mesh.normals[i]);
-    }
+    for (std::size_t i = r.begin(); i < r.end(); ++i) interpolate_edge(gather_edge(g, order[i]), iso, mesh.positions[i], mesh.normals[i]);
+  });
+}
+
+void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& mesh) {
+  const std::size_t V = ends.size();
+  mesh.positions.resize(V);
+  mesh.normals.resize(V);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) interpolate_edge(ends[i], iso, mesh.positions[i], mesh.normals[i]);
   });
 }
 
