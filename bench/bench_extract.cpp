@@ -73,6 +73,7 @@ int main(int argc, char** argv) {
       const std::size_t tris = mesh.triangle_count();
       double init = 0, step_small = 0, step_large = 0, sweep_small = 0, sweep_large = 0;
       std::uint64_t walked_small = 0, walked_large = 0;
+      std::size_t marched_small = 0, marched_large = 0;
       int incremental = 0;
       {
         Extractor ex(g, tree);
@@ -80,7 +81,7 @@ int main(int argc, char** argv) {
         ex.extract(iso);
         // Alternate up and down so every run is the same step.
         double sign = 1;
-        auto step = [&](double frac, double& total, double& sweep, std::uint64_t& walked) {
+        auto step = [&](double frac, double& total, double& sweep, std::uint64_t& walked, std::size_t& marched) {
           std::vector<double> tt, ts;
           for (int r = 0; r < 6; ++r) {
             auto a = Clock::now();
@@ -89,6 +90,7 @@ int main(int argc, char** argv) {
             tt.push_back(std::chrono::duration<double>(Clock::now() - a).count());
             ts.push_back(st.sweep_seconds);
             walked = st.walked;
+            marched = st.marched;
             ex.extract(iso);
             sign = -sign;
           }
@@ -97,17 +99,17 @@ int main(int argc, char** argv) {
           total = tt[tt.size() / 2];
           sweep = ts[ts.size() / 2];
         };
-        step(0.001, step_small, sweep_small, walked_small);
-        step(0.01, step_large, sweep_large, walked_large);
+        step(0.001, step_small, sweep_small, walked_small, marched_small);
+        step(0.01, step_large, sweep_large, walked_large, marched_large);
       }
       std::printf(
           "{\"grid\":\"%s\",\"tetrahedra\":%zu,\"depth\":%u,\"build_seconds\":%.3f,\"iso\":%g,\"active\":%zu,\"active_fraction\":%.5f,"
           "\"triangles\":%zu,\"query_tree\":%.6f,\"query_scan\":%.6f,\"extract_fresh\":%.6f,\"extract_scan\":%.6f,"
-          "\"tree_vs_scan\":%.2f,\"first_extract_with_state\":%.6f,\"step_0.1%%\":%.6f,\"sweep_0.1%%\":%.6f,\"walked_0.1%%\":%llu,"
-          "\"step_1%%\":%.6f,\"sweep_1%%\":%.6f,\"walked_1%%\":%llu,\"sweep_step_vs_fresh_query_0.1%%\":%.3f,\"step_vs_fresh_extract_0.1%%\":%.3f,\"incremental_steps\":%d}\n",
+          "\"tree_vs_scan\":%.2f,\"first_extract_with_state\":%.6f,\"step_0.1%%\":%.6f,\"sweep_0.1%%\":%.6f,\"walked_0.1%%\":%llu,\"marched_0.1%%\":%zu,"
+          "\"step_1%%\":%.6f,\"sweep_1%%\":%.6f,\"walked_1%%\":%llu,\"marched_1%%\":%zu,\"sweep_step_vs_fresh_query_0.1%%\":%.3f,\"step_vs_fresh_extract_0.1%%\":%.3f,\"step_vs_fresh_extract_1%%\":%.3f,\"incremental_steps\":%d}\n",
           argv[1], g.tet_count(), tree.depth, build, iso, active, double(active) / double(g.tet_count()), tris, q_tree, q_scan,
-          march, q_scan - q_tree + march, q_scan / q_tree, init, step_small, sweep_small, (unsigned long long)walked_small, step_large,
-          sweep_large, (unsigned long long)walked_large, sweep_small / q_tree, step_small / march, incremental);
+          march, q_scan - q_tree + march, q_scan / q_tree, init, step_small, sweep_small, (unsigned long long)walked_small, marched_small, step_large,
+          sweep_large, (unsigned long long)walked_large, marched_large, sweep_small / q_tree, step_small / march, step_large / march, incremental);
       std::fflush(stdout);
     }
   }

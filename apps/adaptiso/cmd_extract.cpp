@@ -70,6 +70,8 @@ nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const Me
                        {"vertices", st.vertices},
                        {"active_tetrahedra", st.active},
                        {"walked_entries", st.walked},
+                       {"marched_tetrahedra", st.marched},
+                       {"incremental", ex.last_was_incremental()},
                        {"seconds", st.sweep_seconds + st.march_seconds},
                        {"sweep_seconds", st.sweep_seconds},
                        {"march_seconds", st.march_seconds},

@@ -49,6 +49,7 @@ struct ExtractStats {
   double iso = 0;
   std::size_t active = 0, triangles = 0, vertices = 0;
   std::uint64_t walked = 0;  // list entries the sweep visited
+  std::size_t marched = 0;   // tetrahedra marched: all active ones afresh, the entered or changed ones in a step
   double sweep_seconds = 0, march_seconds = 0;
   bool in_range = true;      // false when iso lies outside [min, max] of the grid (empty mesh)
 };
@@ -80,11 +81,12 @@ public:
   std::size_t parallel_min_triangles = 65536;  // below this, number vertices in one chunk (tests lower it)
 
   struct Gap {  // the case of a tetrahedron stays the same for iso-values in (below, above]
-    double below, above;
+    float below, above;  // rounded inwards: a value close to the ends only costs a needless re-march
   };
 
 private:
   bool update(double iso);  // the incremental path; false when a fresh march is cheaper
+  std::size_t marched_ = 0;
   void fresh(double iso);
 
   const TetGrid& grid_;

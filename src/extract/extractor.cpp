@@ -12,6 +12,7 @@
 // fill what is left, so the unchanged triangles are copied with at most a small tail remap.
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -31,20 +32,25 @@ constexpr std::uint32_t kNewBit = std::uint32_t{1} << 31;  // marks a chunk-loca
 
 // The case of tetrahedron t at iso and the interval of iso-values with the same case: a vertex is
 // above iff value >= iso, so the case holds while the largest value below iso stays below and the
-// smallest value at or above iso stays at or above.
+// smallest value at or above iso stays at or above. Stored as floats rounded inwards (half the
+// bytes to stream per step): the float interval lies inside the exact one.
 inline std::uint8_t code_and_gap(const TetGrid& g, std::uint32_t t, double iso, Extractor::Gap& gap) {
   const auto& q = g.tets[t];
   std::uint8_t code = 0;
-  gap = {-std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+  double below = -std::numeric_limits<double>::infinity(), above = std::numeric_limits<double>::infinity();
   for (int k = 0; k < 4; ++k) {
     const double v = g.values[q[k]];
     if (v >= iso) {
       code |= static_cast<std::uint8_t>(1 << k);
-      gap.above = std::min(gap.above, v);
+      above = std::min(above, v);
     } else {
-      gap.below = std::max(gap.below, v);
+      below = std::max(below, v);
     }
   }
+  gap.below = static_cast<float>(below);
+  if (gap.below < below) gap.below = std::nextafter(gap.below, std::numeric_limits<float>::infinity());
+  gap.above = static_cast<float>(above);
+  if (gap.above > above) gap.above = std::nextafter(gap.above, -std::numeric_limits<float>::infinity());
   return code;
 }
 
@@ -61,6 +67,7 @@ void Extractor::fresh(double iso) {
   active_tetrahedra(tree_, state_, active_);
   sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
   march_tetrahedra(grid_, active_, iso, mesh_, &scratch_);
+  marched_ = active_.size();
   codes_.swap(scratch_.codes);
   first_tri_.swap(scratch_.first_triangle);
   keys_.swap(scratch_.order);
@@ -86,7 +93,7 @@ bool Extractor::update(double iso) {
   if (!state_.touched_complete) return false;
   // 1. The new active list: the previous one (ascending) merged with the walked entries.
   candidates_ = state_.touched;
-  std::sort(candidates_.begin(), candidates_.end());
+  tbb::parallel_sort(candidates_.begin(), candidates_.end());
   candidates_.erase(std::unique(candidates_.begin(), candidates_.end()), candidates_.end());
   const std::size_t n_old = prev_active_.size();
   active_.resize(n_old + candidates_.size());
@@ -123,16 +130,29 @@ bool Extractor::update(double iso) {
     auto& list = changed_[b];
     list.clear();
     std::uint64_t tris = 0;
-    for (std::size_t i = n * b / blocks; i < n * (b + 1) / blocks; ++i) {
+    const std::size_t end = n * (b + 1) / blocks;
+    for (std::size_t i = n * b / blocks; i < end;) {
       const std::uint32_t o = old_index_[i];
-      if (o != kNone && prev_gaps_[o].below < iso && iso <= prev_gaps_[o].above) {
-        codes_[i] = prev_codes_[o];
-        gaps_[i] = prev_gaps_[o];
-      } else {
+      if (o == kNone) {  // entered
         codes_[i] = code_and_gap(g, active_[i], iso, gaps_[i]);
         list.push_back(static_cast<std::uint32_t>(i));
+        tris += kCases[codes_[i]].triangles;
+        ++i;
+        continue;
       }
-      tris += kCases[codes_[i]].triangles;
+      std::size_t r = i + 1;  // the run i..r-1 had consecutive entries o.. before: copy, then check
+      while (r < end && old_index_[r] == o + (r - i)) ++r;
+      std::memcpy(codes_.data() + i, prev_codes_.data() + o, r - i);
+      std::memcpy(gaps_.data() + i, prev_gaps_.data() + o, (r - i) * sizeof(Gap));
+      tris += prev_first_tri_[o + (r - i)] - prev_first_tri_[o];
+      for (std::size_t k = i; k < r; ++k)
+        if (!(gaps_[k].below < iso && iso <= gaps_[k].above)) {
+          tris -= kCases[codes_[k]].triangles;
+          codes_[k] = code_and_gap(g, active_[k], iso, gaps_[k]);
+          tris += kCases[codes_[k]].triangles;
+          list.push_back(static_cast<std::uint32_t>(k));
+        }
+      i = r;
     }
     block_tris_[b + 1] = tris;
   });
@@ -168,6 +188,7 @@ bool Extractor::update(double iso) {
   // edge belongs to the first chunk using it, and owned edges are numbered chunk by chunk: exactly
   // the numbering of one sequential pass (the scheme of march_tetrahedra), V_old + k for the k-th.
   const std::size_t re_marched = changed - left_.size();
+  marched_ = re_marched;
   const std::size_t C = 16 * re_marched < parallel_min_triangles ? 1 : std::min<std::size_t>(blocks, std::max(1, tbb::this_task_arena::max_concurrency()));
   std::vector<std::size_t> chunk_block(C + 1, blocks);
   for (std::size_t b = 0, c = 0, seen = 0; b < blocks && c <= C; seen += changed_[b++].size())
@@ -359,6 +380,7 @@ ExtractStats Extractor::extract(double iso) {
   auto t2 = Clock::now();
   st.walked = state_.walked;
   st.active = active_.size();
+  st.marched = marched_;
   st.triangles = mesh_.triangle_count();
   st.vertices = mesh_.vertex_count();
   st.sweep_seconds = std::chrono::duration<double>(t1 - t0).count();

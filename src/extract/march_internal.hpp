@@ -105,8 +105,8 @@ constexpr double kEdgeMargin = 1.0 / 1024;
 // instead of reading six scattered grid arrays (the Extractor keeps these between steps).
 struct EdgeEnds {
   double va, vb;                   // a below, b at or above the iso-value
-  Vec3 wa, wb;
-  std::array<float, 3> ga, gb;
+  Vec3 wa;                         // world position of a
+  std::array<float, 3> d, ga, gb;  // b - a in world units; gradients (world frame)
 };
 
 inline EdgeEnds gather_edge(const TetGrid& g, std::uint64_t key) {
@@ -116,7 +116,9 @@ inline EdgeEnds gather_edge(const TetGrid& g, std::uint64_t key) {
     const Vec3 m = grid_to_world({0, 0, 0}, D, {v[0], v[1], v[2]});
     return std::array<float, 3>{float(m[0]), float(m[1]), float(m[2])};
   };
-  return {g.values[a], g.values[b], g.world_position(a), g.world_position(b), rotate(g.gradients[a]), rotate(g.gradients[b])};
+  const Vec3 wa = g.world_position(a), wb = g.world_position(b);
+  const std::array<float, 3> d{float(wb[0] - wa[0]), float(wb[1] - wa[1]), float(wb[2] - wa[2])};
+  return {g.values[a], g.values[b], wa, d, rotate(g.gradients[a]), rotate(g.gradients[b])};
 }
 
 // The mesh vertex on a cut edge: linear interpolation of position and gradient (§2.4); the normal
@@ -126,12 +128,12 @@ inline void interpolate_edge(const EdgeEnds& e, double iso, std::array<float, 3>
   const double t = std::clamp((iso - e.va) / (e.vb - e.va), kEdgeMargin, 1 - kEdgeMargin);
   double m[3];
   for (int k = 0; k < 3; ++k) {
-    p[k] = static_cast<float>(e.wa[k] + t * (e.wb[k] - e.wa[k]));
+    p[k] = static_cast<float>(e.wa[k] + t * e.d[k]);
     m[k] = -((1 - t) * e.ga[k] + t * e.gb[k]);
   }
   double len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
   if (!(len > 0)) {
-    for (int k = 0; k < 3; ++k) m[k] = e.wa[k] - e.wb[k];
+    for (int k = 0; k < 3; ++k) m[k] = -e.d[k];
     len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
   }
   const double inv = 1 / len;
