@@ -2,6 +2,7 @@
 // analytic fields (plane, sphere), mesh topology (watertight, manifold, oriented), the mesh files,
 // and the extract / run commands.
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <nlohmann/json.hpp>
 
@@ -138,29 +139,39 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
   }
 }
 
-TEST(Extractor, IncrementalStepsOnALargeGridMatchFreshExtraction) {
-  // Large enough for the parallel renumbering (several chunks) and many small steps.
-  Volume v = make_synthetic("marschner-lobb", 28, ScalarType::f32);
+TEST(Extractor, IncrementalStepsOnALargeGridMatchFreshExtractionForAnyThreadCount) {
+  // Large enough for several blocks and chunks in the incremental update (> 32768 active
+  // tetrahedra), run in arenas of 1 and 4 threads: the same history gives the same mesh, bit for
+  // bit, and it is the fresh march's surface.
+  Volume v = make_synthetic("marschner-lobb", 40, ScalarType::f32);
   TetGrid g = build(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g);
-  Extractor ex(g, tree);
-  ex.parallel_min_triangles = 1;
+  Extractor one(g, tree), four(g, tree);
+  one.parallel_min_triangles = four.parallel_min_triangles = 1;
+  tbb::task_arena arena1(1), arena4(4);
   double iso = 0.5 * (g.source.min + g.source.max);
   const double range = g.source.max - g.source.min;
-  std::size_t incremental = 0;
+  std::size_t incremental = 0, large = 0;
   for (int step = 0; step < 12; ++step) {
     iso += (step % 3 == 2 ? -0.004 : 0.003) * range;
-    ex.extract(iso);
-    incremental += ex.last_was_incremental();
+    ExtractStats st;
+    arena1.execute([&] { one.extract(iso); });
+    arena4.execute([&] { st = four.extract(iso); });
+    incremental += four.last_was_incremental();
+    large += four.last_was_incremental() && st.active > 2 * 16384 && st.marched > 1000;
+    ASSERT_EQ(one.mesh().triangles, four.mesh().triangles) << step;
+    ASSERT_EQ(one.mesh().positions, four.mesh().positions) << step;
+    ASSERT_EQ(one.vertex_edges(), four.vertex_edges()) << step;
     std::vector<std::uint32_t> act;
     scan_active(g, iso, act);
     Mesh ref;
     MarchScratch sc;
     sc.parallel_min_triangles = 1;
     march_tetrahedra(g, act, iso, ref, &sc);
-    ASSERT_TRUE(same_surface(ex, ref, sc.order)) << step;
+    ASSERT_TRUE(same_surface(four, ref, sc.order)) << step;
   }
   EXPECT_GE(incremental, 10u);
+  EXPECT_GE(large, 5u);  // the multi-chunk path ran
 }
 
 TEST(IntervalTree, IsBalancedAndHoldsEachTetInItsSmallestNode) {
