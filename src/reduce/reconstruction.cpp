@@ -75,10 +75,12 @@ private:
     return static_cast<double>(v_[x + d_[0] * (y + d_[1] * z)]);
   }
 
-  // Every voxel of the box [lo, hi] against trilinear interpolation from the box corners.
-  bool test(const std::int64_t lo[3], const std::int64_t hi[3]) const {
+  // Every voxel of the box [lo, hi] against trilinear interpolation from the box corners; row(y, z)
+  // points at the box's first voxel of that row (the volume, or a block copied out of it).
+  template <class Row>
+  bool test_rows(const std::int64_t lo[3], const std::int64_t hi[3], Row row) const {
     double c[8];
-    for (int i = 0; i < 8; ++i) c[i] = at(i & 1 ? hi[0] : lo[0], i & 2 ? hi[1] : lo[1], i & 4 ? hi[2] : lo[2]);
+    for (int i = 0; i < 8; ++i) c[i] = static_cast<double>(row(i & 2 ? hi[1] : lo[1], i & 4 ? hi[2] : lo[2])[i & 1 ? hi[0] - lo[0] : 0]);
     const double wx = static_cast<double>(hi[0] - lo[0]), wy = static_cast<double>(hi[1] - lo[1]),
                  wz = static_cast<double>(hi[2] - lo[2]);
     for (std::int64_t z = lo[2]; z <= hi[2]; ++z) {
@@ -89,12 +91,52 @@ private:
         const double b0 = c[1] + (c[3] - c[1]) * ty, b1 = c[5] + (c[7] - c[5]) * ty;
         const double a = a0 + (a1 - a0) * tz, b = b0 + (b1 - b0) * tz;
         const double slope = wx > 0 ? (b - a) / wx : 0.0;
-        const T* row = v_ + lo[0] + d_[0] * (y + d_[1] * z);
+        const auto* r = row(y, z);
         for (std::int64_t x = 0; x <= hi[0] - lo[0]; ++x)
-          if (std::abs(static_cast<double>(row[x]) - (a + slope * static_cast<double>(x))) > bound_) return false;
+          if (std::abs(static_cast<double>(r[x]) - (a + slope * static_cast<double>(x))) > bound_) return false;
       }
     }
     return true;
+  }
+
+  bool test(const std::int64_t lo[3], const std::int64_t hi[3]) const {
+    return test_rows(lo, hi, [&](std::int64_t y, std::int64_t z) { return v_ + lo[0] + d_[0] * (y + d_[1] * z); });
+  }
+
+  // The 8 atomic children of level-2 cube (cx, cy, cz) from one copy of its (at most 5³) voxels:
+  // each voxel is read and converted once instead of once per atomic cube holding it (~1.7×).
+  void atomic_children(std::int64_t cx, std::int64_t cy, std::int64_t cz, CubeResult ch[8], bool exists[8]) {
+    std::int64_t lo[3], hi[3];
+    box(2, cx, cy, cz, lo, hi);
+    double blk[5][5][5];
+    for (std::int64_t z = lo[2]; z <= hi[2]; ++z)
+      for (std::int64_t y = lo[1]; y <= hi[1]; ++y) {
+        const T* r = v_ + d_[0] * (y + d_[1] * z);
+        for (std::int64_t x = lo[0]; x <= hi[0]; ++x) blk[z - lo[2]][y - lo[1]][x - lo[0]] = static_cast<double>(r[x]);
+      }
+    for (int i = 0; i < 8; ++i) {
+      const std::int64_t c[3] = {2 * cx + (i & 1), 2 * cy + ((i >> 1) & 1), 2 * cz + ((i >> 2) & 1)};
+      exists[i] = inside(1, c[0], c[1], c[2]);
+      if (!exists[i]) {
+        ch[i] = CubeResult{true, std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
+        continue;
+      }
+      std::int64_t a[3], b[3];  // the child's box in block coordinates
+      for (int k = 0; k < 3; ++k) {
+        a[k] = 2 * (c[k] & 1);
+        b[k] = std::min(a[k] + 2, hi[k] - lo[k]);
+      }
+      double mn = std::numeric_limits<double>::infinity(), mx = -mn;
+      for (std::int64_t z = a[2]; z <= b[2]; ++z)
+        for (std::int64_t y = a[1]; y <= b[1]; ++y)
+          for (std::int64_t x = a[0]; x <= b[0]; ++x) {
+            mn = std::min(mn, blk[z][y][x]);
+            mx = std::max(mx, blk[z][y][x]);
+          }
+      const bool ok = mx - mn <= bound_ || test_rows(a, b, [&](std::int64_t y, std::int64_t z) { return &blk[z][y][a[0]]; });
+      if (ok) set_merged(1, c[0], c[1], c[2]);
+      ch[i] = {ok, mn, mx};
+    }
   }
 
   void set_merged(int l, std::int64_t cx, std::int64_t cy, std::int64_t cz) {
@@ -151,6 +193,8 @@ private:
     };
     if (l >= 5) {
       tbb::parallel_for(0, 8, child);
+    } else if (l == 2) {
+      atomic_children(cx, cy, cz, ch, exists);
     } else {
       for (int i = 0; i < 8; ++i) child(i);
     }
@@ -222,41 +266,82 @@ std::vector<std::int64_t> reconstruction_analysis(const Volume& vol, double max_
     tree.run();
     forced.assign(tree.forced.begin(), tree.forced.end());
   });
-  // Kept set: every voxel not dropped by its counters (already in index order, slice by slice),
-  // merged with the forced clipped corners.
+  // Kept set: every voxel not dropped by its counters (in index order, slice by slice), merged
+  // with the forced clipped corners. 7/8 of the voxels have an odd coordinate, so they are
+  // midpoints of atomic cubes: for those a row needs only, per atomic cube along x, whether all
+  // its cubes across y and z merged (computed once per row); the rest go through dropped().
   const Dims d = vol.dims;
+  const std::int64_t plane = d[0] * d[1];
+  std::sort(forced.begin(), forced.end());
+  forced.erase(std::unique(forced.begin(), forced.end()), forced.end());
   auto ctz = [](std::int64_t c) { return c == 0 ? 64 : std::countr_zero(static_cast<std::uint64_t>(c)); };
   std::vector<int> tzx(static_cast<std::size_t>(d[0]));
   for (std::int64_t x = 0; x < d[0]; ++x) tzx[static_cast<std::size_t>(x)] = ctz(x);
+  const std::int64_t half = om.size / 2;  // atomic cubes per axis of the extended cube
+  const Dims n1 = om.counts[0];
+  // Atomic cubes holding coordinate c along one axis as a level-1 midpoint (see dropped()).
+  auto atomic_cubes = [&](std::int64_t c, std::int64_t out[2]) {
+    if (c & 1) {
+      out[0] = c >> 1;
+      return 1;
+    }
+    int k = 0;
+    if (c / 2 - 1 >= 0) out[k++] = c / 2 - 1;
+    if (c / 2 < half) out[k++] = c / 2;
+    return k;
+  };
   std::vector<std::vector<std::int64_t>> per_slice(static_cast<std::size_t>(d[2]));
   tbb::parallel_for(std::int64_t{0}, d[2], [&](std::int64_t z) {
     auto& out = per_slice[static_cast<std::size_t>(z)];
+    std::vector<std::uint8_t> row_merged(static_cast<std::size_t>(n1[0]));
     int tz[3] = {0, 0, ctz(z)};
-    std::int64_t c[3] = {0, 0, z};
+    std::int64_t c[3] = {0, 0, z}, zc[2], yc[2];
+    const int nz = atomic_cubes(z, zc);
+    const std::uint8_t* m1 = om.merged[0].data();
     for (std::int64_t y = 0; y < d[1]; ++y) {
       tz[1] = ctz(y);
       c[1] = y;
+      const int ny = atomic_cubes(y, yc);
+      for (std::int64_t cx = 0; cx < n1[0]; ++cx) {
+        std::uint8_t all = 1;
+        for (int j = 0; j < ny; ++j)
+          for (int k = 0; k < nz; ++k) all &= m1[cx + n1[0] * (yc[j] + n1[1] * zc[k])];
+        row_merged[static_cast<std::size_t>(cx)] = all;
+      }
+      const bool yz_odd = ((y | z) & 1) != 0;
+      const std::int64_t base = d[0] * (y + d[1] * z);
       for (std::int64_t x = 0; x < d[0]; ++x) {
-        tz[0] = tzx[static_cast<std::size_t>(x)];
-        c[0] = x;
-        if (!dropped(om, c, tz)) out.push_back(x + d[0] * (y + d[1] * z));
+        bool drop;
+        if (x & 1) {
+          drop = row_merged[static_cast<std::size_t>(x >> 1)];
+        } else if (yz_odd) {
+          drop = (x / 2 - 1 < 0 || row_merged[static_cast<std::size_t>(x / 2 - 1)]) &&
+                 (x / 2 >= half || row_merged[static_cast<std::size_t>(x / 2)]);
+        } else {
+          tz[0] = tzx[static_cast<std::size_t>(x)];
+          c[0] = x;
+          drop = dropped(om, c, tz);
+        }
+        if (!drop) out.push_back(base + x);
       }
     }
+    // This slice's forced corners (few) merged in.
+    auto f0 = std::lower_bound(forced.begin(), forced.end(), z * plane);
+    auto f1 = std::lower_bound(f0, forced.end(), (z + 1) * plane);
+    if (f0 != f1) {
+      std::vector<std::int64_t> both;
+      both.reserve(out.size() + static_cast<std::size_t>(f1 - f0));
+      std::set_union(out.begin(), out.end(), f0, f1, std::back_inserter(both));
+      out.swap(both);
+    }
   });
-  std::size_t total = 0;
-  for (auto& s : per_slice) total += s.size();
-  std::vector<std::int64_t> kept;
-  kept.reserve(total + forced.size());
-  for (auto& s : per_slice) {
-    kept.insert(kept.end(), s.begin(), s.end());
-    std::vector<std::int64_t>().swap(s);
-  }
-  std::sort(forced.begin(), forced.end());
-  forced.erase(std::unique(forced.begin(), forced.end()), forced.end());
-  std::vector<std::int64_t> merged;
-  merged.reserve(kept.size() + forced.size());
-  std::set_union(kept.begin(), kept.end(), forced.begin(), forced.end(), std::back_inserter(merged));
-  kept.swap(merged);
+  std::vector<std::size_t> offset(per_slice.size() + 1, 0);
+  for (std::size_t z = 0; z < per_slice.size(); ++z) offset[z + 1] = offset[z] + per_slice[z].size();
+  std::vector<std::int64_t> kept(offset.back());
+  tbb::parallel_for(std::size_t{0}, per_slice.size(), [&](std::size_t z) {
+    std::copy(per_slice[z].begin(), per_slice[z].end(), kept.begin() + static_cast<std::ptrdiff_t>(offset[z]));
+    std::vector<std::int64_t>().swap(per_slice[z]);
+  });
   report(progress, "reduce: reconstruction", 1.0);
   return kept;
 }
