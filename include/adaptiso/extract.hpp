@@ -42,7 +42,7 @@ struct MarchScratch {
 void march_tetrahedra(const TetGrid& grid, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh,
                       MarchScratch* scratch = nullptr);
 
-// Sorts a list of distinct tetrahedron ids ascending through a bitmap (O(T/64 + n), parallel).
+// Sorts tetrahedron ids ascending through a bitmap, dropping repeats (O(T/64 + n), parallel).
 void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std::vector<std::uint64_t>& bitmap);
 
 struct ExtractStats {

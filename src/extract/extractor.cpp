@@ -30,30 +30,6 @@ namespace {
 constexpr std::uint32_t kNone = ~std::uint32_t{0};
 constexpr std::uint32_t kNewBit = std::uint32_t{1} << 31;  // marks a chunk-local id of a first-cut edge
 
-// The case of tetrahedron t at iso and the interval of iso-values with the same case: a vertex is
-// above iff value >= iso, so the case holds while the largest value below iso stays below and the
-// smallest value at or above iso stays at or above. Stored as floats rounded inwards (half the
-// bytes to stream per step): the float interval lies inside the exact one.
-inline std::uint8_t code_and_gap(const TetGrid& g, std::uint32_t t, double iso, Extractor::Gap& gap) {
-  const auto& q = g.tets[t];
-  std::uint8_t code = 0;
-  double below = -std::numeric_limits<double>::infinity(), above = std::numeric_limits<double>::infinity();
-  for (int k = 0; k < 4; ++k) {
-    const double v = g.values[q[k]];
-    if (v >= iso) {
-      code |= static_cast<std::uint8_t>(1 << k);
-      above = std::min(above, v);
-    } else {
-      below = std::max(below, v);
-    }
-  }
-  gap.below = static_cast<float>(below);
-  if (gap.below < below) gap.below = std::nextafter(gap.below, std::numeric_limits<float>::infinity());
-  gap.above = static_cast<float>(above);
-  if (gap.above > above) gap.above = std::nextafter(gap.above, -std::numeric_limits<float>::infinity());
-  return code;
-}
-
 // Work split into this many blocks for the streaming passes (a multiple of the thread count keeps
 // the cores busy; few enough that per-block bookkeeping stays negligible).
 std::size_t block_count(std::size_t n) { return std::max<std::size_t>(1, std::min<std::size_t>(256, n / 16384)); }
@@ -66,21 +42,12 @@ void Extractor::fresh(double iso) {
   active_.clear();
   active_tetrahedra(tree_, state_, active_);
   sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
-  march_tetrahedra(grid_, active_, iso, mesh_, &scratch_);
+  march_tetrahedra_into(grid_, active_, iso, mesh_, scratch_, &gaps_, &ends_);
   marched_ = active_.size();
   codes_.swap(scratch_.codes);
   first_tri_.swap(scratch_.first_triangle);
   keys_.swap(scratch_.order);
-  // The bookkeeping of the incremental path: edge ends, case intervals and vertex reference counts.
-  ends_.resize(keys_.size());
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, keys_.size(), 8192), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) ends_[i] = gather_edge(grid_, keys_[i]);
-  });
-  const std::size_t n = active_.size();
-  gaps_.resize(n);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8192), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) code_and_gap(grid_, active_[i], iso, gaps_[i]);
-  });
+  // The march kept edge ends and case intervals for the incremental path; count vertex uses.
   refs_.assign(keys_.size(), 0);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mesh_.triangles.size(), 16384), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i)
@@ -93,8 +60,12 @@ bool Extractor::update(double iso) {
   if (!state_.touched_complete) return false;
   // 1. The new active list: the previous one (ascending) merged with the walked entries.
   candidates_ = state_.touched;
-  tbb::parallel_sort(candidates_.begin(), candidates_.end());
-  candidates_.erase(std::unique(candidates_.begin(), candidates_.end()), candidates_.end());
+  if (candidates_.size() * 64 > g.tet_count()) {  // many: a bitmap pass beats sorting
+    sort_tetrahedra(candidates_, g.tet_count(), bitmap_);
+  } else {
+    tbb::parallel_sort(candidates_.begin(), candidates_.end());
+    candidates_.erase(std::unique(candidates_.begin(), candidates_.end()), candidates_.end());
+  }
   const std::size_t n_old = prev_active_.size();
   active_.resize(n_old + candidates_.size());
   old_index_.resize(n_old + candidates_.size());
@@ -126,9 +97,16 @@ bool Extractor::update(double iso) {
   const std::size_t blocks = block_count(n);
   changed_.resize(blocks);
   block_tris_.assign(blocks + 1, 0);
+  // Give up as soon as more would change than a fresh march is worth.
+  const double limit = max_changed_fraction < 1 ? max_changed_fraction * static_cast<double>(std::max(n, n_old))
+                                                : std::numeric_limits<double>::infinity();
+  if (static_cast<double>(left_.size()) > limit) return false;
+  std::atomic<std::size_t> changed_so_far{left_.size()};
+  std::atomic<bool> too_many{false};
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
     auto& list = changed_[b];
     list.clear();
+    if (too_many.load(std::memory_order_relaxed)) return;
     std::uint64_t tris = 0;
     const std::size_t end = n * (b + 1) / blocks;
     for (std::size_t i = n * b / blocks; i < end;) {
@@ -155,10 +133,10 @@ bool Extractor::update(double iso) {
       i = r;
     }
     block_tris_[b + 1] = tris;
+    if (static_cast<double>(changed_so_far.fetch_add(list.size()) + list.size()) > limit) too_many = true;
   });
-  std::size_t changed = left_.size();
-  for (const auto& l : changed_) changed += l.size();
-  if (max_changed_fraction < 1 && static_cast<double>(changed) > max_changed_fraction * static_cast<double>(std::max(n, n_old))) return false;
+  if (too_many) return false;
+  const std::size_t changed = changed_so_far;
   for (std::size_t b = 0; b < blocks; ++b) block_tris_[b + 1] += block_tris_[b];
   first_tri_.resize(n + 1);
   first_tri_[n] = block_tris_[blocks];

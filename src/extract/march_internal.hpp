@@ -6,8 +6,10 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
+#include "adaptiso/extract.hpp"
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/tet_grid.hpp"
 
@@ -144,5 +146,34 @@ inline void interpolate_edge(const EdgeEnds& e, double iso, std::array<float, 3>
 void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh);
 // The same from gathered edge ends (bit-identical results).
 void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& mesh);
+
+// The case of tetrahedron t at iso and the interval of iso-values with the same case: a vertex is
+// above iff value >= iso, so the case holds while the largest value below iso stays below and the
+// smallest value at or above iso stays at or above. Stored as floats rounded inwards (half the
+// bytes to stream per step): the float interval lies inside the exact one.
+inline std::uint8_t code_and_gap(const TetGrid& g, std::uint32_t t, double iso, Extractor::Gap& gap) {
+  const auto& q = g.tets[t];
+  std::uint8_t code = 0;
+  double below = -std::numeric_limits<double>::infinity(), above = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < 4; ++k) {
+    const double v = g.values[q[k]];
+    if (v >= iso) {
+      code |= static_cast<std::uint8_t>(1 << k);
+      above = std::min(above, v);
+    } else {
+      below = std::max(below, v);
+    }
+  }
+  gap.below = static_cast<float>(below);
+  if (gap.below < below) gap.below = std::nextafter(gap.below, std::numeric_limits<float>::infinity());
+  gap.above = static_cast<float>(above);
+  if (gap.above > above) gap.above = std::nextafter(gap.above, -std::numeric_limits<float>::infinity());
+  return code;
+}
+
+// march_tetrahedra that also keeps, when asked, each active tetrahedron's case interval and each
+// vertex's edge ends (what the Extractor's incremental steps need), without reading them twice.
+void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh, MarchScratch& sc,
+                           std::vector<Extractor::Gap>* gaps, std::vector<EdgeEnds>* ends);
 
 }  // namespace adaptiso

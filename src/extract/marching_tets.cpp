@@ -85,7 +85,11 @@ void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& m
 
 void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh, MarchScratch* scratch) {
   MarchScratch local;
-  MarchScratch& sc = scratch ? *scratch : local;
+  march_tetrahedra_into(g, active, iso, mesh, scratch ? *scratch : local, nullptr, nullptr);
+}
+
+void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh, MarchScratch& sc,
+                           std::vector<Extractor::Gap>* gaps, std::vector<EdgeEnds>* ends) {
   const std::size_t n = active.size();
   auto& codes = sc.codes;
   auto& first_tri = sc.first_triangle;
@@ -93,10 +97,9 @@ void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active
   first_tri.resize(n + 1);
   first_tri[0] = 0;
   // 1. Case of every active tetrahedron; triangle offsets by a prefix sum (parallel).
+  if (gaps) gaps->resize(n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      codes[i] = tet_code(g, active[i], iso);
-    }
+    for (std::size_t i = r.begin(); i < r.end(); ++i) codes[i] = gaps ? code_and_gap(g, active[i], iso, (*gaps)[i]) : tet_code(g, active[i], iso);
   });
   for (std::size_t i = 0; i < n; ++i) first_tri[i + 1] = first_tri[i] + kCases[codes[i]].triangles;
   const std::size_t T = first_tri[n];
@@ -164,7 +167,16 @@ void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active
     for (std::size_t i = b; i < e; ++i)
       for (int k = 0; k < 3; ++k) mesh.triangles[i][k] = ch.global[ch.local[3 * (i - b) + k]];
   });
-  interpolate_vertices(g, order, iso, mesh);
+  if (!ends) return interpolate_vertices(g, order, iso, mesh);
+  ends->resize(order.size());
+  mesh.positions.resize(order.size());
+  mesh.normals.resize(order.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      (*ends)[i] = gather_edge(g, order[i]);
+      interpolate_edge((*ends)[i], iso, mesh.positions[i], mesh.normals[i]);
+    }
+  });
 }
 
 void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std::vector<std::uint64_t>& bitmap) {
@@ -179,6 +191,7 @@ void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std
     start[c + 1] = cnt;
   });
   for (std::size_t c = 0; c < chunks; ++c) start[c + 1] += start[c];
+  ids.resize(start[chunks]);  // repeated ids counted once
   tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t c) {
     std::uint32_t* out = ids.data() + start[c];
     for (std::size_t w = words * c / chunks; w < words * (c + 1) / chunks; ++w)
