@@ -104,8 +104,10 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
     const std::uint32_t depth = rng() % 7;
     IntervalTree tree = build_interval_tree(g, depth);
     ASSERT_NO_THROW(validate_interval_tree(tree, g, "test"));
-    Extractor incremental(g, tree);
+    Extractor incremental(g, tree), uncached(g, tree);
     incremental.max_changed_fraction = 1.0;  // always update the previous mesh, never march afresh
+    uncached.max_changed_fraction = 1.0;
+    uncached.edge_cache_max_tetrahedra = 0;  // re-interpolate from the grid
     SweepState state;
     double iso = 0;
     for (int step = 0; step < 40; ++step) {
@@ -135,6 +137,8 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
       ASSERT_EQ(incremental.last_was_incremental(), step > 0);
       ASSERT_EQ(incremental.active(), scan);
       ASSERT_TRUE(same_surface(incremental, a, sa.order)) << "trial " << trial << " step " << step;
+      uncached.extract(iso);
+      ASSERT_TRUE(same_surface(uncached, a, sa.order)) << "trial " << trial << " step " << step << " (no edge cache)";
     }
   }
 }

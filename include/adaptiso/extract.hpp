@@ -79,6 +79,9 @@ public:
   bool last_was_incremental() const { return incremental_; }
   double max_changed_fraction = 0.25;  // above this share of re-marched tetrahedra, march afresh
   std::size_t parallel_min_triangles = 65536;  // below this, number vertices in one chunk (tests lower it)
+  // Up to this many active tetrahedra the mesh vertices' edge ends are kept (80 bytes per vertex)
+  // so a step re-interpolates from one record each; larger surfaces read the grid instead.
+  std::size_t edge_cache_max_tetrahedra = 6'000'000;
 
   struct Gap {  // the case of a tetrahedron stays the same for iso-values in (below, above]
     float below, above;  // rounded inwards: a value close to the ends only costs a needless re-march
@@ -103,7 +106,8 @@ private:
   std::vector<std::uint64_t> block_tris_;
   std::vector<MarchScratch::Chunk> chunks_;
   std::vector<std::vector<std::array<std::uint32_t, 3>>> chunk_tris_;
-  std::vector<EdgeEnds> ends_;  // per mesh vertex, for re-interpolation
+  std::vector<EdgeEnds> ends_;  // per mesh vertex, for re-interpolation (when cache_ends_)
+  bool cache_ends_ = false;
   MarchScratch scratch_;
 };
 

@@ -42,7 +42,11 @@ void Extractor::fresh(double iso) {
   active_.clear();
   active_tetrahedra(tree_, state_, active_);
   sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
-  march_tetrahedra_into(grid_, active_, iso, mesh_, scratch_, &gaps_, &ends_);
+  // Edge ends (80 bytes per vertex, about 0.7 vertices per active tetrahedron) are kept only up to
+  // edge_cache_max_tetrahedra; larger surfaces are re-interpolated from the grid, a little slower.
+  cache_ends_ = active_.size() <= edge_cache_max_tetrahedra;
+  march_tetrahedra_into(grid_, active_, iso, mesh_, scratch_, &gaps_, cache_ends_ ? &ends_ : nullptr);
+  if (!cache_ends_) std::vector<EdgeEnds>().swap(ends_);
   marched_ = active_.size();
   codes_.swap(scratch_.codes);
   first_tri_.swap(scratch_.first_triangle);
@@ -145,6 +149,7 @@ bool Extractor::update(double iso) {
   // 3. Vertex bookkeeping, O(changed), in parallel. Release the old triangles of the tetrahedra
   // that left or changed case (atomic use counts; a vertex whose count drops to zero may be dead).
   const std::uint32_t V_old = static_cast<std::uint32_t>(keys_.size());
+  const bool cached = cache_ends_;
   if (V_old >= kNewBit) throw std::length_error("extractor: too many mesh vertices");
   tbb::enumerable_thread_specific<std::vector<std::uint32_t>> released;
   auto release = [&](std::uint32_t o, std::vector<std::uint32_t>& dead) {
@@ -272,17 +277,17 @@ bool Extractor::update(double iso) {
       tail_[v - V] = slot;
       keys_[slot] = keys_[v];
       refs_[slot] = refs_[v];
-      ends_[slot] = ends_[v];
+      if (cached) ends_[slot] = ends_[v];
     }
   }
   keys_.resize(V);
   refs_.resize(V);
-  ends_.resize(V);
+  if (cached) ends_.resize(V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, N, 1024), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) {
       keys_[new_slot(k)] = new_keys_[k];
       refs_[new_slot(k)] = new_refs_[k];
-      ends_[new_slot(k)] = gather_edge(g, new_keys_[k]);
+      if (cached) ends_[new_slot(k)] = gather_edge(g, new_keys_[k]);
     }
   });
   auto final_id = [&](std::uint32_t p) {
@@ -328,7 +333,11 @@ bool Extractor::update(double iso) {
         for (std::uint64_t k = first_tri_[i]; k < first_tri_[i + 1]; ++k, ++next)
           for (int e = 0; e < 3; ++e) mesh_.triangles[k][e] = final_id(new_tris_[next][e]);
   });
-  interpolate_vertices(ends_, iso, mesh_);
+  if (cached) {
+    interpolate_vertices(ends_, iso, mesh_);
+  } else {
+    interpolate_vertices(g, keys_, iso, mesh_);
+  }
   return true;
 }
 
