@@ -167,9 +167,8 @@ bool Extractor::update(double iso) {
       if (old_index_[i] != kNone) release(old_index_[i], dead);
   });
   // New triangles, by chunks of consecutive blocks: a corner on an edge the tetrahedron cut before
-  // keeps that vertex; edges cut for the first time are numbered chunk-locally by first use, an
-  // edge belongs to the first chunk using it, and owned edges are numbered chunk by chunk: exactly
-  // the numbering of one sequential pass (the scheme of march_tetrahedra), V_old + k for the k-th.
+  // keeps that vertex; edges cut for the first time are numbered as one sequential pass would
+  // (number_chunk_edges, as in march_tetrahedra): V_old + k for the k-th.
   const std::size_t re_marched = changed - left_.size();
   marched_ = re_marched;
   const std::size_t C = 16 * re_marched < parallel_min_triangles ? 1 : std::min<std::size_t>(blocks, std::max(1, tbb::this_task_arena::max_concurrency()));
@@ -205,44 +204,13 @@ bool Extractor::update(double iso) {
         }
       }
   });
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // ownership: is the edge in an earlier chunk?
-    auto& ch = chunks_[c];
-    ch.owner.assign(ch.order.size(), static_cast<std::uint32_t>(c));
-    ch.owner_id.resize(ch.order.size());
-    ch.owned = 0;
-    for (std::size_t j = 0; j < ch.order.size(); ++j) {
-      ch.owner_id[j] = static_cast<std::uint32_t>(j);
-      for (std::size_t q = 0; q < c; ++q)
-        if (std::uint32_t id = chunks_[q].map->find(ch.order[j]); id != EdgeMap::kNone) {
-          ch.owner[j] = static_cast<std::uint32_t>(q);
-          ch.owner_id[j] = id;
-          break;
-        }
-      ch.owned += ch.owner[j] == c;
-    }
-  });
-  std::vector<std::size_t> key_offset(C + 1, 0), tri_offset(C + 1, 0);
-  for (std::size_t c = 0; c < C; ++c) {
-    key_offset[c + 1] = key_offset[c] + chunks_[c].owned;
-    tri_offset[c + 1] = tri_offset[c] + chunk_tris_[c].size();
-  }
-  new_keys_.resize(key_offset[C]);
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
-    auto& ch = chunks_[c];
-    ch.global.resize(ch.order.size());
-    std::size_t next = key_offset[c];
-    for (std::size_t j = 0; j < ch.order.size(); ++j)
-      if (ch.owner[j] == c) {
-        new_keys_[next] = ch.order[j];
-        ch.global[j] = static_cast<std::uint32_t>(next++);
-      }
-  });
+  number_chunk_edges(chunks_, new_keys_);
+  std::vector<std::size_t> tri_offset(C + 1, 0);
+  for (std::size_t c = 0; c < C; ++c) tri_offset[c + 1] = tri_offset[c] + chunk_tris_[c].size();
   new_tris_.resize(tri_offset[C]);
   new_refs_.assign(new_keys_.size(), 0);
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // borrowed edges, final provisional ids, uses
-    auto& ch = chunks_[c];
-    for (std::size_t j = 0; j < ch.order.size(); ++j)
-      if (ch.owner[j] != c) ch.global[j] = chunks_[ch.owner[j]].global[ch.owner_id[j]];
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // final provisional ids, uses
+    const auto& ch = chunks_[c];
     auto* out = new_tris_.data() + tri_offset[c];
     for (const auto& tri : chunk_tris_[c]) {
       for (int e = 0; e < 3; ++e) {

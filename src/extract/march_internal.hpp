@@ -171,6 +171,12 @@ inline std::uint8_t code_and_gap(const TetGrid& g, std::uint32_t t, double iso, 
   return code;
 }
 
+// Chunk-parallel first-use numbering: each chunk numbered its edges locally by first use (ch.map,
+// ch.order); an edge belongs to the first chunk using it, and owned edges are numbered chunk by
+// chunk, which is exactly the sequential first-use order whatever the number of chunks. Fills
+// order (edge keys by global id) and ch.global (global id per local id).
+void number_chunk_edges(std::vector<MarchScratch::Chunk>& chunks, std::vector<std::uint64_t>& order);
+
 // march_tetrahedra that also keeps, when asked, each active tetrahedron's case interval and each
 // vertex's edge ends (what the Extractor's incremental steps need), without reading them twice.
 void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh, MarchScratch& sc,

@@ -83,6 +83,44 @@ void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& m
   });
 }
 
+void number_chunk_edges(std::vector<MarchScratch::Chunk>& chunks, std::vector<std::uint64_t>& order) {
+  const std::size_t C = chunks.size();
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // ownership: is the edge in an earlier chunk?
+    auto& ch = chunks[c];
+    ch.owner.assign(ch.order.size(), static_cast<std::uint32_t>(c));
+    ch.owner_id.resize(ch.order.size());
+    ch.owned = 0;
+    for (std::size_t j = 0; j < ch.order.size(); ++j) {
+      ch.owner_id[j] = static_cast<std::uint32_t>(j);
+      for (std::size_t q = 0; q < c; ++q)
+        if (std::uint32_t id = chunks[q].map->find(ch.order[j]); id != EdgeMap::kNone) {
+          ch.owner[j] = static_cast<std::uint32_t>(q);
+          ch.owner_id[j] = id;
+          break;
+        }
+      ch.owned += ch.owner[j] == c;
+    }
+  });
+  std::vector<std::size_t> offset(C + 1, 0);
+  for (std::size_t c = 0; c < C; ++c) offset[c + 1] = offset[c] + chunks[c].owned;
+  order.resize(offset[C]);
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // global ids of owned edges
+    auto& ch = chunks[c];
+    ch.global.resize(ch.order.size());
+    std::size_t next = offset[c];
+    for (std::size_t j = 0; j < ch.order.size(); ++j)
+      if (ch.owner[j] == c) {
+        order[next] = ch.order[j];
+        ch.global[j] = static_cast<std::uint32_t>(next++);
+      }
+  });
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // borrowed edges
+    auto& ch = chunks[c];
+    for (std::size_t j = 0; j < ch.order.size(); ++j)
+      if (ch.owner[j] != c) ch.global[j] = chunks[ch.owner[j]].global[ch.owner_id[j]];
+  });
+}
+
 void march_tetrahedra(const TetGrid& g, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh, MarchScratch* scratch) {
   MarchScratch local;
   march_tetrahedra_into(g, active, iso, mesh, scratch ? *scratch : local, nullptr, nullptr);
@@ -130,39 +168,9 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
     ch.map = std::make_shared<EdgeMap>((e - b) / 2 + 16, ch.slots, ch.ids);
     for (std::size_t i = 3 * b; i < 3 * e; ++i) ch.local[i - 3 * b] = ch.map->find_or_add(keys[i], ch.order);
   });
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // ownership: is the edge in an earlier chunk?
-    auto& ch = sc.chunks[c];
-    ch.owner.assign(ch.order.size(), static_cast<std::uint32_t>(c));
-    ch.owner_id.resize(ch.order.size());
-    ch.owned = 0;
-    for (std::size_t j = 0; j < ch.order.size(); ++j) {
-      ch.owner_id[j] = static_cast<std::uint32_t>(j);
-      for (std::size_t q = 0; q < c; ++q)
-        if (std::uint32_t id = sc.chunks[q].map->find(ch.order[j]); id != EdgeMap::kNone) {
-          ch.owner[j] = static_cast<std::uint32_t>(q);
-          ch.owner_id[j] = id;
-          break;
-        }
-      ch.owned += ch.owner[j] == c;
-    }
-  });
-  std::vector<std::size_t> offset(C + 1, 0);
-  for (std::size_t c = 0; c < C; ++c) offset[c + 1] = offset[c] + sc.chunks[c].owned;
-  order.resize(offset[C]);
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // global ids of owned edges
-    auto& ch = sc.chunks[c];
-    ch.global.resize(ch.order.size());
-    std::size_t next = offset[c];
-    for (std::size_t j = 0; j < ch.order.size(); ++j)
-      if (ch.owner[j] == c) {
-        order[next] = ch.order[j];
-        ch.global[j] = static_cast<std::uint32_t>(next++);
-      }
-  });
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // borrowed edges, then the triangles
-    auto& ch = sc.chunks[c];
-    for (std::size_t j = 0; j < ch.order.size(); ++j)
-      if (ch.owner[j] != c) ch.global[j] = sc.chunks[ch.owner[j]].global[ch.owner_id[j]];
+  number_chunk_edges(sc.chunks, order);
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
+    const auto& ch = sc.chunks[c];
     const std::size_t b = T * c / C, e = T * (c + 1) / C;
     for (std::size_t i = b; i < e; ++i)
       for (int k = 0; k < 3; ++k) mesh.triangles[i][k] = ch.global[ch.local[3 * (i - b) + k]];
