@@ -76,7 +76,8 @@ bool Extractor::update(double iso) {
   left_.clear();
   std::size_t n = 0, j = 0;
   auto copy_run = [&](std::size_t end) {  // previous entries j..end-1 stay active
-    std::memcpy(active_.data() + n, prev_active_.data() + j, (end - j) * sizeof(std::uint32_t));
+    std::copy(prev_active_.begin() + static_cast<std::ptrdiff_t>(j), prev_active_.begin() + static_cast<std::ptrdiff_t>(end),
+              active_.begin() + static_cast<std::ptrdiff_t>(n));
     for (; j < end; ++j) old_index_[n++] = static_cast<std::uint32_t>(j);
   };
   for (std::uint32_t t : candidates_) {
@@ -286,7 +287,7 @@ bool Extractor::update(double iso) {
       }
       const std::uint64_t from = prev_first_tri_[o], to = prev_first_tri_[o + (r - i)];
       auto* dst = mesh_.triangles.data() + f;
-      std::memcpy(dst, prev_tris_.data() + from, (to - from) * sizeof(prev_tris_[0]));
+      std::copy(prev_tris_.begin() + static_cast<std::ptrdiff_t>(from), prev_tris_.begin() + static_cast<std::ptrdiff_t>(to), dst);
       if (!tail_.empty())
         for (std::uint64_t k = 0; k < to - from; ++k)
           for (auto& v : dst[k]) v = v >= V ? tail_[v - V] : v;
