@@ -9,9 +9,10 @@
 // then passes within that distance of them, as if the iso-value were lowered infinitesimally).
 // Normals are the linearly interpolated vertex gradients, normalised and negated: they point
 // towards lower values (outward for a bright object); triangles are counter-clockwise seen from
-// that side. Output order: triangles in the order of the active list, vertices by first use; the
-// Extractor sorts its active list by tetrahedron id, so its meshes are canonical (the same for any
-// history of iso-values) and memory access follows the grid's spatial order.
+// that side. Output order: triangles in the order of the active list, vertices by first use. The
+// Extractor keeps its active list sorted by tetrahedron id, so its triangle order is canonical and
+// memory access follows the grid's spatial order; its vertex numbering after incremental steps
+// depends on the history of iso-values (see Extractor).
 #pragma once
 #include <cstdint>
 #include <memory>
