@@ -27,6 +27,14 @@ namespace {
 
 TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
 
+// The int16 sphere reduced at an absolute error bound, tetrahedralized with gradients.
+TetGrid reduced_sphere_grid(int size, double max_error) {
+  Volume s = make_synthetic("sphere", size, ScalarType::i16);
+  ReduceOptions o;
+  o.max_error = max_error;
+  return build(s, reduce(s, o).kept);
+}
+
 EK::Point_3 ept(const TetGrid& g, std::uint32_t v) {
   // Exact grid-frame coordinates: spacing · index computed in exact arithmetic from the doubles.
   return EK::Point_3(EK::FT(g.source.spacing[0]) * static_cast<int>(g.ijk[v][0]),
@@ -169,10 +177,7 @@ TEST(Gradients, QuadraticFieldCloseToAnalytic) {
 
 TEST(GridFile, RoundTripIsBitIdentical) {
   testutil::TempDir t("grid");
-  Volume s = make_synthetic("sphere", 20, ScalarType::i16);
-  ReduceOptions o;
-  o.max_error = 30;
-  TetGrid g = build(s, reduce(s, o).kept);
+  TetGrid g = reduced_sphere_grid(20, 30);
   IntervalTree idx = build_interval_tree(g, 5);
   save_grid(g, t / "a.adg", "{}", &idx);
   IntervalTree loaded;
@@ -198,10 +203,7 @@ TEST(GridFile, RoundTripIsBitIdentical) {
 
 TEST(GridFile, EveryTruncationAndRandomCorruptionIsRefused) {
   testutil::TempDir t("gridbad");
-  Volume s = make_synthetic("sphere", 8, ScalarType::i16);
-  ReduceOptions o;
-  o.max_error = 50;
-  TetGrid g = build(s, reduce(s, o).kept);
+  TetGrid g = reduced_sphere_grid(8, 50);
   IntervalTree idx = build_interval_tree(g, 3);
   save_grid(g, t / "a.adg", "{}", &idx);
   IntervalTree loaded;
@@ -241,10 +243,7 @@ TEST(PrepareCli, JsonFieldsAndExport) {
 
 TEST(GridFile, FilesWithoutAnIndexAndVersion1FilesGetOneBuiltOnLoad) {
   testutil::TempDir t("gridv1");
-  Volume s = make_synthetic("sphere", 12, ScalarType::i16);
-  ReduceOptions o;
-  o.max_error = 40;
-  TetGrid g = build(s, reduce(s, o).kept);
+  TetGrid g = reduced_sphere_grid(12, 40);
   save_grid(g, t / "plain.adg");  // version 2 without the index
   IntervalTree idx;
   TetGrid h = load_grid(t / "plain.adg", nullptr, &idx);
