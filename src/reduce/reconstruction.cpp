@@ -71,10 +71,6 @@ private:
   double total_atomic_;
   std::atomic<std::int64_t> done_{0};
 
-  double at(std::int64_t x, std::int64_t y, std::int64_t z) const {
-    return static_cast<double>(v_[x + d_[0] * (y + d_[1] * z)]);
-  }
-
   // Every voxel of the box [lo, hi] against trilinear interpolation from the box corners; row(y, z)
   // points at the box's first voxel of that row (the volume, or a block copied out of it).
   template <class Row>
@@ -103,6 +99,25 @@ private:
     return test_rows(lo, hi, [&](std::int64_t y, std::int64_t z) { return v_ + lo[0] + d_[0] * (y + d_[1] * z); });
   }
 
+  // An atomic cube: merged when its value range, or else trilinear interpolation from its corners,
+  // stays within the bound. row(y, z) as in test_rows.
+  template <class Row>
+  CubeResult atomic_cube(std::int64_t cx, std::int64_t cy, std::int64_t cz, const std::int64_t lo[3], const std::int64_t hi[3], Row row) {
+    double mn = std::numeric_limits<double>::infinity(), mx = -mn;
+    for (std::int64_t z = lo[2]; z <= hi[2]; ++z)
+      for (std::int64_t y = lo[1]; y <= hi[1]; ++y) {
+        const auto* r = row(y, z);
+        for (std::int64_t x = 0; x <= hi[0] - lo[0]; ++x) {
+          const double s = static_cast<double>(r[x]);
+          mn = std::min(mn, s);
+          mx = std::max(mx, s);
+        }
+      }
+    const bool ok = mx - mn <= bound_ || test_rows(lo, hi, row);
+    if (ok) set_merged(1, cx, cy, cz);
+    return {ok, mn, mx};
+  }
+
   // The 8 atomic children of level-2 cube (cx, cy, cz) from one copy of its (at most 5³) voxels:
   // each voxel is read and converted once instead of once per atomic cube holding it (~1.7×).
   void atomic_children(std::int64_t cx, std::int64_t cy, std::int64_t cz, CubeResult ch[8], bool exists[8]) {
@@ -126,16 +141,7 @@ private:
         a[k] = 2 * (c[k] & 1);
         b[k] = std::min(a[k] + 2, hi[k] - lo[k]);
       }
-      double mn = std::numeric_limits<double>::infinity(), mx = -mn;
-      for (std::int64_t z = a[2]; z <= b[2]; ++z)
-        for (std::int64_t y = a[1]; y <= b[1]; ++y)
-          for (std::int64_t x = a[0]; x <= b[0]; ++x) {
-            mn = std::min(mn, blk[z][y][x]);
-            mx = std::max(mx, blk[z][y][x]);
-          }
-      const bool ok = mx - mn <= bound_ || test_rows(a, b, [&](std::int64_t y, std::int64_t z) { return &blk[z][y][a[0]]; });
-      if (ok) set_merged(1, c[0], c[1], c[2]);
-      ch[i] = {ok, mn, mx};
+      ch[i] = atomic_cube(c[0], c[1], c[2], a, b, [&](std::int64_t y, std::int64_t z) { return &blk[z][y][a[0]]; });
     }
   }
 
@@ -170,19 +176,8 @@ private:
   CubeResult process(int l, std::int64_t cx, std::int64_t cy, std::int64_t cz) {
     std::int64_t lo[3], hi[3];
     box(l, cx, cy, cz, lo, hi);
-    if (l == 1) {
-      double mn = std::numeric_limits<double>::infinity(), mx = -mn;
-      for (std::int64_t z = lo[2]; z <= hi[2]; ++z)
-        for (std::int64_t y = lo[1]; y <= hi[1]; ++y)
-          for (std::int64_t x = lo[0]; x <= hi[0]; ++x) {
-            double s = at(x, y, z);
-            mn = std::min(mn, s);
-            mx = std::max(mx, s);
-          }
-      bool ok = mx - mn <= bound_ || test(lo, hi);
-      if (ok) set_merged(1, cx, cy, cz);
-      return {ok, mn, mx};
-    }
+    if (l == 1)  // only when the whole volume is one atomic cube; otherwise see atomic_children
+      return atomic_cube(cx, cy, cz, lo, hi, [&](std::int64_t y, std::int64_t z) { return v_ + lo[0] + d_[0] * (y + d_[1] * z); });
     CubeResult ch[8];
     bool exists[8];
     auto child = [&](int i) {
