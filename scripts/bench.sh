@@ -5,16 +5,8 @@
 # Options through the environment: BENCH_ERRORS (relative errors, default 0.05), BENCH_REPEAT (3).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-./scripts/deps.sh
 PEERS=(libvtk9-dev python3-vtk9 libopenvdb-dev libboost-iostreams-dev python3-skimage libmeshoptimizer-dev python3-matplotlib)
-missing=()
-for p in "${PEERS[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if [ ${#missing[@]} -gt 0 ]; then
-  echo "installing the peers: ${missing[*]}"
-  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
-fi
+./scripts/deps.sh "${PEERS[@]}"
 cmake -S . -B build/peers -G Ninja -DCMAKE_BUILD_TYPE=Release -DADAPTISO_BUILD_TESTS=OFF -DADAPTISO_BUILD_PEERS=ON >/dev/null
 cmake --build build/peers --target adaptiso_cli bench_extract peer_bench
 exec /usr/bin/python3 bench/run_bench.py --build build/peers --data "${ADAPTISO_DATA:-../shared/data}" --out bench/results \

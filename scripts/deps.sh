@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Installs everything adaptiso needs to build and test on Debian 12 (idempotent; run as root).
+# Usage: scripts/deps.sh [EXTRA_PACKAGE...]   (extra Debian packages, e.g. the benchmark's peers)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PKGS=(build-essential cmake ninja-build pkg-config
       libcgal-dev libgmp-dev libmpfr-dev libboost-dev libeigen3-dev libtbb-dev
       libcli11-dev nlohmann-json3-dev libfmt-dev libteem-dev libnifti2-dev libgdcm-dev
       libcpp-httplib-dev libtinygltf-dev zlib1g-dev libgtest-dev libgmock-dev libbenchmark-dev
-      chromium)
+      chromium "$@")
 # The viewer page and its browser test need node and npm; a node install that already brings npm
 # (e.g. NodeSource's) is kept, Debian's packages are added otherwise.
 command -v npm >/dev/null 2>&1 || PKGS+=(nodejs npm)

@@ -60,30 +60,30 @@ void to_mesh(vtkPolyData* pd, PeerMesh& m) {
   }
 }
 
+// One image-contouring filter (flying edges or marching cubes) timed the same way.
+template <class Filter>
+double contour_image(const float* values, const int dims[3], const double spacing[3], double iso, int repeat, PeerMesh& out) {
+  auto img = image(values, dims, spacing);
+  vtkNew<Filter> f;
+  f->SetInputData(img);
+  f->SetValue(0, iso);
+  f->ComputeNormalsOn();
+  double t = best_of(repeat, [&] { f->Modified(); f->Update(); });
+  to_mesh(f->GetOutput(), out);
+  return t;
+}
+
 }  // namespace
 
 double vtk_flying_edges(const float* values, const int dims[3], const double spacing[3], double iso, int repeat, PeerMesh& out,
                         std::string& backend) {
-  auto img = image(values, dims, spacing);
-  vtkNew<vtkFlyingEdges3D> fe;
-  fe->SetInputData(img);
-  fe->SetValue(0, iso);
-  fe->ComputeNormalsOn();
-  double t = best_of(repeat, [&] { fe->Modified(); fe->Update(); });
-  to_mesh(fe->GetOutput(), out);
+  const double t = contour_image<vtkFlyingEdges3D>(values, dims, spacing, iso, repeat, out);
   backend = vtkSMPTools::GetBackend();
   return t;
 }
 
 double vtk_marching_cubes(const float* values, const int dims[3], const double spacing[3], double iso, int repeat, PeerMesh& out) {
-  auto img = image(values, dims, spacing);
-  vtkNew<vtkMarchingCubes> mc;
-  mc->SetInputData(img);
-  mc->SetValue(0, iso);
-  mc->ComputeNormalsOn();
-  double t = best_of(repeat, [&] { mc->Modified(); mc->Update(); });
-  to_mesh(mc->GetOutput(), out);
-  return t;
+  return contour_image<vtkMarchingCubes>(values, dims, spacing, iso, repeat, out);
 }
 
 void vtk_grid_contours(const std::string& vtu, const std::vector<double>& isos, int repeat) {
