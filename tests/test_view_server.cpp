@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 #include <httplib.h>
 
+#include <algorithm>
+#include <array>
 #include <atomic>
 #include <cstring>
 #include <thread>
@@ -75,24 +77,25 @@ std::uint32_t triangles_in(const std::string& body) {
   return vt[1];
 }
 
-// The triangles of an encoded mesh as corner positions and normals, in triangle order: equal for
-// two encodings of the same surface whatever their vertex numbering (an Extractor's numbering
-// depends on its history, and the server may have dropped a client's state in between).
-std::vector<float> corners(const std::string& body) {
+// The triangles of an encoded mesh as corner positions and normals, sorted: equal for two
+// encodings of the same surface whatever their vertex numbering and triangle order (an
+// Extractor's depend on its history, and the server may have dropped a client's state in between).
+std::vector<std::array<float, 18>> corners(const std::string& body) {
   std::uint32_t vt[2];
   std::memcpy(vt, body.data(), 8);
   if (body.size() != 8 + 24 * std::size_t{vt[0]} + 12 * std::size_t{vt[1]}) return {};
   const char* pos = body.data() + 8;
   const char* nrm = pos + 12 * std::size_t{vt[0]};
   const char* tri = nrm + 12 * std::size_t{vt[0]};
-  std::vector<float> out(18 * std::size_t{vt[1]});
+  std::vector<std::array<float, 18>> out(vt[1]);
   for (std::size_t k = 0; k < 3 * std::size_t{vt[1]}; ++k) {
     std::uint32_t v;
     std::memcpy(&v, tri + 4 * k, 4);
     if (v >= vt[0]) return {};
-    std::memcpy(&out[6 * k], pos + 12 * std::size_t{v}, 12);
-    std::memcpy(&out[6 * k + 3], nrm + 12 * std::size_t{v}, 12);
+    std::memcpy(&out[k / 3][6 * (k % 3)], pos + 12 * std::size_t{v}, 12);
+    std::memcpy(&out[k / 3][6 * (k % 3) + 3], nrm + 12 * std::size_t{v}, 12);
   }
+  std::sort(out.begin(), out.end());
   return out;
 }
 

@@ -14,8 +14,10 @@
 // memory access follows the grid's spatial order; its vertex numbering after incremental steps
 // depends on the history of iso-values (see Extractor).
 #pragma once
+#include <array>
 #include <cstdint>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "adaptiso/interval_tree.hpp"
@@ -97,18 +99,33 @@ private:
   const IntervalTree& tree_;
   SweepState state_;
   Mesh mesh_;
+  double iso_ = 0;  // of the last extraction
   bool valid_ = false, incremental_ = false;
-  std::vector<std::uint32_t> active_, prev_active_, old_index_, left_, candidates_, refs_, dead_, tail_, new_refs_;
-  std::vector<std::uint8_t> codes_, prev_codes_;
-  std::vector<Gap> gaps_, prev_gaps_;
-  std::vector<std::uint64_t> first_tri_, prev_first_tri_, keys_, bitmap_, new_keys_;
-  std::vector<std::array<std::uint32_t, 3>> prev_tris_, new_tris_;
-  std::vector<std::vector<std::uint32_t>> changed_;
-  std::vector<std::uint64_t> block_tris_;
+  // Per slot (one per active tetrahedron): its id, case, case interval and triangle positions.
+  std::vector<std::uint32_t> active_;
+  std::vector<std::uint8_t> codes_;
+  std::vector<Gap> gaps_;
+  std::vector<std::array<std::uint32_t, 2>> slot_tris_;
+  std::vector<std::uint32_t> owner_;  // per triangle, its slot
+  std::vector<std::uint64_t> keys_;   // per vertex, its cut edge
+  std::vector<std::uint32_t> refs_;   // per vertex, the triangles using it
+  std::vector<EdgeEnds> ends_;        // per vertex, for re-interpolation (when cache_ends_)
+  bool cache_ends_ = false;
+  // Scratch of the incremental step, kept to avoid faulting in fresh pages every step.
+  struct Entered {
+    std::uint32_t tet;
+    std::uint8_t code;
+    Gap gap;
+  };
+  std::vector<Entered> entered_;
+  std::vector<std::uint32_t> entered_slot_, work_, leaving_, free_, dead_, tail_, slot_tail_, new_refs_;
+  std::vector<std::uint64_t> bitmap_, new_keys_;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> moves_;
+  std::vector<std::vector<std::uint32_t>> changed_, free_parts_;
+  std::vector<std::vector<Entered>> entered_parts_;
+  std::vector<std::size_t> block_cut_;
   std::vector<MarchScratch::Chunk> chunks_;
   std::vector<std::vector<std::array<std::uint32_t, 3>>> chunk_tris_;
-  std::vector<EdgeEnds> ends_;  // per mesh vertex, for re-interpolation (when cache_ends_)
-  bool cache_ends_ = false;
   MarchScratch scratch_;
 };
 

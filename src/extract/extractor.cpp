@@ -2,14 +2,16 @@
 // mesh for small changes of iso-value (see extract.hpp).
 //
 // After a step from c0 to c1 a tetrahedron keeps its triangles, and every corner keeps its cut
-// edge, unless one of its vertices lies in [min(c0,c1), max(c0,c1)): its case code changes. The
-// active list is the previous one merged with the entries the sweep walked (those that entered or
-// left), and each active tetrahedron carries the interval of iso-values that keep its case, so
-// finding the ones to march again is one streaming pass. An edge they cut that was already cut
-// is found among the same tetrahedron's old corners (a tetrahedron inactive before had no cut
-// edge), so only edges cut for the first time need a hash map. Vertices carry reference counts:
-// those no triangle uses any more free their slots, new ones fill them, and vertices from the end
-// fill what is left, so the unchanged triangles are copied with at most a small tail remap.
+// edge, unless one of its vertices lies in [min(c0,c1), max(c0,c1)): its case code changes. Every
+// active tetrahedron owns a slot that carries its case, the interval of iso-values keeping that
+// case and the positions of its 1 or 2 triangles in the mesh, so a step is one read-only pass over
+// the case intervals plus work proportional to what changed: the slots, triangles and vertices of
+// unchanged tetrahedra stay where they are. Tetrahedra that entered come from the entries the sweep
+// walked; an edge a re-marched tetrahedron cut before is found among its old corners, so only edges
+// cut for the first time need a hash map. Freed slots, triangle positions and vertices (reference
+// counted) are reused in ascending order, then the arrays grow; when more were freed than filled,
+// entries from the end move into the remaining holes. Everything is decided in block order (not by
+// thread timing), so the mesh depends only on the history of iso-values.
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
@@ -18,7 +20,6 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
-#include <cstring>
 #include <limits>
 #include <stdexcept>
 
@@ -33,6 +34,33 @@ constexpr std::uint32_t kNewBit = std::uint32_t{1} << 31;  // marks a chunk-loca
 // Work split into this many blocks for the streaming passes (a multiple of the thread count keeps
 // the cores busy; few enough that per-block bookkeeping stays negligible).
 std::size_t block_count(std::size_t n) { return std::max<std::size_t>(1, std::min<std::size_t>(256, n / 16384)); }
+
+bool cut(std::uint8_t code) { return code != 0 && code != 15; }
+
+// The incremental step reads the grid and its own arrays at scattered places (the tetrahedra that
+// changed are few and far between); prefetching a few iterations ahead overlaps those misses.
+inline void prefetch(const void* p) { __builtin_prefetch(p); }
+
+// Slots [0, old_n) of which `freed` (ascending) are released and `fill` new entries arrive: new
+// entry k goes to freed[k] or, past the freed ones, to the end. Returns the new count and, when
+// fewer arrive than were freed, the live entries from the end that move into the remaining holes
+// below the new count, as (from, to) pairs ascending.
+std::size_t place(const std::vector<std::uint32_t>& freed, std::size_t fill, std::size_t old_n,
+                  std::vector<std::pair<std::uint32_t, std::uint32_t>>& moves) {
+  moves.clear();
+  const std::size_t n = old_n + fill - freed.size();
+  if (fill >= freed.size()) return n;
+  std::size_t h = fill, f = static_cast<std::size_t>(std::lower_bound(freed.begin(), freed.end(), n) - freed.begin());
+  for (std::size_t from = n; from < old_n; ++from) {
+    if (f < freed.size() && freed[f] == from) {
+      ++f;
+      continue;
+    }
+    if (h >= freed.size() || freed[h] >= n) throw std::logic_error("extractor: slots out of balance");
+    moves.emplace_back(static_cast<std::uint32_t>(from), freed[h++]);
+  }
+  return n;
+}
 }  // namespace
 
 Extractor::Extractor(const TetGrid& grid, const IntervalTree& tree) : grid_(grid), tree_(tree) {}
@@ -49,9 +77,19 @@ void Extractor::fresh(double iso) {
   if (!cache_ends_) std::vector<EdgeEnds>().swap(ends_);
   marched_ = active_.size();
   codes_.swap(scratch_.codes);
-  first_tri_.swap(scratch_.first_triangle);
   keys_.swap(scratch_.order);
-  // The march kept edge ends and case intervals for the incremental path; count vertex uses.
+  // Slots in active order: each owns the triangles the march wrote for it. Count vertex uses.
+  const auto& first = scratch_.first_triangle;
+  const std::size_t n = active_.size();
+  slot_tris_.resize(n);
+  owner_.resize(mesh_.triangles.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const auto& r) {
+    for (std::size_t s = r.begin(); s < r.end(); ++s) {
+      const auto f = static_cast<std::uint32_t>(first[s]);
+      slot_tris_[s] = {f, first[s + 1] > f + 1 ? f + 1 : kNone};
+      for (std::uint64_t k = first[s]; k < first[s + 1]; ++k) owner_[k] = static_cast<std::uint32_t>(s);
+    }
+  });
   refs_.assign(keys_.size(), 0);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mesh_.triangles.size(), 16384), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i)
@@ -62,121 +100,131 @@ void Extractor::fresh(double iso) {
 bool Extractor::update(double iso) {
   const TetGrid& g = grid_;
   if (!state_.touched_complete) return false;
-  // 1. The new active list: the previous one (ascending) merged with the walked entries.
-  candidates_ = state_.touched;
-  if (candidates_.size() * 64 > g.tet_count()) {  // many: a bitmap pass beats sorting
-    sort_tetrahedra(candidates_, g.tet_count(), bitmap_);
-  } else {
-    tbb::parallel_sort(candidates_.begin(), candidates_.end());
-    candidates_.erase(std::unique(candidates_.begin(), candidates_.end()), candidates_.end());
-  }
-  const std::size_t n_old = prev_active_.size();
-  active_.resize(n_old + candidates_.size());
-  old_index_.resize(n_old + candidates_.size());
-  left_.clear();
-  std::size_t n = 0, j = 0;
-  auto copy_run = [&](std::size_t end) {  // previous entries j..end-1 stay active
-    std::copy(prev_active_.begin() + static_cast<std::ptrdiff_t>(j), prev_active_.begin() + static_cast<std::ptrdiff_t>(end),
-              active_.begin() + static_cast<std::ptrdiff_t>(n));
-    for (; j < end; ++j) old_index_[n++] = static_cast<std::uint32_t>(j);
-  };
-  for (std::uint32_t t : candidates_) {
-    copy_run(static_cast<std::size_t>(std::lower_bound(prev_active_.begin() + static_cast<std::ptrdiff_t>(j), prev_active_.end(), t) -
-                                      prev_active_.begin()));
-    const bool was = j < n_old && prev_active_[j] == t;
-    if (state_.flags[t] == 3) {
-      active_[n] = t;
-      old_index_[n++] = was ? static_cast<std::uint32_t>(j) : kNone;
-    } else if (was) {
-      left_.push_back(static_cast<std::uint32_t>(j));
-    }
-    j += was;
-  }
-  copy_run(n_old);
-  active_.resize(n);
-  old_index_.resize(n);
-  // 2. Codes and case intervals: reused unless the iso-value left the interval (in parallel); the
-  // entries to march again are collected per block, in order.
-  codes_.resize(n);
-  gaps_.resize(n);
-  const std::size_t blocks = block_count(n);
-  changed_.resize(blocks);
-  block_tris_.assign(blocks + 1, 0);
+  const double c0 = iso_;
+  const std::size_t n_old = active_.size();
+  const std::size_t T_old = mesh_.triangles.size();
+  const std::uint32_t V_old = static_cast<std::uint32_t>(keys_.size());
+  if (V_old >= kNewBit || T_old >= kNone || n_old + state_.touched.size() >= kNone)
+    throw std::length_error("extractor: too many mesh elements");
   // Give up as soon as more would change than a fresh march is worth.
-  const double limit = max_changed_fraction < 1 ? max_changed_fraction * static_cast<double>(std::max(n, n_old))
+  const double limit = max_changed_fraction < 1 ? max_changed_fraction * static_cast<double>(std::max<std::size_t>(n_old, 1))
                                                 : std::numeric_limits<double>::infinity();
-  if (static_cast<double>(left_.size()) > limit) return false;
-  std::atomic<std::size_t> changed_so_far{left_.size()};
+
+  // 1. Entered: walked entries active now that were not at c0 (those active at both changed case
+  // and are found by the pass below), with their case at iso while their values are at hand.
+  const auto& touched = state_.touched;
+  const std::size_t tb = block_count(touched.size());
+  entered_parts_.resize(tb);
+  tbb::parallel_for(std::size_t{0}, tb, [&](std::size_t b) {
+    auto& part = entered_parts_[b];
+    part.clear();
+    const std::size_t end = touched.size() * (b + 1) / tb;
+    for (std::size_t i = touched.size() * b / tb; i < end; ++i) {
+      if (i + 16 < end) {
+        prefetch(&g.tets[touched[i + 16]]);
+        prefetch(&state_.flags[touched[i + 16]]);
+      }
+      if (i + 8 < end)
+        for (std::uint32_t v : g.tets[touched[i + 8]]) prefetch(&g.values[v]);
+      if (const std::uint32_t t = touched[i]; state_.flags[t] == 3 && !cut(tet_code(g, t, c0))) {
+        Entered e{t, 0, {}};
+        e.code = code_and_gap(g, t, iso, e.gap);
+        part.push_back(e);
+      }
+    }
+  });
+  entered_.clear();
+  for (const auto& part : entered_parts_) entered_.insert(entered_.end(), part.begin(), part.end());
+  // By id (a tetrahedron may have been walked twice).
+  auto by_tet = [](const Entered& a, const Entered& b) { return a.tet < b.tet; };
+  tbb::parallel_sort(entered_.begin(), entered_.end(), by_tet);
+  entered_.erase(std::unique(entered_.begin(), entered_.end(), [](const Entered& a, const Entered& b) { return a.tet == b.tet; }),
+                 entered_.end());
+  const std::size_t E = entered_.size();
+  if (static_cast<double>(E) > limit) return false;
+
+  // 2. Slots whose iso-value left their case interval get their new case (in parallel, per block
+  // in slot order). The old triangles stay in place until step 6.
+  const std::size_t blocks = block_count(n_old);
+  changed_.resize(blocks);
+  block_cut_.resize(blocks);
+  std::atomic<std::size_t> changed_so_far{E};
   std::atomic<bool> too_many{false};
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
     auto& list = changed_[b];
     list.clear();
     if (too_many.load(std::memory_order_relaxed)) return;
-    std::uint64_t tris = 0;
-    const std::size_t end = n * (b + 1) / blocks;
-    for (std::size_t i = n * b / blocks; i < end;) {
-      const std::uint32_t o = old_index_[i];
-      if (o == kNone) {  // entered
-        codes_[i] = code_and_gap(g, active_[i], iso, gaps_[i]);
-        list.push_back(static_cast<std::uint32_t>(i));
-        tris += kCases[codes_[i]].triangles;
-        ++i;
-        continue;
-      }
-      std::size_t r = i + 1;  // the run i..r-1 had consecutive entries o.. before: copy, then check
-      while (r < end && old_index_[r] == o + (r - i)) ++r;
-      std::memcpy(codes_.data() + i, prev_codes_.data() + o, r - i);
-      std::memcpy(gaps_.data() + i, prev_gaps_.data() + o, (r - i) * sizeof(Gap));
-      tris += prev_first_tri_[o + (r - i)] - prev_first_tri_[o];
-      for (std::size_t k = i; k < r; ++k)
-        if (!(gaps_[k].below < iso && iso <= gaps_[k].above)) {
-          tris -= kCases[codes_[k]].triangles;
-          codes_[k] = code_and_gap(g, active_[k], iso, gaps_[k]);
-          tris += kCases[codes_[k]].triangles;
-          list.push_back(static_cast<std::uint32_t>(k));
-        }
-      i = r;
+    const Gap* gap = gaps_.data();
+    for (std::size_t s = n_old * b / blocks; s < n_old * (b + 1) / blocks; ++s)
+      if (!(gap[s].below < iso && iso <= gap[s].above)) list.push_back(static_cast<std::uint32_t>(s));
+    if (static_cast<double>(changed_so_far.fetch_add(list.size()) + list.size()) > limit) {
+      too_many = true;
+      return;
     }
-    block_tris_[b + 1] = tris;
-    if (static_cast<double>(changed_so_far.fetch_add(list.size()) + list.size()) > limit) too_many = true;
+    // The grid reads are scattered: prefetch the slot's tetrahedron, then its values, ahead.
+    const std::size_t m = list.size();
+    std::size_t cuts = 0;
+    for (std::size_t i = 0; i < m; ++i) {
+      if (i + 32 < m) prefetch(&active_[list[i + 32]]);
+      if (i + 16 < m) prefetch(&g.tets[active_[list[i + 16]]]);
+      if (i + 8 < m)
+        for (std::uint32_t v : g.tets[active_[list[i + 8]]]) prefetch(&g.values[v]);
+      codes_[list[i]] = code_and_gap(g, active_[list[i]], iso, gaps_[list[i]]);
+      cuts += cut(codes_[list[i]]);
+    }
+    block_cut_[b] = cuts;
   });
-  if (too_many) return false;
-  const std::size_t changed = changed_so_far;
-  for (std::size_t b = 0; b < blocks; ++b) block_tris_[b + 1] += block_tris_[b];
-  first_tri_.resize(n + 1);
-  first_tri_[n] = block_tris_[blocks];
-  const std::size_t T = first_tri_[n];
+  if (too_many) return false;  // codes_ and gaps_ are rebuilt by the fresh march
 
-  // 3. Vertex bookkeeping, O(changed), in parallel. Release the old triangles of the tetrahedra
-  // that left or changed case (atomic use counts; a vertex whose count drops to zero may be dead).
-  const std::uint32_t V_old = static_cast<std::uint32_t>(keys_.size());
-  const bool cached = cache_ends_;
-  if (V_old >= kNewBit) throw std::length_error("extractor: too many mesh vertices");
+  // 3. Release the old triangles of the changed slots (atomic use counts; a vertex whose count
+  // drops to zero may be dead) and collect their positions, which become free.
   tbb::enumerable_thread_specific<std::vector<std::uint32_t>> released;
-  auto release = [&](std::uint32_t o, std::vector<std::uint32_t>& dead) {
-    for (std::uint64_t k = prev_first_tri_[o]; k < prev_first_tri_[o + 1]; ++k)
-      for (std::uint32_t v : prev_tris_[k])
-        if (std::atomic_ref<std::uint32_t>(refs_[v]).fetch_sub(1, std::memory_order_relaxed) == 1) dead.push_back(v);
-  };
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, left_.size(), 1024), [&](const auto& r) {
-    auto& dead = released.local();
-    for (std::size_t x = r.begin(); x < r.end(); ++x) release(left_[x], dead);
-  });
+  free_parts_.resize(blocks);
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
     auto& dead = released.local();
-    for (std::uint32_t i : changed_[b])
-      if (old_index_[i] != kNone) release(old_index_[i], dead);
+    auto& freed = free_parts_[b];
+    freed.clear();
+    const auto& list = changed_[b];
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      if (i + 16 < list.size()) prefetch(&slot_tris_[list[i + 16]]);
+      if (i + 8 < list.size())
+        for (std::uint32_t k : slot_tris_[list[i + 8]])
+          if (k != kNone) prefetch(&mesh_.triangles[k]);
+      if (i + 4 < list.size())
+        for (std::uint32_t k : slot_tris_[list[i + 4]])
+          if (k != kNone)
+            for (std::uint32_t v : mesh_.triangles[k]) prefetch(&refs_[v]);
+      for (std::uint32_t k : slot_tris_[list[i]]) {
+        if (k == kNone) continue;
+        freed.push_back(k);
+        for (std::uint32_t v : mesh_.triangles[k])
+          if (std::atomic_ref<std::uint32_t>(refs_[v]).fetch_sub(1, std::memory_order_relaxed) == 1) dead.push_back(v);
+      }
+    }
   });
-  // New triangles, by chunks of consecutive blocks: a corner on an edge the tetrahedron cut before
+
+  // 4. The work: changed slots still cut (block order), then the entered tetrahedra (by id).
+  std::vector<std::size_t> work_at(blocks + 1, 0), leave_at(blocks + 1, 0);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    work_at[b + 1] = work_at[b] + block_cut_[b];
+    leave_at[b + 1] = leave_at[b] + (changed_[b].size() - block_cut_[b]);
+  }
+  work_.resize(work_at[blocks]);
+  leaving_.resize(leave_at[blocks]);
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    std::size_t w = work_at[b], l = leave_at[b];
+    for (std::uint32_t s : changed_[b]) (cut(codes_[s]) ? work_[w++] : leaving_[l++]) = s;
+  });
+  const std::size_t R = work_.size();
+  const std::size_t W = R + E;
+  marched_ = W;
+  auto work_tet = [&](std::size_t w) { return w < R ? active_[work_[w]] : entered_[w - R].tet; };
+  auto work_code = [&](std::size_t w) { return w < R ? codes_[work_[w]] : entered_[w - R].code; };
+
+  // New triangles, by chunks of consecutive work: a corner on an edge the tetrahedron cut before
   // keeps that vertex; edges cut for the first time are numbered as one sequential pass would
   // (number_chunk_edges, as in march_tetrahedra): V_old + k for the k-th.
-  const std::size_t re_marched = changed - left_.size();
-  marched_ = re_marched;
-  const std::size_t C = 16 * re_marched < parallel_min_triangles ? 1 : std::min<std::size_t>(blocks, std::max(1, tbb::this_task_arena::max_concurrency()));
-  std::vector<std::size_t> chunk_block(C + 1, blocks);
-  for (std::size_t b = 0, c = 0, seen = 0; b < blocks && c <= C; seen += changed_[b++].size())
-    while (c <= C && seen >= re_marched * c / C) chunk_block[c++] = b;
-  chunk_block[0] = 0;
+  const std::size_t C = 16 * W < parallel_min_triangles ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
   chunks_.resize(C);
   chunk_tris_.resize(C);
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
@@ -184,124 +232,187 @@ bool Extractor::update(double iso) {
     auto& tris = chunk_tris_[c];
     ch.order.clear();
     tris.clear();
-    ch.map = std::make_shared<EdgeMap>(64, ch.slots, ch.ids);
-    for (std::size_t b = chunk_block[c]; b < chunk_block[c + 1]; ++b)
-      for (std::uint32_t i : changed_[b]) {
-        const std::uint32_t o = old_index_[i];
-        const auto& t = g.tets[active_[i]];
-        const Case& cs = kCases[codes_[i]];
-        for (int q = 0; q < cs.triangles; ++q) {
-          std::array<std::uint32_t, 3> tri;
-          for (int e = 0; e < 3; ++e) {
-            const std::uint64_t key = edge_key(t[cs.tri[q][e].below], t[cs.tri[q][e].above]);
-            std::uint32_t id = kNone;
-            if (o != kNone)
-              for (std::uint64_t k = prev_first_tri_[o]; k < prev_first_tri_[o + 1] && id == kNone; ++k)
-                for (std::uint32_t v : prev_tris_[k])
-                  if (keys_[v] == key) id = v;
-            tri[e] = id != kNone ? id : kNewBit | ch.map->find_or_add(key, ch.order);
-          }
-          tris.push_back(tri);
-        }
+    ch.map = std::make_shared<EdgeMap>((W * (c + 1) / C - W * c / C) / 2 + 16, ch.slots, ch.ids);
+    const std::size_t w_end = W * (c + 1) / C;
+    for (std::size_t w = W * c / C; w < w_end; ++w) {
+      if (w + 32 < std::min(w_end, R)) {
+        prefetch(&active_[work_[w + 32]]);
+        prefetch(&codes_[work_[w + 32]]);
+        prefetch(&slot_tris_[work_[w + 32]]);
       }
+      if (w + 16 < w_end) {
+        prefetch(&g.tets[work_tet(w + 16)]);
+        if (w + 16 < R)
+          for (std::uint32_t k : slot_tris_[work_[w + 16]])
+            if (k != kNone) prefetch(&mesh_.triangles[k]);
+      }
+      if (w + 8 < R)
+        for (std::uint32_t k : slot_tris_[work_[w + 8]])
+          if (k != kNone)
+            for (std::uint32_t v : mesh_.triangles[k]) prefetch(&keys_[v]);
+      const auto& t = g.tets[work_tet(w)];
+      const Case& cs = kCases[work_code(w)];
+      // The old corners (cut edge and vertex), read once.
+      std::uint64_t old_key[6];
+      std::uint32_t old_vertex[6];
+      int olds = 0;
+      if (w < R)
+        for (std::uint32_t k : slot_tris_[work_[w]])
+          if (k != kNone)
+            for (std::uint32_t v : mesh_.triangles[k]) {
+              old_key[olds] = keys_[v];
+              old_vertex[olds++] = v;
+            }
+      for (int q = 0; q < cs.triangles; ++q) {
+        std::array<std::uint32_t, 3> tri;
+        for (int e = 0; e < 3; ++e) {
+          const std::uint64_t key = edge_key(t[cs.tri[q][e].below], t[cs.tri[q][e].above]);
+          std::uint32_t id = kNone;
+          for (int i = 0; i < olds; ++i)
+            if (old_key[i] == key) id = old_vertex[i];
+          tri[e] = id != kNone ? id : kNewBit | ch.map->find_or_add(key, ch.order);
+        }
+        tris.push_back(tri);
+      }
+    }
   });
   number_chunk_edges(chunks_, new_keys_);
   std::vector<std::size_t> tri_offset(C + 1, 0);
   for (std::size_t c = 0; c < C; ++c) tri_offset[c + 1] = tri_offset[c] + chunk_tris_[c].size();
-  new_tris_.resize(tri_offset[C]);
+  const std::size_t new_tri_count = tri_offset[C];
   new_refs_.assign(new_keys_.size(), 0);
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // final provisional ids, uses
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // provisional ids; count uses
     const auto& ch = chunks_[c];
-    auto* out = new_tris_.data() + tri_offset[c];
-    for (const auto& tri : chunk_tris_[c]) {
-      for (int e = 0; e < 3; ++e) {
-        const std::uint32_t v = tri[e] & kNewBit ? V_old + ch.global[tri[e] & ~kNewBit] : tri[e];
-        (*out)[e] = v;
+    for (auto& tri : chunk_tris_[c])
+      for (auto& v : tri) {
+        if (v & kNewBit) v = V_old + ch.global[v & ~kNewBit];
         std::atomic_ref<std::uint32_t>(v < V_old ? refs_[v] : new_refs_[v - V_old]).fetch_add(1, std::memory_order_relaxed);
       }
-      ++out;
-    }
   });
   // A vertex released to zero may have been used again by a new triangle.
+  std::vector<std::vector<std::uint32_t>*> lists;
+  for (auto& d : released) lists.push_back(&d);
+  tbb::parallel_for(std::size_t{0}, lists.size(), [&](std::size_t i) {
+    auto& d = *lists[i];
+    d.erase(std::remove_if(d.begin(), d.end(), [&](std::uint32_t v) { return refs_[v] != 0; }), d.end());
+  });
   dead_.clear();
-  for (const auto& d : released)
-    for (std::uint32_t v : d)
-      if (refs_[v] == 0) dead_.push_back(v);
-  std::sort(dead_.begin(), dead_.end());
+  for (const auto* d : lists) dead_.insert(dead_.end(), d->begin(), d->end());
+  tbb::parallel_sort(dead_.begin(), dead_.end());
 
-  // 4. Slots: new vertices take the lowest freed slots, then the end; when more slots were freed
-  // than filled, live vertices from the end move into the holes below the new vertex count.
-  const std::size_t D = dead_.size(), N = new_keys_.size();
-  const std::uint32_t V = static_cast<std::uint32_t>(V_old + N - D);
-  auto new_slot = [&](std::size_t k) { return k < D ? dead_[k] : static_cast<std::uint32_t>(V_old + (k - D)); };
-  tail_.clear();  // tail_[v - V]: the slot of live vertex v >= V
-  if (V < V_old) {
-    tail_.assign(V_old - V, kNone);
-    std::size_t h = N;  // holes dead_[N..D) below V, ascending, paired with live tail vertices
-    for (std::uint32_t v = V; v < V_old; ++v) {
-      if (refs_[v] == 0) continue;
-      // Holes below V (the first of dead_[N..D), ascending) are as many as live vertices >= V.
-      if (h >= D || dead_[h] >= V) throw std::logic_error("extractor: vertex slots out of balance");
-      const std::uint32_t slot = dead_[h++];
-      tail_[v - V] = slot;
-      keys_[slot] = keys_[v];
-      refs_[slot] = refs_[v];
-      if (cached) ends_[slot] = ends_[v];
-    }
+  // 5. Vertex slots: new vertices take the lowest freed slots, then the end; live vertices from
+  // the end fill the holes that remain below the new count (tail_ maps them).
+  const bool cached = cache_ends_;
+  const std::size_t N = new_keys_.size();
+  const auto V = static_cast<std::uint32_t>(place(dead_, N, V_old, moves_));
+  tail_.assign(V_old > V ? V_old - V : 0, kNone);
+  for (const auto& [from, to] : moves_) {
+    tail_[from - V] = to;
+    keys_[to] = keys_[from];
+    refs_[to] = refs_[from];
+    if (cached) ends_[to] = ends_[from];
   }
+  auto new_slot = [&](std::size_t k) { return k < dead_.size() ? dead_[k] : static_cast<std::uint32_t>(V_old + (k - dead_.size())); };
   keys_.resize(V);
   refs_.resize(V);
   if (cached) ends_.resize(V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, N, 1024), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) {
+      if (cached && k + 8 < r.end())
+        for (std::uint32_t v : {static_cast<std::uint32_t>(new_keys_[k + 8] >> 32), static_cast<std::uint32_t>(new_keys_[k + 8])}) {
+          prefetch(&g.values[v]);
+          prefetch(&g.ijk[v]);
+          prefetch(&g.gradients[v]);
+        }
       keys_[new_slot(k)] = new_keys_[k];
       refs_[new_slot(k)] = new_refs_[k];
       if (cached) ends_[new_slot(k)] = gather_edge(g, new_keys_[k]);
     }
   });
-  auto final_id = [&](std::uint32_t p) {
+  auto final_vertex = [&](std::uint32_t p) {
     if (p >= V_old) return new_slot(p - V_old);
     return p >= V ? tail_[p - V] : p;
   };
 
-  // 5. Triangles in active order, with the offsets per tetrahedron: unchanged tetrahedra copy
-  // theirs (in parallel, by runs that were consecutive before too), the re-marched ones take their
-  // new triangles.
-  mesh_.triangles.resize(T);
-  for (std::size_t b = 0; b < blocks; ++b)
-    for (std::uint32_t i : changed_[b]) old_index_[i] = kNone;
-  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-    const std::size_t end = n * (b + 1) / blocks;
-    std::uint64_t f = block_tris_[b];
-    for (std::size_t i = n * b / blocks; i < end;) {
-      const std::uint32_t o = old_index_[i];
-      if (o == kNone) {  // re-marched: its triangles are written below
-        first_tri_[i] = f;
-        f += kCases[codes_[i]].triangles;
-        ++i;
-        continue;
+  // 6. Active slots: the entered tetrahedra take the slots of those that left, then the end; live
+  // slots from the end fill the remaining holes (their triangles learn their new owner).
+  const std::size_t n = place(leaving_, E, n_old, moves_);
+  entered_slot_.resize(E);
+  if (n > n_old) {
+    active_.resize(n);
+    codes_.resize(n);
+    gaps_.resize(n);
+    slot_tris_.resize(n);
+  }
+  for (std::size_t k = 0; k < E; ++k) {
+    const std::uint32_t s = k < leaving_.size() ? leaving_[k] : static_cast<std::uint32_t>(n_old + (k - leaving_.size()));
+    active_[s] = entered_[k].tet;
+    codes_[s] = entered_[k].code;
+    gaps_[s] = entered_[k].gap;
+    entered_slot_[k] = s;
+  }
+  for (const auto& [from, to] : moves_) {
+    active_[to] = active_[from];
+    codes_[to] = codes_[from];
+    gaps_[to] = gaps_[from];
+    slot_tris_[to] = slot_tris_[from];
+    for (std::uint32_t k : slot_tris_[to])
+      if (k != kNone) owner_[k] = to;  // only unchanged slots keep their old triangles; the others are rewritten
+  }
+  if (!moves_.empty()) {  // re-marched slots that moved
+    slot_tail_.assign(n_old - n, kNone);
+    for (const auto& [from, to] : moves_) slot_tail_[from - n] = to;
+    for (auto& s : work_)
+      if (s >= n) s = slot_tail_[s - n];
+  }
+  active_.resize(n);
+  codes_.resize(n);
+  gaps_.resize(n);
+  slot_tris_.resize(n);
+
+  // 7. Triangle positions: the new triangles (in work order) take the freed positions ascending,
+  // then the end; live triangles from the end fill the remaining holes.
+  free_.clear();
+  for (const auto& part : free_parts_) free_.insert(free_.end(), part.begin(), part.end());
+  tbb::parallel_sort(free_.begin(), free_.end());
+  const std::size_t F = free_.size();
+  const std::size_t T = place(free_, new_tri_count, T_old, moves_);
+  if (T > T_old) {
+    mesh_.triangles.resize(T);
+    owner_.resize(T);
+  }
+  for (const auto& [from, to] : moves_) {
+    mesh_.triangles[to] = mesh_.triangles[from];
+    const std::uint32_t s = owner_[from];
+    owner_[to] = s;
+    for (auto& k : slot_tris_[s])
+      if (k == from) k = to;
+  }
+  auto tri_pos = [&](std::size_t j) { return j < F ? free_[j] : static_cast<std::uint32_t>(T_old + (j - F)); };
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
+    std::size_t j = tri_offset[c];
+    for (std::size_t w = W * c / C; w < W * (c + 1) / C; ++w) {
+      const std::uint32_t s = w < R ? work_[w] : entered_slot_[w - R];
+      auto& mine = slot_tris_[s];
+      mine = {kNone, kNone};
+      for (int q = 0; q < kCases[codes_[s]].triangles; ++q, ++j) {
+        const std::uint32_t p = tri_pos(j);
+        const auto& tri = chunk_tris_[c][j - tri_offset[c]];
+        mesh_.triangles[p] = {final_vertex(tri[0]), final_vertex(tri[1]), final_vertex(tri[2])};
+        owner_[p] = s;
+        mine[q] = p;
       }
-      std::size_t r = i;  // the run i..r-1 had consecutive entries o.. before
-      for (; r < end && old_index_[r] == o + (r - i); ++r) {
-        first_tri_[r] = f + (prev_first_tri_[o + (r - i)] - prev_first_tri_[o]);
-      }
-      const std::uint64_t from = prev_first_tri_[o], to = prev_first_tri_[o + (r - i)];
-      auto* dst = mesh_.triangles.data() + f;
-      std::copy(prev_tris_.begin() + static_cast<std::ptrdiff_t>(from), prev_tris_.begin() + static_cast<std::ptrdiff_t>(to), dst);
-      if (!tail_.empty())
-        for (std::uint64_t k = 0; k < to - from; ++k)
-          for (auto& v : dst[k]) v = v >= V ? tail_[v - V] : v;
-      f += to - from;
-      i = r;
     }
   });
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
-    std::size_t next = tri_offset[c];
-    for (std::size_t b = chunk_block[c]; b < chunk_block[c + 1]; ++b)
-      for (std::uint32_t i : changed_[b])
-        for (std::uint64_t k = first_tri_[i]; k < first_tri_[i + 1]; ++k, ++next)
-          for (int e = 0; e < 3; ++e) mesh_.triangles[k][e] = final_id(new_tris_[next][e]);
-  });
+  mesh_.triangles.resize(T);
+  owner_.resize(T);
+  // Unchanged triangles that use a vertex moved in step 5.
+  if (!tail_.empty())
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
+      for (std::size_t k = r.begin(); k < r.end(); ++k)
+        for (auto& v : mesh_.triangles[k])
+          if (v >= V) v = tail_[v - V];
+    });
   if (cached) {
     interpolate_vertices(ends_, iso, mesh_);
   } else {
@@ -321,17 +432,12 @@ ExtractStats Extractor::extract(double iso) {
                                                    : static_cast<std::size_t>(max_changed_fraction * static_cast<double>(active_.size())) + 1024;
   sweep_to(tree_, grid_, state_, iso);
   auto t1 = Clock::now();
-  // Keep the previous extraction for the incremental update. Should anything below throw, the
-  // buffers are half swapped: the next call then starts afresh.
+  // Should anything below throw, the state is half updated: the next call then starts afresh.
   const bool had_previous = valid_;
   valid_ = false;
-  active_.swap(prev_active_);
-  codes_.swap(prev_codes_);
-  gaps_.swap(prev_gaps_);
-  first_tri_.swap(prev_first_tri_);
-  mesh_.triangles.swap(prev_tris_);
   incremental_ = had_previous && update(iso);
   if (!incremental_) fresh(iso);
+  iso_ = iso;
   valid_ = true;
   auto t2 = Clock::now();
   st.walked = state_.walked;

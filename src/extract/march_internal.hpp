@@ -106,10 +106,9 @@ constexpr double kEdgeMargin = 1.0 / 1024;
 // gradients. Re-interpolating at another iso-value then streams through one record per vertex
 // instead of reading six scattered grid arrays (the Extractor keeps these between steps).
 struct EdgeEnds {
-  double va, vb;                   // a below, b at or above the iso-value
-  Vec3 wa;                         // world position of a
-  std::array<float, 3> d, ga, gb;  // b - a in world units; gradients (world frame)
-};
+  double va, vb;                       // a below, b at or above the iso-value
+  std::array<float, 3> wa, d, ga, gb;  // world position of a, b - a; gradients (world frame)
+};  // 64 bytes: re-interpolation streams these, so every byte counts
 
 inline EdgeEnds gather_edge(const TetGrid& g, std::uint64_t key) {
   const std::uint32_t a = static_cast<std::uint32_t>(key >> 32), b = static_cast<std::uint32_t>(key);
@@ -120,7 +119,7 @@ inline EdgeEnds gather_edge(const TetGrid& g, std::uint64_t key) {
   };
   const Vec3 wa = g.world_position(a), wb = g.world_position(b);
   const std::array<float, 3> d{float(wb[0] - wa[0]), float(wb[1] - wa[1]), float(wb[2] - wa[2])};
-  return {g.values[a], g.values[b], wa, d, rotate(g.gradients[a]), rotate(g.gradients[b])};
+  return {g.values[a], g.values[b], {float(wa[0]), float(wa[1]), float(wa[2])}, d, rotate(g.gradients[a]), rotate(g.gradients[b])};
 }
 
 // The mesh vertex on a cut edge: linear interpolation of position and gradient (§2.4); the normal
@@ -130,7 +129,7 @@ inline void interpolate_edge(const EdgeEnds& e, double iso, std::array<float, 3>
   const double t = std::clamp((iso - e.va) / (e.vb - e.va), kEdgeMargin, 1 - kEdgeMargin);
   double m[3];
   for (int k = 0; k < 3; ++k) {
-    p[k] = static_cast<float>(e.wa[k] + t * e.d[k]);
+    p[k] = static_cast<float>(double(e.wa[k]) + t * e.d[k]);
     m[k] = -((1 - t) * e.ga[k] + t * e.gb[k]);
   }
   double len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
