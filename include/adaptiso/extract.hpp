@@ -9,10 +9,10 @@
 // then passes within that distance of them, as if the iso-value were lowered infinitesimally).
 // Normals are the linearly interpolated vertex gradients, normalised and negated: they point
 // towards lower values (outward for a bright object); triangles are counter-clockwise seen from
-// that side. Output order: triangles in the order of the active list, vertices by first use. The
-// Extractor keeps its active list sorted by tetrahedron id, so its triangle order is canonical and
-// memory access follows the grid's spatial order; its vertex numbering after incremental steps
-// depends on the history of iso-values (see Extractor).
+// that side. Output order of march_tetrahedra: triangles in the order of the given tetrahedra,
+// vertices by first use. An Extractor's first extraction is that order over the active tetrahedra
+// sorted by id; after incremental steps its triangle order and vertex numbering depend on the
+// history of iso-values (deterministically, whatever the thread count; see Extractor).
 #pragma once
 #include <array>
 #include <cstdint>
@@ -60,12 +60,12 @@ struct ExtractStats {
 // One client's extraction. It keeps its sweep state and its last mesh: after a small change of
 // iso-value only the tetrahedra that entered, left or changed case are marched again (found from
 // the entries the sweep walked and a per-tetrahedron interval of iso-values that keep its case),
-// the rest of the mesh is reused and only the vertex positions are interpolated anew. Triangles
-// are always in the canonical order (by tetrahedron id, as a fresh march_tetrahedra over the active
-// tetrahedra sorted by id) and every vertex has the same position and normal, bit for bit, as the
-// fresh march gives its cut edge; vertex numbering is first use after a fresh march and then
-// stable: an incremental step keeps surviving vertices in place, puts new ones into freed slots and
-// moves vertices from the end into the remaining holes (deterministic for a given history).
+// the rest of the mesh stays in place and only the vertex positions are interpolated anew. Every
+// vertex has the same position and normal, bit for bit, and the mesh the same triangles, as a
+// fresh march of the same iso-value; the order is first use after a fresh march and then stable:
+// an incremental step leaves unchanged triangles and vertices where they are, puts new ones into
+// freed places and moves entries from the end into the remaining holes (deterministic for a given
+// history of iso-values, whatever the thread count).
 struct EdgeEnds;  // a cut edge's gathered ends (internal)
 class Extractor {
 public:
@@ -75,14 +75,15 @@ public:
   Extractor& operator=(const Extractor&) = delete;
   ExtractStats extract(double iso);
   const Mesh& mesh() const { return mesh_; }
-  const std::vector<std::uint32_t>& active() const { return active_; }  // of the last extract, ascending
+  // The active tetrahedra of the last extract, in slot order (ascending after a fresh march).
+  const std::vector<std::uint32_t>& active() const { return active_; }
   // Per mesh vertex, its cut edge as (below vertex << 32 | above vertex), grid vertex ids.
   const std::vector<std::uint64_t>& vertex_edges() const { return keys_; }
   const SweepState& state() const { return state_; }
   bool last_was_incremental() const { return incremental_; }
   double max_changed_fraction = 0.25;  // above this share of re-marched tetrahedra, march afresh
   std::size_t parallel_min_triangles = 65536;  // below this, number vertices in one chunk (tests lower it)
-  // Up to this many active tetrahedra the mesh vertices' edge ends are kept (80 bytes per vertex)
+  // Up to this many active tetrahedra the mesh vertices' edge ends are kept (64 bytes per vertex)
   // so a step re-interpolates from one record each; larger surfaces read the grid instead.
   std::size_t edge_cache_max_tetrahedra = 6'000'000;
 

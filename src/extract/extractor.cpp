@@ -70,7 +70,7 @@ void Extractor::fresh(double iso) {
   active_.clear();
   active_tetrahedra(tree_, state_, active_);
   sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
-  // Edge ends (80 bytes per vertex, about 0.7 vertices per active tetrahedron) are kept only up to
+  // Edge ends (64 bytes per vertex, about 0.7 vertices per active tetrahedron) are kept only up to
   // edge_cache_max_tetrahedra; larger surfaces are re-interpolated from the grid, a little slower.
   cache_ends_ = active_.size() <= edge_cache_max_tetrahedra;
   march_tetrahedra_into(grid_, active_, iso, mesh_, scratch_, &gaps_, cache_ends_ ? &ends_ : nullptr);
