@@ -41,10 +41,15 @@ bool cut(std::uint8_t code) { return code != 0 && code != 15; }
 // changed are few and far between); prefetching a few iterations ahead overlaps those misses.
 inline void prefetch(const void* p) { __builtin_prefetch(p); }
 
-// Slots [0, old_n) of which `freed` (ascending) are released and `fill` new entries arrive: new
-// entry k goes to freed[k] or, past the freed ones, to the end. Returns the new count and, when
-// fewer arrive than were freed, the live entries from the end that move into the remaining holes
-// below the new count, as (from, to) pairs ascending.
+// Where new entry k goes when `freed` (ascending) of [0, old_n) were released: freed[k] or, past
+// the freed ones, the end.
+std::uint32_t placed(const std::vector<std::uint32_t>& freed, std::size_t old_n, std::size_t k) {
+  return k < freed.size() ? freed[k] : static_cast<std::uint32_t>(old_n + (k - freed.size()));
+}
+
+// Slots [0, old_n) of which `freed` (ascending) are released and `fill` new entries arrive, placed
+// as by placed(). Returns the new count and, when fewer arrive than were freed, the live entries
+// from the end that move into the remaining holes below the new count, as (from, to) pairs.
 std::size_t place(const std::vector<std::uint32_t>& freed, std::size_t fill, std::size_t old_n,
                   std::vector<std::pair<std::uint32_t, std::uint32_t>>& moves) {
   moves.clear();
@@ -312,7 +317,7 @@ bool Extractor::update(double iso) {
     refs_[to] = refs_[from];
     if (cached) ends_[to] = ends_[from];
   }
-  auto new_slot = [&](std::size_t k) { return k < dead_.size() ? dead_[k] : static_cast<std::uint32_t>(V_old + (k - dead_.size())); };
+  auto new_slot = [&](std::size_t k) { return placed(dead_, V_old, k); };
   keys_.resize(V);
   refs_.resize(V);
   if (cached) ends_.resize(V);
@@ -345,7 +350,7 @@ bool Extractor::update(double iso) {
     slot_tris_.resize(n);
   }
   for (std::size_t k = 0; k < E; ++k) {
-    const std::uint32_t s = k < leaving_.size() ? leaving_[k] : static_cast<std::uint32_t>(n_old + (k - leaving_.size()));
+    const std::uint32_t s = placed(leaving_, n_old, k);
     active_[s] = entered_[k].tet;
     codes_[s] = entered_[k].code;
     gaps_[s] = entered_[k].gap;
@@ -375,7 +380,6 @@ bool Extractor::update(double iso) {
   free_.clear();
   for (const auto& part : free_parts_) free_.insert(free_.end(), part.begin(), part.end());
   tbb::parallel_sort(free_.begin(), free_.end());
-  const std::size_t F = free_.size();
   const std::size_t T = place(free_, new_tri_count, T_old, moves_);
   if (T > T_old) {
     mesh_.triangles.resize(T);
@@ -388,7 +392,7 @@ bool Extractor::update(double iso) {
     for (auto& k : slot_tris_[s])
       if (k == from) k = to;
   }
-  auto tri_pos = [&](std::size_t j) { return j < F ? free_[j] : static_cast<std::uint32_t>(T_old + (j - F)); };
+  auto tri_pos = [&](std::size_t j) { return placed(free_, T_old, j); };
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
     std::size_t j = tri_offset[c];
     for (std::size_t w = W * c / C; w < W * (c + 1) / C; ++w) {
