@@ -67,7 +67,7 @@ int main(int argc, char** argv) {
       const double march = median_time([&] {
         act.clear();
         query_active(tree, g, iso, act);
-        sort_tetrahedra(act, g.tet_count(), bitmap);
+        sort_ids(act, g.tet_count(), bitmap);
         march_tetrahedra(g, act, iso, mesh, &scratch);
       });
       const std::size_t tris = mesh.triangle_count();

@@ -45,8 +45,9 @@ struct MarchScratch {
 void march_tetrahedra(const TetGrid& grid, const std::vector<std::uint32_t>& active, double iso, Mesh& mesh,
                       MarchScratch* scratch = nullptr);
 
-// Sorts tetrahedron ids ascending through a bitmap, dropping repeats (O(T/64 + n), parallel).
-void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std::vector<std::uint64_t>& bitmap);
+// Sorts ids (tetrahedra, triangles or vertices, all below `bound`) ascending through a bitmap,
+// dropping repeats (O(bound/64 + n), parallel): much cheaper than a comparison sort.
+void sort_ids(std::vector<std::uint32_t>& ids, std::size_t bound, std::vector<std::uint64_t>& bitmap);
 
 struct ExtractStats {
   double iso = 0;
@@ -109,7 +110,6 @@ private:
   std::vector<std::array<std::uint32_t, 2>> slot_tris_;
   std::vector<std::uint32_t> owner_;  // per triangle, its slot
   std::vector<std::uint64_t> keys_;   // per vertex, its cut edge
-  std::vector<std::uint32_t> refs_;   // per vertex, the triangles using it
   std::vector<EdgeEnds> ends_;        // per vertex, for re-interpolation (when cache_ends_)
   bool cache_ends_ = false;
   // Scratch of the incremental step, kept to avoid faulting in fresh pages every step.
@@ -119,10 +119,12 @@ private:
     Gap gap;
   };
   std::vector<Entered> entered_;
-  std::vector<std::uint32_t> entered_slot_, work_, leaving_, free_, dead_, tail_, slot_tail_, new_refs_;
+  std::vector<std::uint32_t> entered_slot_, work_, leaving_, free_, dead_, tail_, slot_tail_;
   std::vector<std::uint64_t> bitmap_, new_keys_;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> moves_;
   std::vector<std::vector<std::uint32_t>> changed_, free_parts_;
+  std::vector<std::vector<std::uint8_t>> changed_old_;  // per changed slot, its case before the step
+  std::vector<std::uint8_t> work_old_;
   std::vector<std::vector<Entered>> entered_parts_;
   std::vector<std::size_t> block_cut_;
   std::vector<MarchScratch::Chunk> chunks_;

@@ -8,10 +8,11 @@
 // the case intervals plus work proportional to what changed: the slots, triangles and vertices of
 // unchanged tetrahedra stay where they are. Tetrahedra that entered come from the entries the sweep
 // walked; an edge a re-marched tetrahedron cut before is found among its old corners, so only edges
-// cut for the first time need a hash map. Freed slots, triangle positions and vertices (reference
-// counted) are reused in ascending order, then the arrays grow; when more were freed than filled,
-// entries from the end move into the remaining holes. Everything is decided in block order (not by
-// thread timing), so the mesh depends only on the history of iso-values.
+// cut for the first time need a hash map. A vertex dies exactly when its edge stops being cut that
+// way, which the changed tetrahedra around it see in their tables (no use counts). Freed slots,
+// triangle positions and vertices are reused in ascending order, then the arrays grow; when more
+// were freed than filled, entries from the end move into the remaining holes. Everything is decided
+// in block order (not by thread timing), so the mesh depends only on the history of iso-values.
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
@@ -74,7 +75,7 @@ Extractor::~Extractor() = default;
 void Extractor::fresh(double iso) {
   active_.clear();
   active_tetrahedra(tree_, state_, active_);
-  sort_tetrahedra(active_, grid_.tet_count(), bitmap_);
+  sort_ids(active_, grid_.tet_count(), bitmap_);
   // Edge ends (64 bytes per vertex, about 0.7 vertices per active tetrahedron) are kept only up to
   // edge_cache_max_tetrahedra; larger surfaces are re-interpolated from the grid, a little slower.
   cache_ends_ = active_.size() <= edge_cache_max_tetrahedra;
@@ -94,11 +95,6 @@ void Extractor::fresh(double iso) {
       slot_tris_[s] = {f, first[s + 1] > f + 1 ? f + 1 : kNone};
       for (std::uint64_t k = first[s]; k < first[s + 1]; ++k) owner_[k] = static_cast<std::uint32_t>(s);
     }
-  });
-  refs_.assign(keys_.size(), 0);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mesh_.triangles.size(), 16384), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i)
-      for (std::uint32_t v : mesh_.triangles[i]) std::atomic_ref<std::uint32_t>(refs_[v]).fetch_add(1, std::memory_order_relaxed);
   });
 }
 
@@ -152,12 +148,15 @@ bool Extractor::update(double iso) {
   // in slot order). The old triangles stay in place until step 6.
   const std::size_t blocks = block_count(n_old);
   changed_.resize(blocks);
+  changed_old_.resize(blocks);
   block_cut_.resize(blocks);
   std::atomic<std::size_t> changed_so_far{E};
   std::atomic<bool> too_many{false};
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
     auto& list = changed_[b];
+    auto& old_codes = changed_old_[b];
     list.clear();
+    old_codes.clear();
     if (too_many.load(std::memory_order_relaxed)) return;
     const Gap* gap = gaps_.data();
     for (std::size_t s = n_old * b / blocks; s < n_old * (b + 1) / blocks; ++s)
@@ -174,6 +173,7 @@ bool Extractor::update(double iso) {
       if (i + 16 < m) prefetch(&g.tets[active_[list[i + 16]]]);
       if (i + 8 < m)
         for (std::uint32_t v : g.tets[active_[list[i + 8]]]) prefetch(&g.values[v]);
+      old_codes.push_back(codes_[list[i]]);
       codes_[list[i]] = code_and_gap(g, active_[list[i]], iso, gaps_[list[i]]);
       cuts += cut(codes_[list[i]]);
     }
@@ -181,8 +181,11 @@ bool Extractor::update(double iso) {
   });
   if (too_many) return false;  // codes_ and gaps_ are rebuilt by the fresh march
 
-  // 3. Release the old triangles of the changed slots (atomic use counts; a vertex whose count
-  // drops to zero may be dead) and collect their positions, which become free.
+  // 3. Release the old triangles of the changed slots: their positions become free, and so does
+  // every corner whose local edge the new case does not cut the same way (below, above). Such a
+  // vertex is dead: one of its edge's ends crossed the iso-value, so every tetrahedron around the
+  // edge changed case and none keeps it; a corner whose edge is still cut that way lives on in
+  // every tetrahedron around it. Several of them report it; sort_ids drops the repeats.
   tbb::enumerable_thread_specific<std::vector<std::uint32_t>> released;
   free_parts_.resize(blocks);
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
@@ -195,15 +198,13 @@ bool Extractor::update(double iso) {
       if (i + 8 < list.size())
         for (std::uint32_t k : slot_tris_[list[i + 8]])
           if (k != kNone) prefetch(&mesh_.triangles[k]);
-      if (i + 4 < list.size())
-        for (std::uint32_t k : slot_tris_[list[i + 4]])
-          if (k != kNone)
-            for (std::uint32_t v : mesh_.triangles[k]) prefetch(&refs_[v]);
-      for (std::uint32_t k : slot_tris_[list[i]]) {
-        if (k == kNone) continue;
+      const Case& was = kCases[changed_old_[b][i]];
+      const unsigned now = codes_[list[i]];
+      for (int q = 0; q < was.triangles; ++q) {
+        const std::uint32_t k = slot_tris_[list[i]][q];
         freed.push_back(k);
-        for (std::uint32_t v : mesh_.triangles[k])
-          if (std::atomic_ref<std::uint32_t>(refs_[v]).fetch_sub(1, std::memory_order_relaxed) == 1) dead.push_back(v);
+        for (int e = 0; e < 3; ++e)
+          if (const LocalEdge le = was.tri[q][e]; ((now >> le.below) & 1) || !((now >> le.above) & 1)) dead.push_back(mesh_.triangles[k][e]);
       }
     }
   });
@@ -215,10 +216,19 @@ bool Extractor::update(double iso) {
     leave_at[b + 1] = leave_at[b] + (changed_[b].size() - block_cut_[b]);
   }
   work_.resize(work_at[blocks]);
+  work_old_.resize(work_at[blocks]);
   leaving_.resize(leave_at[blocks]);
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
     std::size_t w = work_at[b], l = leave_at[b];
-    for (std::uint32_t s : changed_[b]) (cut(codes_[s]) ? work_[w++] : leaving_[l++]) = s;
+    for (std::size_t i = 0; i < changed_[b].size(); ++i) {
+      const std::uint32_t s = changed_[b][i];
+      if (cut(codes_[s])) {
+        work_old_[w] = changed_old_[b][i];
+        work_[w++] = s;
+      } else {
+        leaving_[l++] = s;
+      }
+    }
   });
   const std::size_t R = work_.size();
   const std::size_t W = R + E;
@@ -227,7 +237,8 @@ bool Extractor::update(double iso) {
   auto work_code = [&](std::size_t w) { return w < R ? codes_[work_[w]] : entered_[w - R].code; };
 
   // New triangles, by chunks of consecutive work: a corner on an edge the tetrahedron cut before
-  // keeps that vertex; edges cut for the first time are numbered as one sequential pass would
+  // (the same local edge, cut the same way, in the old case's table) keeps that vertex, read from
+  // the old triangle's corner, which lies in table order; edges cut for the first time are numbered as one sequential pass would
   // (number_chunk_edges, as in march_tetrahedra): V_old + k for the k-th.
   const std::size_t C = 16 * W < parallel_min_triangles ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
   chunks_.resize(C);
@@ -251,31 +262,28 @@ bool Extractor::update(double iso) {
           for (std::uint32_t k : slot_tris_[work_[w + 16]])
             if (k != kNone) prefetch(&mesh_.triangles[k]);
       }
-      if (w + 8 < R)
-        for (std::uint32_t k : slot_tris_[work_[w + 8]])
-          if (k != kNone)
-            for (std::uint32_t v : mesh_.triangles[k]) prefetch(&keys_[v]);
       const auto& t = g.tets[work_tet(w)];
       const Case& cs = kCases[work_code(w)];
-      // The old corners (cut edge and vertex), read once.
-      std::uint64_t old_key[6];
+      // The old corners: local edge (below, above) and vertex, one per corner of the old triangles.
+      LocalEdge old_edge[6];
       std::uint32_t old_vertex[6];
       int olds = 0;
-      if (w < R)
-        for (std::uint32_t k : slot_tris_[work_[w]])
-          if (k != kNone)
-            for (std::uint32_t v : mesh_.triangles[k]) {
-              old_key[olds] = keys_[v];
-              old_vertex[olds++] = v;
-            }
+      if (w < R) {
+        const Case& was = kCases[work_old_[w]];
+        for (int q = 0; q < was.triangles; ++q)
+          for (int e = 0; e < 3; ++e) {
+            old_edge[olds] = was.tri[q][e];
+            old_vertex[olds++] = mesh_.triangles[slot_tris_[work_[w]][q]][e];
+          }
+      }
       for (int q = 0; q < cs.triangles; ++q) {
         std::array<std::uint32_t, 3> tri;
         for (int e = 0; e < 3; ++e) {
-          const std::uint64_t key = edge_key(t[cs.tri[q][e].below], t[cs.tri[q][e].above]);
+          const LocalEdge le = cs.tri[q][e];
           std::uint32_t id = kNone;
           for (int i = 0; i < olds; ++i)
-            if (old_key[i] == key) id = old_vertex[i];
-          tri[e] = id != kNone ? id : kNewBit | ch.map->find_or_add(key, ch.order);
+            if (old_edge[i].below == le.below && old_edge[i].above == le.above) id = old_vertex[i];
+          tri[e] = id != kNone ? id : kNewBit | ch.map->find_or_add(edge_key(t[le.below], t[le.above]), ch.order);
         }
         tris.push_back(tri);
       }
@@ -285,25 +293,15 @@ bool Extractor::update(double iso) {
   std::vector<std::size_t> tri_offset(C + 1, 0);
   for (std::size_t c = 0; c < C; ++c) tri_offset[c + 1] = tri_offset[c] + chunk_tris_[c].size();
   const std::size_t new_tri_count = tri_offset[C];
-  new_refs_.assign(new_keys_.size(), 0);
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // provisional ids; count uses
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // provisional ids: new ones after V_old
     const auto& ch = chunks_[c];
     for (auto& tri : chunk_tris_[c])
-      for (auto& v : tri) {
+      for (auto& v : tri)
         if (v & kNewBit) v = V_old + ch.global[v & ~kNewBit];
-        std::atomic_ref<std::uint32_t>(v < V_old ? refs_[v] : new_refs_[v - V_old]).fetch_add(1, std::memory_order_relaxed);
-      }
-  });
-  // A vertex released to zero may have been used again by a new triangle.
-  std::vector<std::vector<std::uint32_t>*> lists;
-  for (auto& d : released) lists.push_back(&d);
-  tbb::parallel_for(std::size_t{0}, lists.size(), [&](std::size_t i) {
-    auto& d = *lists[i];
-    d.erase(std::remove_if(d.begin(), d.end(), [&](std::uint32_t v) { return refs_[v] != 0; }), d.end());
   });
   dead_.clear();
-  for (const auto* d : lists) dead_.insert(dead_.end(), d->begin(), d->end());
-  tbb::parallel_sort(dead_.begin(), dead_.end());
+  for (const auto& d : released) dead_.insert(dead_.end(), d.begin(), d.end());
+  sort_ids(dead_, V_old, bitmap_);
 
   // 5. Vertex slots: new vertices take the lowest freed slots, then the end; live vertices from
   // the end fill the holes that remain below the new count (tail_ maps them).
@@ -311,15 +309,17 @@ bool Extractor::update(double iso) {
   const std::size_t N = new_keys_.size();
   const auto V = static_cast<std::uint32_t>(place(dead_, N, V_old, moves_));
   tail_.assign(V_old > V ? V_old - V : 0, kNone);
-  for (const auto& [from, to] : moves_) {
-    tail_[from - V] = to;
-    keys_[to] = keys_[from];
-    refs_[to] = refs_[from];
-    if (cached) ends_[to] = ends_[from];
-  }
+  // Moves go from [V, V_old) to holes below V, each from and to once: safe in parallel.
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, moves_.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      const auto [from, to] = moves_[i];
+      tail_[from - V] = to;
+      keys_[to] = keys_[from];
+      if (cached) ends_[to] = ends_[from];
+    }
+  });
   auto new_slot = [&](std::size_t k) { return placed(dead_, V_old, k); };
   keys_.resize(V);
-  refs_.resize(V);
   if (cached) ends_.resize(V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, N, 1024), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) {
@@ -330,7 +330,6 @@ bool Extractor::update(double iso) {
           prefetch(&g.gradients[v]);
         }
       keys_[new_slot(k)] = new_keys_[k];
-      refs_[new_slot(k)] = new_refs_[k];
       if (cached) ends_[new_slot(k)] = gather_edge(g, new_keys_[k]);
     }
   });
@@ -349,27 +348,33 @@ bool Extractor::update(double iso) {
     gaps_.resize(n);
     slot_tris_.resize(n);
   }
-  for (std::size_t k = 0; k < E; ++k) {
-    const std::uint32_t s = placed(leaving_, n_old, k);
-    active_[s] = entered_[k].tet;
-    codes_[s] = entered_[k].code;
-    gaps_[s] = entered_[k].gap;
-    entered_slot_[k] = s;
-  }
-  for (const auto& [from, to] : moves_) {
-    active_[to] = active_[from];
-    codes_[to] = codes_[from];
-    gaps_[to] = gaps_[from];
-    slot_tris_[to] = slot_tris_[from];
-    for (std::uint32_t k : slot_tris_[to])
-      if (k != kNone) owner_[k] = to;  // only unchanged slots keep their old triangles; the others are rewritten
-  }
-  if (!moves_.empty()) {  // re-marched slots that moved
-    slot_tail_.assign(n_old - n, kNone);
-    for (const auto& [from, to] : moves_) slot_tail_[from - n] = to;
-    for (auto& s : work_)
-      if (s >= n) s = slot_tail_[s - n];
-  }
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, E, 4096), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k < r.end(); ++k) {
+      const std::uint32_t s = placed(leaving_, n_old, k);
+      active_[s] = entered_[k].tet;
+      codes_[s] = entered_[k].code;
+      gaps_[s] = entered_[k].gap;
+      entered_slot_[k] = s;
+    }
+  });
+  if (!moves_.empty()) slot_tail_.assign(n_old - n, kNone);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, moves_.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      const auto [from, to] = moves_[i];
+      active_[to] = active_[from];
+      codes_[to] = codes_[from];
+      gaps_[to] = gaps_[from];
+      slot_tris_[to] = slot_tris_[from];
+      slot_tail_[from - n] = to;
+      for (std::uint32_t k : slot_tris_[to])
+        if (k != kNone) owner_[k] = to;  // only unchanged slots keep their old triangles; the others are rewritten
+    }
+  });
+  if (!moves_.empty())  // re-marched slots that moved
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, work_.size(), 16384), [&](const auto& r) {
+      for (std::size_t i = r.begin(); i < r.end(); ++i)
+        if (work_[i] >= n) work_[i] = slot_tail_[work_[i] - n];
+    });
   active_.resize(n);
   codes_.resize(n);
   gaps_.resize(n);
@@ -379,19 +384,23 @@ bool Extractor::update(double iso) {
   // then the end; live triangles from the end fill the remaining holes.
   free_.clear();
   for (const auto& part : free_parts_) free_.insert(free_.end(), part.begin(), part.end());
-  tbb::parallel_sort(free_.begin(), free_.end());
+  sort_ids(free_, T_old, bitmap_);  // no repeats: each triangle had one owner
   const std::size_t T = place(free_, new_tri_count, T_old, moves_);
   if (T > T_old) {
     mesh_.triangles.resize(T);
     owner_.resize(T);
   }
-  for (const auto& [from, to] : moves_) {
-    mesh_.triangles[to] = mesh_.triangles[from];
-    const std::uint32_t s = owner_[from];
-    owner_[to] = s;
-    for (auto& k : slot_tris_[s])
-      if (k == from) k = to;
-  }
+  // Two moves may belong to one slot (its two triangles): its entries are touched atomically.
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, moves_.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      const auto [from, to] = moves_[i];
+      mesh_.triangles[to] = mesh_.triangles[from];
+      const std::uint32_t s = owner_[from];
+      owner_[to] = s;
+      for (auto& k : slot_tris_[s])
+        if (std::atomic_ref<std::uint32_t> a(k); a.load(std::memory_order_relaxed) == from) a.store(to, std::memory_order_relaxed);
+    }
+  });
   auto tri_pos = [&](std::size_t j) { return placed(free_, T_old, j); };
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
     std::size_t j = tri_offset[c];

@@ -198,35 +198,31 @@ void init_node(const IntervalTree& tree, const TetGrid& g, SweepState& s, std::s
   s.pmax[i] = static_cast<std::uint32_t>(px - (mx + n.begin));
 }
 
-// Walks node i's two positions from the state's iso to `iso`, flipping the flags of the entries passed.
-std::uint64_t walk_node(const IntervalTree& tree, const TetGrid& g, SweepState& s, std::size_t i, double iso) {
+// Walks node i's two positions from the state's iso to `iso`, flipping the flags of the entries
+// passed. Each entry's range needs its tetrahedron and four values from scattered places, so both
+// are prefetched a few entries ahead (a few wasted fetches past the stopping point are cheap).
+void walk_node(const IntervalTree& tree, const TetGrid& g, SweepState& s, std::size_t i, double iso) {
   const auto& n = tree.nodes[i];
   const std::uint32_t size = static_cast<std::uint32_t>(n.end - n.begin);
   const std::uint32_t* mn = tree.by_min.data() + n.begin;
   const std::uint32_t* mx = tree.by_max.data() + n.begin;
   std::uint8_t* f = s.flags.data();
+  auto ahead = [&](const std::uint32_t* list, std::int64_t k, int dir) {
+    const std::int64_t far = k + 16 * dir, near = k + 8 * dir;
+    if (far >= 0 && far < size) __builtin_prefetch(&g.tets[list[far]]);
+    if (near >= 0 && near < size)
+      for (std::uint32_t v : g.tets[list[near]]) __builtin_prefetch(&g.values[v]);
+  };
   std::uint32_t p = s.pmin[i], q = s.pmax[i];
-  const std::uint32_t p0 = p, q0 = q;
   if (iso > s.iso) {
-    for (; p < size && tet_min(g, mn[p]) < iso; ++p) f[mn[p]] |= 1;
-    for (; q < size && tet_max(g, mx[q]) < iso; ++q) f[mx[q]] &= std::uint8_t(~2);
+    for (; p < size && (ahead(mn, p, 1), tet_min(g, mn[p]) < iso); ++p) f[mn[p]] |= 1;
+    for (; q < size && (ahead(mx, q, 1), tet_max(g, mx[q]) < iso); ++q) f[mx[q]] &= std::uint8_t(~2);
   } else {
-    for (; p > 0 && tet_min(g, mn[p - 1]) >= iso; --p) f[mn[p - 1]] &= std::uint8_t(~1);
-    for (; q > 0 && tet_max(g, mx[q - 1]) >= iso; --q) f[mx[q - 1]] |= 2;
+    for (; p > 0 && (ahead(mn, p - 1, -1), tet_min(g, mn[p - 1]) >= iso); --p) f[mn[p - 1]] &= std::uint8_t(~1);
+    for (; q > 0 && (ahead(mx, q - 1, -1), tet_max(g, mx[q - 1]) >= iso); --q) f[mx[q - 1]] |= 2;
   }
   s.pmin[i] = p;
   s.pmax[i] = q;
-  const std::uint32_t walked = (p > p0 ? p - p0 : p0 - p) + (q > q0 ? q - q0 : q0 - q);
-  if (s.touched_complete) {
-    if (s.touched.size() + walked > s.touched_limit) {
-      s.touched_complete = false;
-      s.touched.clear();
-    } else {
-      s.touched.insert(s.touched.end(), mn + std::min(p, p0), mn + std::max(p, p0));
-      s.touched.insert(s.touched.end(), mx + std::min(q, q0), mx + std::max(q, q0));
-    }
-  }
-  return walked;
 }
 
 }  // namespace
@@ -256,21 +252,57 @@ void sweep_to(const IntervalTree& tree, const TetGrid& g, SweepState& s, double 
   s.touched.clear();
   s.touched_complete = true;
   if (iso == s.iso) return;
-  // A key crosses when it lies in [L, H); prune subtrees whose keys all lie outside.
+  // A key crosses when it lies in [L, H); prune subtrees whose keys all lie outside. The nodes to
+  // walk are listed in pre-order and walked in parallel: each tetrahedron lives in one node, so the
+  // walks write disjoint flags; touched is then concatenated in the same pre-order.
   const double L = std::min(iso, s.iso), H = std::max(iso, s.iso);
+  struct Visit {
+    std::size_t node;
+    std::uint32_t p0, q0;
+  };
+  std::vector<Visit> visits;
   std::vector<std::size_t> stack{0};
   while (!stack.empty()) {
     std::size_t i = stack.back();
     stack.pop_back();
     const auto& n = tree.nodes[i];
     if (!(n.lo < H && n.hi >= L)) continue;
-    s.walked += walk_node(tree, g, s, i, iso);
+    visits.push_back({i, s.pmin[i], s.pmax[i]});
     if (!tree.is_leaf(i)) {
       stack.push_back(2 * i + 2);
       stack.push_back(2 * i + 1);
     }
   }
+  tbb::parallel_for(std::size_t{0}, visits.size(), [&](std::size_t k) { walk_node(tree, g, s, visits[k].node, iso); });
+  // Per visited node, its walked entries: [lo, hi) of by_min, then of by_max.
+  auto span = [&](const Visit& v, bool by_max, std::uint32_t& lo, std::uint32_t& hi) {
+    const std::uint32_t now = by_max ? s.pmax[v.node] : s.pmin[v.node], then = by_max ? v.q0 : v.p0;
+    lo = std::min(now, then);
+    hi = std::max(now, then);
+  };
+  std::vector<std::uint64_t> at(visits.size() + 1, 0);
+  for (std::size_t k = 0; k < visits.size(); ++k) {
+    std::uint32_t a, b, c, d;
+    span(visits[k], false, a, b);
+    span(visits[k], true, c, d);
+    at[k + 1] = at[k] + (b - a) + (d - c);
+  }
+  s.walked = at.back();
   s.iso = iso;
+  if (s.walked > s.touched_limit) {
+    s.touched_complete = false;
+    return;
+  }
+  s.touched.resize(s.walked);
+  tbb::parallel_for(std::size_t{0}, visits.size(), [&](std::size_t k) {
+    const auto& n = tree.nodes[visits[k].node];
+    std::uint32_t a, b, c, d;
+    span(visits[k], false, a, b);
+    span(visits[k], true, c, d);
+    auto out = s.touched.begin() + static_cast<std::ptrdiff_t>(at[k]);
+    out = std::copy(tree.by_min.begin() + static_cast<std::ptrdiff_t>(n.begin + a), tree.by_min.begin() + static_cast<std::ptrdiff_t>(n.begin + b), out);
+    std::copy(tree.by_max.begin() + static_cast<std::ptrdiff_t>(n.begin + c), tree.by_max.begin() + static_cast<std::ptrdiff_t>(n.begin + d), out);
+  });
 }
 
 void active_tetrahedra(const IntervalTree& tree, const SweepState& s, std::vector<std::uint32_t>& out) {

@@ -187,8 +187,8 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
   });
 }
 
-void sort_tetrahedra(std::vector<std::uint32_t>& ids, std::size_t tet_count, std::vector<std::uint64_t>& bitmap) {
-  const std::size_t words = (tet_count + 63) / 64;
+void sort_ids(std::vector<std::uint32_t>& ids, std::size_t bound, std::vector<std::uint64_t>& bitmap) {
+  const std::size_t words = (bound + 63) / 64;
   bitmap.assign(words, 0);
   for (std::uint32_t t : ids) bitmap[t >> 6] |= std::uint64_t{1} << (t & 63);
   const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(64, words / 4096));
