@@ -85,21 +85,24 @@ void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& m
 
 void number_chunk_edges(std::vector<MarchScratch::Chunk>& chunks, std::vector<std::uint64_t>& order) {
   const std::size_t C = chunks.size();
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // ownership: is the edge in an earlier chunk?
+  // Ownership: is the edge in an earlier chunk? The last chunk asks the most maps, so the lookups
+  // are split within each chunk too.
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
     auto& ch = chunks[c];
     ch.owner.assign(ch.order.size(), static_cast<std::uint32_t>(c));
     ch.owner_id.resize(ch.order.size());
-    ch.owned = 0;
-    for (std::size_t j = 0; j < ch.order.size(); ++j) {
-      ch.owner_id[j] = static_cast<std::uint32_t>(j);
-      for (std::size_t q = 0; q < c; ++q)
-        if (std::uint32_t id = chunks[q].map->find(ch.order[j]); id != EdgeMap::kNone) {
-          ch.owner[j] = static_cast<std::uint32_t>(q);
-          ch.owner_id[j] = id;
-          break;
-        }
-      ch.owned += ch.owner[j] == c;
-    }
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ch.order.size(), 4096), [&](const auto& r) {
+      for (std::size_t j = r.begin(); j < r.end(); ++j) {
+        ch.owner_id[j] = static_cast<std::uint32_t>(j);
+        for (std::size_t q = 0; q < c; ++q)
+          if (std::uint32_t id = chunks[q].map->find(ch.order[j]); id != EdgeMap::kNone) {
+            ch.owner[j] = static_cast<std::uint32_t>(q);
+            ch.owner_id[j] = id;
+            break;
+          }
+      }
+    });
+    ch.owned = static_cast<std::size_t>(std::count(ch.owner.begin(), ch.owner.end(), static_cast<std::uint32_t>(c)));
   });
   std::vector<std::size_t> offset(C + 1, 0);
   for (std::size_t c = 0; c < C; ++c) offset[c + 1] = offset[c] + chunks[c].owned;
