@@ -238,8 +238,9 @@ bool Extractor::update(double iso) {
 
   // New triangles, by chunks of consecutive work: a corner on an edge the tetrahedron cut before
   // (the same local edge, cut the same way, in the old case's table) keeps that vertex, read from
-  // the old triangle's corner, which lies in table order; edges cut for the first time are numbered as one sequential pass would
-  // (number_chunk_edges, as in march_tetrahedra): V_old + k for the k-th.
+  // the old triangle's corner (corners lie in table order); edges cut for the first time are
+  // numbered as one sequential pass would (number_chunk_edges, as in march_tetrahedra): V_old + k
+  // for the k-th.
   const std::size_t C = 16 * W < parallel_min_triangles ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
   chunks_.resize(C);
   chunk_tris_.resize(C);
