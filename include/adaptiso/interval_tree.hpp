@@ -60,12 +60,14 @@ struct SweepState {
   std::vector<std::uint32_t> pmax;   // per node: entries of by_max with tmax < iso
   std::vector<std::uint8_t> flags;   // per tetrahedron: bit 0 tmin < iso, bit 1 tmax >= iso
   std::uint64_t walked = 0;          // list entries visited by the last sweep (statistics)
-  // Tetrahedra whose flags the last (non-initial) sweep changed, unsorted and possibly repeated, so a
-  // client can update its active set in O(changes); incomplete (and cleared) once there would be
-  // more than touched_limit of them, or after the initial sweep.
-  std::vector<std::uint32_t> touched;
-  bool touched_complete = false;
-  std::size_t touched_limit = ~std::size_t{0};
+  // The entries the last (non-initial) sweep walked on the side that can make a tetrahedron active
+  // (by minimum when the iso-value rose, by maximum when it fell), each tetrahedron at most once,
+  // in node pre-order: the tetrahedra that became active are exactly those of them whose flags are
+  // now 3, so a client updates its active set in O(changes). Incomplete (and cleared) once there
+  // would be more than entering_limit of them, or after the initial sweep.
+  std::vector<std::uint32_t> entering;
+  bool entering_complete = false;
+  std::size_t entering_limit = ~std::size_t{0};
 };
 
 // Moves the state to iso: the first call initialises every node (binary searches, O(T)); later

@@ -15,7 +15,6 @@
 // in block order (not by thread timing), so the mesh depends only on the history of iso-values.
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_sort.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -100,34 +99,34 @@ void Extractor::fresh(double iso) {
 
 bool Extractor::update(double iso) {
   const TetGrid& g = grid_;
-  if (!state_.touched_complete) return false;
-  const double c0 = iso_;
+  if (!state_.entering_complete) return false;
   const std::size_t n_old = active_.size();
   const std::size_t T_old = mesh_.triangles.size();
   const std::uint32_t V_old = static_cast<std::uint32_t>(keys_.size());
-  if (V_old >= kNewBit || T_old >= kNone || n_old + state_.touched.size() >= kNone)
+  if (V_old >= kNewBit || T_old >= kNone || n_old + state_.entering.size() >= kNone)
     throw std::length_error("extractor: too many mesh elements");
   // Give up as soon as more would change than a fresh march is worth.
   const double limit = max_changed_fraction < 1 ? max_changed_fraction * static_cast<double>(std::max<std::size_t>(n_old, 1))
                                                 : std::numeric_limits<double>::infinity();
 
-  // 1. Entered: walked entries active now that were not at c0 (those active at both changed case
-  // and are found by the pass below), with their case at iso while their values are at hand.
-  const auto& touched = state_.touched;
-  const std::size_t tb = block_count(touched.size());
+  // 1. Entered: the sweep's entering entries that are active now (they were not at c0; those active
+  // at both changed case and are found by the pass below), with their case at iso while their
+  // values are at hand. Each comes once, in tree order (deterministic).
+  const auto& entering = state_.entering;
+  const std::size_t tb = block_count(entering.size());
   entered_parts_.resize(tb);
   tbb::parallel_for(std::size_t{0}, tb, [&](std::size_t b) {
     auto& part = entered_parts_[b];
     part.clear();
-    const std::size_t end = touched.size() * (b + 1) / tb;
-    for (std::size_t i = touched.size() * b / tb; i < end; ++i) {
+    const std::size_t end = entering.size() * (b + 1) / tb;
+    for (std::size_t i = entering.size() * b / tb; i < end; ++i) {
       if (i + 16 < end) {
-        prefetch(&g.tets[touched[i + 16]]);
-        prefetch(&state_.flags[touched[i + 16]]);
+        prefetch(&g.tets[entering[i + 16]]);
+        prefetch(&state_.flags[entering[i + 16]]);
       }
       if (i + 8 < end)
-        for (std::uint32_t v : g.tets[touched[i + 8]]) prefetch(&g.values[v]);
-      if (const std::uint32_t t = touched[i]; state_.flags[t] == 3 && !cut(tet_code(g, t, c0))) {
+        for (std::uint32_t v : g.tets[entering[i + 8]]) prefetch(&g.values[v]);
+      if (const std::uint32_t t = entering[i]; state_.flags[t] == 3) {
         Entered e{t, 0, {}};
         e.code = code_and_gap(g, t, iso, e.gap);
         part.push_back(e);
@@ -136,11 +135,6 @@ bool Extractor::update(double iso) {
   });
   entered_.clear();
   for (const auto& part : entered_parts_) entered_.insert(entered_.end(), part.begin(), part.end());
-  // By id (a tetrahedron may have been walked twice).
-  auto by_tet = [](const Entered& a, const Entered& b) { return a.tet < b.tet; };
-  tbb::parallel_sort(entered_.begin(), entered_.end(), by_tet);
-  entered_.erase(std::unique(entered_.begin(), entered_.end(), [](const Entered& a, const Entered& b) { return a.tet == b.tet; }),
-                 entered_.end());
   const std::size_t E = entered_.size();
   if (static_cast<double>(E) > limit) return false;
 
@@ -441,8 +435,8 @@ ExtractStats Extractor::extract(double iso) {
   st.iso = iso;
   st.in_range = iso >= grid_.source.min && iso <= grid_.source.max;
   auto t0 = Clock::now();
-  // Above this many walked entries a fresh march is cheaper than merging.
-  state_.touched_limit = max_changed_fraction >= 1 ? ~std::size_t{0}
+  // Above this many entering entries a fresh march is cheaper than a step.
+  state_.entering_limit = max_changed_fraction >= 1 ? ~std::size_t{0}
                                                    : static_cast<std::size_t>(max_changed_fraction * static_cast<double>(active_.size())) + 1024;
   sweep_to(tree_, grid_, state_, iso);
   auto t1 = Clock::now();

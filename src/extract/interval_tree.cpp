@@ -244,17 +244,17 @@ void sweep_to(const IntervalTree& tree, const TetGrid& g, SweepState& s, double 
     s.iso = iso;
     s.valid = true;
     s.walked = tree.entries();
-    s.touched.clear();
-    s.touched_complete = false;
+    s.entering.clear();
+    s.entering_complete = false;
     return;
   }
   s.walked = 0;
-  s.touched.clear();
-  s.touched_complete = true;
+  s.entering.clear();
+  s.entering_complete = true;
   if (iso == s.iso) return;
   // A key crosses when it lies in [L, H); prune subtrees whose keys all lie outside. The nodes to
   // walk are listed in pre-order and walked in parallel: each tetrahedron lives in one node, so the
-  // walks write disjoint flags; touched is then concatenated in the same pre-order.
+  // walks write disjoint flags; the entering entries are then concatenated in the same pre-order.
   const double L = std::min(iso, s.iso), H = std::max(iso, s.iso);
   struct Visit {
     std::size_t node;
@@ -274,34 +274,33 @@ void sweep_to(const IntervalTree& tree, const TetGrid& g, SweepState& s, double 
     }
   }
   tbb::parallel_for(std::size_t{0}, visits.size(), [&](std::size_t k) { walk_node(tree, g, s, visits[k].node, iso); });
-  // Per visited node, its walked entries: [lo, hi) of by_min, then of by_max.
-  auto span = [&](const Visit& v, bool by_max, std::uint32_t& lo, std::uint32_t& hi) {
+  // Per visited node, the entries walked in each list: [min(old, new), max(old, new)) positions.
+  auto span = [&](const Visit& v, bool by_max) {
     const std::uint32_t now = by_max ? s.pmax[v.node] : s.pmin[v.node], then = by_max ? v.q0 : v.p0;
-    lo = std::min(now, then);
-    hi = std::max(now, then);
+    return std::pair{std::min(now, then), std::max(now, then)};
   };
+  // A tetrahedron becomes active when its minimum drops below a rising iso-value, or its maximum
+  // reaches a falling one: only that list's walked entries can enter.
+  const bool rising = iso > s.iso;
   std::vector<std::uint64_t> at(visits.size() + 1, 0);
   for (std::size_t k = 0; k < visits.size(); ++k) {
-    std::uint32_t a, b, c, d;
-    span(visits[k], false, a, b);
-    span(visits[k], true, c, d);
-    at[k + 1] = at[k] + (b - a) + (d - c);
+    const auto [a, b] = span(visits[k], false);
+    const auto [c, d] = span(visits[k], true);
+    s.walked += (b - a) + (d - c);
+    at[k + 1] = at[k] + (rising ? b - a : d - c);
   }
-  s.walked = at.back();
   s.iso = iso;
-  if (s.walked > s.touched_limit) {
-    s.touched_complete = false;
+  if (at.back() > s.entering_limit) {
+    s.entering_complete = false;
     return;
   }
-  s.touched.resize(s.walked);
+  s.entering.resize(at.back());
+  const auto& list = rising ? tree.by_min : tree.by_max;
   tbb::parallel_for(std::size_t{0}, visits.size(), [&](std::size_t k) {
     const auto& n = tree.nodes[visits[k].node];
-    std::uint32_t a, b, c, d;
-    span(visits[k], false, a, b);
-    span(visits[k], true, c, d);
-    auto out = s.touched.begin() + static_cast<std::ptrdiff_t>(at[k]);
-    out = std::copy(tree.by_min.begin() + static_cast<std::ptrdiff_t>(n.begin + a), tree.by_min.begin() + static_cast<std::ptrdiff_t>(n.begin + b), out);
-    std::copy(tree.by_max.begin() + static_cast<std::ptrdiff_t>(n.begin + c), tree.by_max.begin() + static_cast<std::ptrdiff_t>(n.begin + d), out);
+    const auto [a, b] = span(visits[k], !rising);
+    std::copy(list.begin() + static_cast<std::ptrdiff_t>(n.begin + a), list.begin() + static_cast<std::ptrdiff_t>(n.begin + b),
+              s.entering.begin() + static_cast<std::ptrdiff_t>(at[k]));
   });
 }
 
