@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <numeric>
 #include <random>
@@ -131,11 +132,22 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
         case 3: break;                                                                 // repeat
         default: iso = std::nextafter(double(rng() % levels), (rng() % 2) ? 1e9 : -1e9);  // next to a value
       }
+      std::vector<std::uint32_t> before;
+      if (step > 0) scan_active(g, state.iso, before);
       sweep_to(tree, g, state, iso);
       std::vector<std::uint32_t> inc, fresh, scan;
       active_tetrahedra(tree, state, inc);
       query_active(tree, g, iso, fresh);
       scan_active(g, iso, scan);
+      if (step > 0) {  // the entering entries: no repeats, and the newly active ones are those flagged 3
+        ASSERT_TRUE(state.entering_complete);
+        std::vector<std::uint32_t> entering = sorted(state.entering), entered, expected;
+        ASSERT_EQ(std::adjacent_find(entering.begin(), entering.end()), entering.end());
+        for (std::uint32_t t : entering)
+          if (state.flags[t] == 3) entered.push_back(t);
+        std::set_difference(scan.begin(), scan.end(), before.begin(), before.end(), std::back_inserter(expected));
+        ASSERT_EQ(entered, expected) << "trial " << trial << " step " << step;
+      }
       ASSERT_EQ(inc, fresh) << "trial " << trial << " step " << step << " iso " << iso;  // same order too
       ASSERT_EQ(sorted(inc), scan) << "trial " << trial << " step " << step << " iso " << iso;
       // The same active list gives bit-identical meshes, whichever way it was found.
