@@ -95,9 +95,12 @@ private:
     return true;
   }
 
-  bool test(const std::int64_t lo[3], const std::int64_t hi[3]) const {
-    return test_rows(lo, hi, [&](std::int64_t y, std::int64_t z) { return v_ + lo[0] + d_[0] * (y + d_[1] * z); });
+  // Rows of the box starting at lo, read straight from the volume.
+  auto volume_rows(const std::int64_t lo[3]) const {
+    return [this, lo](std::int64_t y, std::int64_t z) { return v_ + lo[0] + d_[0] * (y + d_[1] * z); };
   }
+
+  bool test(const std::int64_t lo[3], const std::int64_t hi[3]) const { return test_rows(lo, hi, volume_rows(lo)); }
 
   // An atomic cube: merged when its value range, or else trilinear interpolation from its corners,
   // stays within the bound. row(y, z) as in test_rows.
@@ -177,7 +180,7 @@ private:
     std::int64_t lo[3], hi[3];
     box(l, cx, cy, cz, lo, hi);
     if (l == 1)  // only when the whole volume is one atomic cube; otherwise see atomic_children
-      return atomic_cube(cx, cy, cz, lo, hi, [&](std::int64_t y, std::int64_t z) { return v_ + lo[0] + d_[0] * (y + d_[1] * z); });
+      return atomic_cube(cx, cy, cz, lo, hi, volume_rows(lo));
     CubeResult ch[8];
     bool exists[8];
     auto child = [&](int i) {
