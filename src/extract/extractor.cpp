@@ -83,7 +83,7 @@ void Extractor::fresh(double iso) {
   marched_ = active_.size();
   codes_.swap(scratch_.codes);
   keys_.swap(scratch_.order);
-  // Slots in active order: each owns the triangles the march wrote for it. Count vertex uses.
+  // Slots in active order: each owns the triangles the march wrote for it.
   const auto& first = scratch_.first_triangle;
   const std::size_t n = active_.size();
   slot_tris_.resize(n);
@@ -139,7 +139,7 @@ bool Extractor::update(double iso) {
   if (static_cast<double>(E) > limit) return false;
 
   // 2. Slots whose iso-value left their case interval get their new case (in parallel, per block
-  // in slot order). The old triangles stay in place until step 6.
+  // in slot order). The old triangles stay in place until step 7 reuses their places.
   const std::size_t blocks = block_count(n_old);
   changed_.resize(blocks);
   changed_old_.resize(blocks);
@@ -203,7 +203,7 @@ bool Extractor::update(double iso) {
     }
   });
 
-  // 4. The work: changed slots still cut (block order), then the entered tetrahedra (by id).
+  // 4. The work: changed slots still cut (block order), then the entered tetrahedra (tree order).
   std::vector<std::size_t> work_at(blocks + 1, 0), leave_at(blocks + 1, 0);
   for (std::size_t b = 0; b < blocks; ++b) {
     work_at[b + 1] = work_at[b] + block_cut_[b];
