@@ -124,6 +124,7 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
     uncached.edge_cache_max_tetrahedra = 0;  // re-interpolate from the grid
     SweepState state;
     double iso = 0;
+    std::vector<std::uint32_t> before;  // the active set of the previous step
     for (int step = 0; step < 40; ++step) {
       switch (rng() % 5) {
         case 0: iso = double(rng() % levels); break;                                  // exactly a vertex value
@@ -132,8 +133,6 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
         case 3: break;                                                                 // repeat
         default: iso = std::nextafter(double(rng() % levels), (rng() % 2) ? 1e9 : -1e9);  // next to a value
       }
-      std::vector<std::uint32_t> before;
-      if (step > 0) scan_active(g, state.iso, before);
       sweep_to(tree, g, state, iso);
       std::vector<std::uint32_t> inc, fresh, scan;
       active_tetrahedra(tree, state, inc);
@@ -164,6 +163,7 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
       ASSERT_TRUE(same_surface(incremental, a, sa.order)) << "trial " << trial << " step " << step;
       uncached.extract(iso);
       ASSERT_TRUE(same_surface(uncached, a, sa.order)) << "trial " << trial << " step " << step << " (no edge cache)";
+      before = scan;
     }
   }
 }
