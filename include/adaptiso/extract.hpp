@@ -30,7 +30,7 @@ namespace adaptiso {
 class EdgeMap;
 struct MarchScratch {
   struct Chunk {
-    std::vector<std::uint64_t> slots, order;
+    std::vector<std::uint64_t> slots, order, pending;
     std::vector<std::uint32_t> ids, local, owner, owner_id, global;
     std::shared_ptr<EdgeMap> map;
     std::size_t owned = 0;

@@ -29,7 +29,7 @@
 namespace adaptiso {
 namespace {
 constexpr std::uint32_t kNone = ~std::uint32_t{0};
-constexpr std::uint32_t kNewBit = std::uint32_t{1} << 31;  // marks a chunk-local id of a first-cut edge
+constexpr std::uint32_t kNewBit = std::uint32_t{1} << 31;  // marks a chunk's index of a first-cut edge corner
 
 // Work split into this many blocks for the streaming passes (a multiple of the thread count keeps
 // the cores busy; few enough that per-block bookkeeping stays negligible).
@@ -226,6 +226,7 @@ bool Extractor::update(double iso) {
   });
   const std::size_t R = work_.size();
   const std::size_t W = R + E;
+  if (6 * W >= kNewBit) throw std::length_error("extractor: too many mesh elements");
   marched_ = W;
   auto work_tet = [&](std::size_t w) { return w < R ? active_[work_[w]] : entered_[w - R].tet; };
   auto work_code = [&](std::size_t w) { return w < R ? codes_[work_[w]] : entered_[w - R].code; };
@@ -242,6 +243,7 @@ bool Extractor::update(double iso) {
     auto& ch = chunks_[c];
     auto& tris = chunk_tris_[c];
     ch.order.clear();
+    ch.pending.clear();
     tris.clear();
     ch.map = std::make_shared<EdgeMap>((W * (c + 1) / C - W * c / C) / 2 + 16, ch.slots, ch.ids);
     const std::size_t w_end = W * (c + 1) / C;
@@ -278,10 +280,22 @@ bool Extractor::update(double iso) {
           std::uint32_t id = kNone;
           for (int i = 0; i < olds; ++i)
             if (old_edge[i].below == le.below && old_edge[i].above == le.above) id = old_vertex[i];
-          tri[e] = id != kNone ? id : kNewBit | ch.map->find_or_add(edge_key(t[le.below], t[le.above]), ch.order);
+          if (id == kNone) {  // hashed below, in a pass that knows its keys ahead
+            id = kNewBit | static_cast<std::uint32_t>(ch.pending.size());
+            ch.pending.push_back(edge_key(t[le.below], t[le.above]));
+          }
+          tri[e] = id;
         }
         tris.push_back(tri);
       }
+    }
+    // Edges cut for the first time, numbered by first use in the chunk (prefetching the probes:
+    // the map is larger than the caches, and each probe would otherwise stall).
+    const std::size_t m = ch.pending.size();
+    ch.local.resize(m);
+    for (std::size_t i = 0; i < m; ++i) {
+      if (i + 16 < m) ch.map->prefetch(ch.pending[i + 16]);
+      ch.local[i] = ch.map->find_or_add(ch.pending[i], ch.order);
     }
   });
   number_chunk_edges(chunks_, new_keys_);
@@ -292,7 +306,7 @@ bool Extractor::update(double iso) {
     const auto& ch = chunks_[c];
     for (auto& tri : chunk_tris_[c])
       for (auto& v : tri)
-        if (v & kNewBit) v = V_old + ch.global[v & ~kNewBit];
+        if (v & kNewBit) v = V_old + ch.global[ch.local[v & ~kNewBit]];
   });
   dead_.clear();
   for (const auto& d : released) dead_.insert(dead_.end(), d.begin(), d.end());

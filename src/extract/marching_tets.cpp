@@ -93,6 +93,8 @@ void number_chunk_edges(std::vector<MarchScratch::Chunk>& chunks, std::vector<st
     ch.owner_id.resize(ch.order.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, ch.order.size(), 4096), [&](const auto& r) {
       for (std::size_t j = r.begin(); j < r.end(); ++j) {
+        if (j + 16 < r.end())
+          for (std::size_t q = 0; q < c; ++q) chunks[q].map->prefetch(ch.order[j + 16]);
         ch.owner_id[j] = static_cast<std::uint32_t>(j);
         for (std::size_t q = 0; q < c; ++q)
           if (std::uint32_t id = chunks[q].map->find(ch.order[j]); id != EdgeMap::kNone) {
@@ -169,7 +171,10 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
     ch.order.clear();
     ch.local.resize(3 * (e - b));
     ch.map = std::make_shared<EdgeMap>((e - b) / 2 + 16, ch.slots, ch.ids);
-    for (std::size_t i = 3 * b; i < 3 * e; ++i) ch.local[i - 3 * b] = ch.map->find_or_add(keys[i], ch.order);
+    for (std::size_t i = 3 * b; i < 3 * e; ++i) {
+      if (i + 16 < 3 * e) ch.map->prefetch(keys[i + 16]);  // the map outgrows the caches: hide the probe misses
+      ch.local[i - 3 * b] = ch.map->find_or_add(keys[i], ch.order);
+    }
   });
   number_chunk_edges(sc.chunks, order);
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
