@@ -31,7 +31,7 @@ class EdgeMap;
 struct MarchScratch {
   struct Chunk {
     std::vector<std::uint64_t> slots, order, pending;
-    std::vector<std::uint32_t> ids, local, owner, owner_id, global;
+    std::vector<std::uint32_t> local, owner, owner_id, global;
     std::shared_ptr<EdgeMap> map;
     std::size_t owned = 0;
   };

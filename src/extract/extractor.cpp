@@ -86,8 +86,8 @@ void Extractor::fresh(double iso) {
   // Slots in active order: each owns the triangles the march wrote for it.
   const auto& first = scratch_.first_triangle;
   const std::size_t n = active_.size();
-  slot_tris_.resize(n);
-  owner_.resize(mesh_.triangles.size());
+  resize_for_overwrite(slot_tris_, n);
+  resize_for_overwrite(owner_, mesh_.triangles.size());
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const auto& r) {
     for (std::size_t s = r.begin(); s < r.end(); ++s) {
       const auto f = static_cast<std::uint32_t>(first[s]);
@@ -245,7 +245,7 @@ bool Extractor::update(double iso) {
     ch.order.clear();
     ch.pending.clear();
     tris.clear();
-    ch.map = std::make_shared<EdgeMap>((W * (c + 1) / C - W * c / C) / 2 + 16, ch.slots, ch.ids);
+    ch.map = std::make_shared<EdgeMap>((W * (c + 1) / C - W * c / C) / 2 + 16, ch.slots);
     const std::size_t w_end = W * (c + 1) / C;
     for (std::size_t w = W * c / C; w < w_end; ++w) {
       if (w + 32 < std::min(w_end, R)) {
@@ -332,12 +332,7 @@ bool Extractor::update(double iso) {
   if (cached) ends_.resize(V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, N, 1024), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) {
-      if (cached && k + 8 < r.end())
-        for (std::uint32_t v : {static_cast<std::uint32_t>(new_keys_[k + 8] >> 32), static_cast<std::uint32_t>(new_keys_[k + 8])}) {
-          prefetch(&g.values[v]);
-          prefetch(&g.ijk[v]);
-          prefetch(&g.gradients[v]);
-        }
+      if (cached && k + 8 < r.end()) prefetch_edge(g, new_keys_[k + 8]);
       keys_[new_slot(k)] = new_keys_[k];
       if (cached) ends_[new_slot(k)] = gather_edge(g, new_keys_[k]);
     }

@@ -34,36 +34,34 @@ inline std::uint8_t tet_code(const TetGrid& g, std::uint32_t t, double iso) {
 // Keep (below, above) order in the key: for one iso-value a grid edge is always cut one way.
 inline std::uint64_t edge_key(std::uint32_t below, std::uint32_t above) { return (std::uint64_t{below} << 32) | above; }
 
-// Open-addressing map from edge key to mesh vertex, numbering vertices by first use.
+// Open-addressing map from edge key to mesh vertex, numbering vertices by first use. A slot is
+// the key and its id side by side (two words of `slots`), so a probe touches one cache line.
 class EdgeMap {
 public:
-  EdgeMap(std::size_t expected, std::vector<std::uint64_t>& slots, std::vector<std::uint32_t>& ids) : slots_(slots), ids_(ids) {
+  EdgeMap(std::size_t expected, std::vector<std::uint64_t>& slots) : slots_(slots) {
     rehash(std::bit_ceil(std::max<std::size_t>(64, expected * 2)));
   }
   std::uint32_t find_or_add(std::uint64_t key, std::vector<std::uint64_t>& order) {
     if (order.size() * 10 >= cap_ * 7) grow(order);
-    std::size_t h = hash(key);
-    for (;; h = (h + 1) & (cap_ - 1)) {
-      if (slots_[h] == kEmpty) {
-        slots_[h] = key;
-        ids_[h] = static_cast<std::uint32_t>(order.size());
+    for (std::size_t h = hash(key);; h = (h + 1) & (cap_ - 1)) {
+      std::uint64_t* slot = &slots_[2 * h];
+      if (slot[0] == kEmpty) {
+        slot[0] = key;
+        slot[1] = order.size();
         order.push_back(key);
-        return ids_[h];
+        return static_cast<std::uint32_t>(slot[1]);
       }
-      if (slots_[h] == key) return ids_[h];
+      if (slot[0] == key) return static_cast<std::uint32_t>(slot[1]);
     }
   }
   // Probes are scattered misses; callers that know their keys ahead prefetch their home slots.
-  void prefetch(std::uint64_t key) const {
-    const std::size_t h = hash(key);
-    __builtin_prefetch(&slots_[h]);
-    __builtin_prefetch(&ids_[h]);
-  }
+  void prefetch(std::uint64_t key) const { __builtin_prefetch(&slots_[2 * hash(key)]); }
   // The id of key, or kNone.
   std::uint32_t find(std::uint64_t key) const {
     for (std::size_t h = hash(key);; h = (h + 1) & (cap_ - 1)) {
-      if (slots_[h] == kEmpty) return kNone;
-      if (slots_[h] == key) return ids_[h];
+      const std::uint64_t* slot = &slots_[2 * h];
+      if (slot[0] == kEmpty) return kNone;
+      if (slot[0] == key) return static_cast<std::uint32_t>(slot[1]);
     }
   }
   static constexpr std::uint32_t kNone = ~std::uint32_t{0};
@@ -74,23 +72,34 @@ private:
   void rehash(std::size_t cap) {
     cap_ = cap;
     shift_ = 64 - std::countr_zero(cap);
-    slots_.assign(cap, kEmpty);
-    ids_.resize(cap);
+    slots_.assign(2 * cap, kEmpty);
   }
   void grow(const std::vector<std::uint64_t>& order) {
     rehash(cap_ * 2);
     for (std::uint32_t i = 0; i < order.size(); ++i) {
       std::size_t h = hash(order[i]);
-      while (slots_[h] != kEmpty) h = (h + 1) & (cap_ - 1);
-      slots_[h] = order[i];
-      ids_[h] = i;
+      while (slots_[2 * h] != kEmpty) h = (h + 1) & (cap_ - 1);
+      slots_[2 * h] = order[i];
+      slots_[2 * h + 1] = i;
     }
   }
   std::size_t cap_ = 0;
   int shift_ = 0;
   std::vector<std::uint64_t>& slots_;
-  std::vector<std::uint32_t>& ids_;
 };
+
+// Resizes v, whose contents are about to be overwritten. Incremental steps grow the Extractor's
+// arrays a little at a time: a quarter of headroom, reserved before filling (address space only,
+// no pages touched), spares the first step that grows them a copy of every array (about 0.1 s on
+// a 2.7-million-vertex surface).
+template <class Vec>
+void resize_for_overwrite(Vec& v, std::size_t n) {
+  if (n > v.capacity()) {
+    v.clear();
+    v.reserve(n + n / 4);
+  }
+  v.resize(n);
+}
 
 // A grid-frame point and (unnormalised) normal to float world coordinates and a unit normal:
 // world = origin + D · p with D the row-major direction matrix (columns = index axes).
@@ -115,6 +124,15 @@ struct EdgeEnds {
   double va, vb;                       // a below, b at or above the iso-value
   std::array<float, 3> wa, d, ga, gb;  // world position of a, b - a; gradients (world frame)
 };  // 64 bytes: re-interpolation streams these, so every byte counts
+
+// gather_edge's reads are scattered over the grid: callers prefetch them a few edges ahead.
+inline void prefetch_edge(const TetGrid& g, std::uint64_t key) {
+  for (std::uint32_t v : {static_cast<std::uint32_t>(key >> 32), static_cast<std::uint32_t>(key)}) {
+    __builtin_prefetch(&g.values[v]);
+    __builtin_prefetch(&g.ijk[v]);
+    __builtin_prefetch(&g.gradients[v]);
+  }
+}
 
 inline EdgeEnds gather_edge(const TetGrid& g, std::uint64_t key) {
   const std::uint32_t a = static_cast<std::uint32_t>(key >> 32), b = static_cast<std::uint32_t>(key);

@@ -67,17 +67,20 @@ const std::array<Case, 16> kCases = make_cases();
 
 void interpolate_vertices(const TetGrid& g, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh) {
   const std::size_t V = order.size();
-  mesh.positions.resize(V);
-  mesh.normals.resize(V);
+  resize_for_overwrite(mesh.positions, V);
+  resize_for_overwrite(mesh.normals, V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) interpolate_edge(gather_edge(g, order[i]), iso, mesh.positions[i], mesh.normals[i]);
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      if (i + 8 < r.end()) prefetch_edge(g, order[i + 8]);
+      interpolate_edge(gather_edge(g, order[i]), iso, mesh.positions[i], mesh.normals[i]);
+    }
   });
 }
 
 void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& mesh) {
   const std::size_t V = ends.size();
-  mesh.positions.resize(V);
-  mesh.normals.resize(V);
+  resize_for_overwrite(mesh.positions, V);
+  resize_for_overwrite(mesh.normals, V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i) interpolate_edge(ends[i], iso, mesh.positions[i], mesh.normals[i]);
   });
@@ -108,7 +111,7 @@ void number_chunk_edges(std::vector<MarchScratch::Chunk>& chunks, std::vector<st
   });
   std::vector<std::size_t> offset(C + 1, 0);
   for (std::size_t c = 0; c < C; ++c) offset[c + 1] = offset[c] + chunks[c].owned;
-  order.resize(offset[C]);
+  resize_for_overwrite(order, offset[C]);
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // global ids of owned edges
     auto& ch = chunks[c];
     ch.global.resize(ch.order.size());
@@ -136,13 +139,17 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
   const std::size_t n = active.size();
   auto& codes = sc.codes;
   auto& first_tri = sc.first_triangle;
-  codes.resize(n);
+  resize_for_overwrite(codes, n);
   first_tri.resize(n + 1);
   first_tri[0] = 0;
   // 1. Case of every active tetrahedron; triangle offsets by a prefix sum (parallel).
-  if (gaps) gaps->resize(n);
+  if (gaps) resize_for_overwrite(*gaps, n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) codes[i] = gaps ? code_and_gap(g, active[i], iso, (*gaps)[i]) : tet_code(g, active[i], iso);
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      if (i + 8 < r.end())  // the values are scattered over the grid
+        for (std::uint32_t v : g.tets[active[i + 8]]) __builtin_prefetch(&g.values[v]);
+      codes[i] = gaps ? code_and_gap(g, active[i], iso, (*gaps)[i]) : tet_code(g, active[i], iso);
+    }
   });
   for (std::size_t i = 0; i < n; ++i) first_tri[i + 1] = first_tri[i] + kCases[codes[i]].triangles;
   const std::size_t T = first_tri[n];
@@ -158,7 +165,7 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
         for (int e = 0; e < 3; ++e) *k++ = edge_key(t[c.tri[q][e].below], t[c.tri[q][e].above]);
     }
   });
-  mesh.triangles.resize(T);
+  resize_for_overwrite(mesh.triangles, T);
   auto& order = sc.order;
   // Chunks of consecutive triangles number their edges locally (in parallel); an edge belongs to
   // the first chunk that uses it; owned edges are numbered chunk by chunk in local first-use order.
@@ -170,7 +177,7 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
     const std::size_t b = T * c / C, e = T * (c + 1) / C;
     ch.order.clear();
     ch.local.resize(3 * (e - b));
-    ch.map = std::make_shared<EdgeMap>((e - b) / 2 + 16, ch.slots, ch.ids);
+    ch.map = std::make_shared<EdgeMap>((e - b) / 2 + 16, ch.slots);
     for (std::size_t i = 3 * b; i < 3 * e; ++i) {
       if (i + 16 < 3 * e) ch.map->prefetch(keys[i + 16]);  // the map outgrows the caches: hide the probe misses
       ch.local[i - 3 * b] = ch.map->find_or_add(keys[i], ch.order);
@@ -184,11 +191,12 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
       for (int k = 0; k < 3; ++k) mesh.triangles[i][k] = ch.global[ch.local[3 * (i - b) + k]];
   });
   if (!ends) return interpolate_vertices(g, order, iso, mesh);
-  ends->resize(order.size());
-  mesh.positions.resize(order.size());
-  mesh.normals.resize(order.size());
+  resize_for_overwrite(*ends, order.size());
+  resize_for_overwrite(mesh.positions, order.size());
+  resize_for_overwrite(mesh.normals, order.size());
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 4096), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      if (i + 8 < r.end()) prefetch_edge(g, order[i + 8]);
       (*ends)[i] = gather_edge(g, order[i]);
       interpolate_edge((*ends)[i], iso, mesh.positions[i], mesh.normals[i]);
     }
