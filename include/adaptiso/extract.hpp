@@ -36,9 +36,9 @@ struct MarchScratch {
     std::size_t owned = 0;
   };
   std::vector<std::uint8_t> codes;
-  std::vector<std::uint64_t> first_triangle, keys, order;
+  std::vector<std::uint64_t> first_triangle, order;
   std::vector<Chunk> chunks;
-  std::size_t parallel_min_triangles = 65536;  // below this, one chunk (tests lower it)
+  std::size_t parallel_min_triangles = 65536;  // below this many tetrahedra (about as many triangles), one chunk (tests lower it)
 };
 
 // Marching tetrahedra over the given tetrahedra (each must be active at iso). Replaces mesh.

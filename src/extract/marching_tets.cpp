@@ -141,54 +141,60 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
   auto& first_tri = sc.first_triangle;
   resize_for_overwrite(codes, n);
   first_tri.resize(n + 1);
-  first_tri[0] = 0;
-  // 1. Case of every active tetrahedron; triangle offsets by a prefix sum (parallel).
   if (gaps) resize_for_overwrite(*gaps, n);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      if (i + 8 < r.end())  // the values are scattered over the grid
-        for (std::uint32_t v : g.tets[active[i + 8]]) __builtin_prefetch(&g.values[v]);
-      codes[i] = gaps ? code_and_gap(g, active[i], iso, (*gaps)[i]) : tet_code(g, active[i], iso);
-    }
-  });
-  for (std::size_t i = 0; i < n; ++i) first_tri[i + 1] = first_tri[i] + kCases[codes[i]].triangles;
-  const std::size_t T = first_tri[n];
-  // 2. Corner keys (parallel), 3. shared vertices by first use (sequential: deterministic order).
-  auto& keys = sc.keys;
-  keys.resize(3 * T);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const auto& t = g.tets[active[i]];
-      const Case& c = kCases[codes[i]];
-      std::uint64_t* k = &keys[3 * first_tri[i]];
-      for (int q = 0; q < c.triangles; ++q)
-        for (int e = 0; e < 3; ++e) *k++ = edge_key(t[c.tri[q][e].below], t[c.tri[q][e].above]);
-    }
-  });
-  resize_for_overwrite(mesh.triangles, T);
-  auto& order = sc.order;
-  // Chunks of consecutive triangles number their edges locally (in parallel); an edge belongs to
-  // the first chunk that uses it; owned edges are numbered chunk by chunk in local first-use order.
-  // That is exactly the sequential first-use numbering, whatever the number of chunks.
-  const std::size_t C = T < sc.parallel_min_triangles ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+  // 1. Chunks of consecutive tetrahedra (in parallel) find their cases and corners and number the
+  // edges locally by first use; an edge belongs to the first chunk that uses it, and owned edges
+  // are numbered chunk by chunk in local first-use order: exactly the sequential first-use
+  // numbering, whatever the number of chunks. Tetrahedra are taken in batches: the batch's corner
+  // keys go to a small buffer first, so the map probes (scattered misses once the map outgrows the
+  // caches) can be prefetched ahead without a corner array for the whole surface.
+  const std::size_t C = n < sc.parallel_min_triangles ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
   sc.chunks.resize(C);
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
     auto& ch = sc.chunks[c];
-    const std::size_t b = T * c / C, e = T * (c + 1) / C;
+    const std::size_t b = n * c / C, e = n * (c + 1) / C;
     ch.order.clear();
-    ch.local.resize(3 * (e - b));
-    ch.map = std::make_shared<EdgeMap>((e - b) / 2 + 16, ch.slots);
-    for (std::size_t i = 3 * b; i < 3 * e; ++i) {
-      if (i + 16 < 3 * e) ch.map->prefetch(keys[i + 16]);  // the map outgrows the caches: hide the probe misses
-      ch.local[i - 3 * b] = ch.map->find_or_add(keys[i], ch.order);
+    ch.local.clear();  // 3 local vertex ids per triangle
+    ch.map = std::make_shared<EdgeMap>((e - b) * 3 / 4 + 16, ch.slots);
+    constexpr std::size_t kBatch = 256;
+    auto& keys = ch.pending;
+    for (std::size_t i0 = b; i0 < e; i0 += kBatch) {
+      const std::size_t i1 = std::min(e, i0 + kBatch);
+      keys.clear();
+      for (std::size_t i = i0; i < i1; ++i) {
+        if (i + 8 < e)  // the values are scattered over the grid
+          for (std::uint32_t v : g.tets[active[i + 8]]) __builtin_prefetch(&g.values[v]);
+        const auto& t = g.tets[active[i]];
+        codes[i] = gaps ? code_and_gap(g, active[i], iso, (*gaps)[i]) : tet_code(g, active[i], iso);
+        const Case& cs = kCases[codes[i]];
+        for (int q = 0; q < cs.triangles; ++q)
+          for (int k = 0; k < 3; ++k) keys.push_back(edge_key(t[cs.tri[q][k].below], t[cs.tri[q][k].above]));
+      }
+      const std::size_t m = keys.size();
+      for (std::size_t j = 0; j < std::min<std::size_t>(16, m); ++j) ch.map->prefetch(keys[j]);
+      for (std::size_t j = 0; j < m; ++j) {
+        if (j + 16 < m) ch.map->prefetch(keys[j + 16]);
+        ch.local.push_back(ch.map->find_or_add(keys[j], ch.order));
+      }
     }
   });
+  auto& order = sc.order;
   number_chunk_edges(sc.chunks, order);
+  // 2. Triangles in the order of the tetrahedra, with their global vertex ids (in parallel).
+  std::vector<std::size_t> tri_at(C + 1, 0);
+  for (std::size_t c = 0; c < C; ++c) tri_at[c + 1] = tri_at[c] + sc.chunks[c].local.size() / 3;
+  const std::size_t T = tri_at[C];
+  resize_for_overwrite(mesh.triangles, T);
+  first_tri[n] = T;
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
     const auto& ch = sc.chunks[c];
-    const std::size_t b = T * c / C, e = T * (c + 1) / C;
-    for (std::size_t i = b; i < e; ++i)
-      for (int k = 0; k < 3; ++k) mesh.triangles[i][k] = ch.global[ch.local[3 * (i - b) + k]];
+    std::uint64_t f = tri_at[c];
+    for (std::size_t i = n * c / C; i < n * (c + 1) / C; ++i) {
+      first_tri[i] = f;
+      f += kCases[codes[i]].triangles;
+    }
+    for (std::size_t j = 0; j < ch.local.size() / 3; ++j)
+      for (int k = 0; k < 3; ++k) mesh.triangles[tri_at[c] + j][k] = ch.global[ch.local[3 * j + k]];
   });
   if (!ends) return interpolate_vertices(g, order, iso, mesh);
   resize_for_overwrite(*ends, order.size());
