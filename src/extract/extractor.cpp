@@ -290,7 +290,7 @@ bool Extractor::update(double iso) {
       }
     }
     // Edges cut for the first time, numbered by first use in the chunk (prefetching the probes:
-    // the map is larger than the caches, and each probe would otherwise stall).
+    // on large steps the map outgrows the caches, and each probe would otherwise stall).
     const std::size_t m = ch.pending.size();
     ch.local.resize(m);
     for (std::size_t i = 0; i < m; ++i) {
