@@ -124,8 +124,7 @@ bool Extractor::update(double iso) {
         prefetch(&g.tets[entering[i + 16]]);
         prefetch(&state_.flags[entering[i + 16]]);
       }
-      if (i + 8 < end)
-        for (std::uint32_t v : g.tets[entering[i + 8]]) prefetch(&g.values[v]);
+      if (i + 8 < end) prefetch_values(g, entering[i + 8]);
       if (const std::uint32_t t = entering[i]; state_.flags[t] == 3) {
         Entered e{t, 0, {}};
         e.code = code_and_gap(g, t, iso, e.gap);
@@ -165,8 +164,7 @@ bool Extractor::update(double iso) {
     for (std::size_t i = 0; i < m; ++i) {
       if (i + 32 < m) prefetch(&active_[list[i + 32]]);
       if (i + 16 < m) prefetch(&g.tets[active_[list[i + 16]]]);
-      if (i + 8 < m)
-        for (std::uint32_t v : g.tets[active_[list[i + 8]]]) prefetch(&g.values[v]);
+      if (i + 8 < m) prefetch_values(g, active_[list[i + 8]]);
       old_codes.push_back(codes_[list[i]]);
       codes_[list[i]] = code_and_gap(g, active_[list[i]], iso, gaps_[list[i]]);
       cuts += cut(codes_[list[i]]);

@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 
 #include "adaptiso/error.hpp"
+#include "extract/march_internal.hpp"
 
 namespace adaptiso {
 namespace {
@@ -210,8 +211,7 @@ void walk_node(const IntervalTree& tree, const TetGrid& g, SweepState& s, std::s
   auto ahead = [&](const std::uint32_t* list, std::int64_t k, int dir) {
     const std::int64_t far = k + 16 * dir, near = k + 8 * dir;
     if (far >= 0 && far < size) __builtin_prefetch(&g.tets[list[far]]);
-    if (near >= 0 && near < size)
-      for (std::uint32_t v : g.tets[list[near]]) __builtin_prefetch(&g.values[v]);
+    if (near >= 0 && near < size) prefetch_values(g, list[near]);
   };
   std::uint32_t p = s.pmin[i], q = s.pmax[i];
   if (iso > s.iso) {

@@ -125,6 +125,12 @@ struct EdgeEnds {
   std::array<float, 3> wa, d, ga, gb;  // world position of a, b - a; gradients (world frame)
 };  // 64 bytes: re-interpolation streams these, so every byte counts
 
+// A tetrahedron's four values lie at scattered places of the grid: loops over tetrahedra
+// prefetch them a few iterations ahead.
+inline void prefetch_values(const TetGrid& g, std::uint32_t t) {
+  for (std::uint32_t v : g.tets[t]) __builtin_prefetch(&g.values[v]);
+}
+
 // gather_edge's reads are scattered over the grid: callers prefetch them a few edges ahead.
 inline void prefetch_edge(const TetGrid& g, std::uint64_t key) {
   for (std::uint32_t v : {static_cast<std::uint32_t>(key >> 32), static_cast<std::uint32_t>(key)}) {

@@ -162,8 +162,7 @@ void march_tetrahedra_into(const TetGrid& g, const std::vector<std::uint32_t>& a
       const std::size_t i1 = std::min(e, i0 + kBatch);
       keys.clear();
       for (std::size_t i = i0; i < i1; ++i) {
-        if (i + 8 < e)  // the values are scattered over the grid
-          for (std::uint32_t v : g.tets[active[i + 8]]) __builtin_prefetch(&g.values[v]);
+        if (i + 8 < e) prefetch_values(g, active[i + 8]);
         const auto& t = g.tets[active[i]];
         codes[i] = gaps ? code_and_gap(g, active[i], iso, (*gaps)[i]) : tet_code(g, active[i], iso);
         const Case& cs = kCases[codes[i]];
