@@ -45,8 +45,10 @@ void run(benchmark::State& st, const std::string& name, ReduceOptions o) {
 int main(int argc, char** argv) {
   volumes()["synthetic_torus_256"] = make_synthetic("torus", 256, ScalarType::f32);
   std::string data = std::getenv("ADAPTISO_DATA") ? std::getenv("ADAPTISO_DATA") : ADAPTISO_SOURCE_DIR "/../shared/data";
-  if (std::filesystem::exists(data + "/ct_bunny_stanford.nhdr")) volumes()["ct_bunny_stanford"] = read_volume(data + "/ct_bunny_stanford.nhdr");
-  else std::fprintf(stderr, "note: %s not found; benchmarking the synthetic volume only\n", data.c_str());
+  if (std::filesystem::exists(data + "/ct_bunny_stanford.nhdr"))
+    volumes()["ct_bunny_stanford"] = read_volume(data + "/ct_bunny_stanford.nhdr");
+  else
+    std::fprintf(stderr, "note: %s not found; benchmarking the synthetic volume only\n", data.c_str());
   for (const auto& [name, vol] : volumes()) {
     ReduceOptions rec;
     rec.max_error = 0.02;
@@ -59,7 +61,10 @@ int main(int argc, char** argv) {
     benchmark::RegisterBenchmark((name + "/structural_central").c_str(), run, name, cen)->Unit(benchmark::kMillisecond)->UseRealTime();
     ReduceOptions can = cen;
     can.gradient = GradientOperator::canny;
-    benchmark::RegisterBenchmark((name + "/structural_canny_s1").c_str(), run, name, can)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+    benchmark::RegisterBenchmark((name + "/structural_canny_s1").c_str(), run, name, can)
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime()
+        ->Iterations(1);
   }
   benchmark::Initialize(&argc, argv);
   benchmark::RunSpecifiedBenchmarks();

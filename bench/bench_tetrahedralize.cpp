@@ -6,22 +6,19 @@
 #include <filesystem>
 #include <numeric>
 
+#include "adaptiso/delaunay.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
-#include "adaptiso/tetrahedralize.hpp"
 #include "adaptiso/volume_io.hpp"
 
 using namespace adaptiso;
 
 static void run(const char* name, const Volume& v, const std::vector<std::int64_t>& kept) {
   for (bool par : {false, true}) {
-    TetGrid g;
-    g.source.dims = v.dims;
-    g.source.spacing = v.spacing;
     auto t0 = std::chrono::steady_clock::now();
-    TetrahedralizeOptions o;
+    DelaunayOptions o;
     o.parallel = par;
-    tetrahedralize(v, kept, g, o);
+    const TetGrid g = delaunay_grid(v, value_range(v), kept, o);
     double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::printf("{\"case\":\"%s\",\"parallel\":%s,\"points\":%zu,\"tetrahedra\":%zu,\"seconds\":%.3f,\"points_per_second\":%.0f}\n", name,
                 par ? "true" : "false", kept.size(), g.tet_count(), s, static_cast<double>(kept.size()) / s);

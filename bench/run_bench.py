@@ -45,9 +45,9 @@ ap.add_argument("datasets", nargs="*")
 args = ap.parse_args()
 
 B = args.build
-ADAPTISO = f"{B}/apps/adaptiso/adaptiso"
-PEER = f"{B}/bench/peers/peer_bench"
-BENCH_EXTRACT = f"{B}/bench/bench_extract"
+ADAPTISO = f"{B}/bin/adaptiso"
+PEER = f"{B}/bin/peer_bench"
+BENCH_EXTRACT = f"{B}/bin/bench_extract"
 SKIMAGE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "peers", "skimage_peer.py")
 os.makedirs(args.out, exist_ok=True)
 os.makedirs(args.work, exist_ok=True)

@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 ./scripts/deps.sh
 cmake -S . -B build/release -G Ninja -DCMAKE_BUILD_TYPE=Release -DADAPTISO_BUILD_TESTS=OFF >/dev/null
 cmake --build build/release --target adaptiso_cli
-B=build/release/apps/adaptiso/adaptiso
+B=build/release/bin/adaptiso
 OUT=out/demo
 mkdir -p "$OUT"
 echo "== the paper's sphere: 50³ int16, relative error 0.15, iso 0.7"

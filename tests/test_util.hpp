@@ -14,9 +14,14 @@
 
 #include <map>
 
+#include <memory>
+#include <numeric>
+
+#include "adaptiso/delaunay.hpp"
 #include "adaptiso/gradients.hpp"
+#include "adaptiso/interval_tree.hpp"
 #include "adaptiso/mesh.hpp"
-#include "adaptiso/tetrahedralize.hpp"
+#include "adaptiso/prepare.hpp"
 #include "adaptiso/volume.hpp"
 
 namespace testutil {
@@ -49,10 +54,13 @@ inline std::string read_bytes(const std::string& path) {
   return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
+inline std::string u32(std::uint32_t x) { return std::string(reinterpret_cast<char*>(&x), 4); }
+
 inline std::string bytes_of(const adaptiso::Volume& v) { return std::string(v.bytes.begin(), v.bytes.end()); }
 
 inline std::string swapped(std::string s, std::size_t es) {
-  for (std::size_t i = 0; i + es <= s.size(); i += es) std::reverse(s.begin() + static_cast<long>(i), s.begin() + static_cast<long>(i + es));
+  for (std::size_t i = 0; i + es <= s.size(); i += es)
+    std::reverse(s.begin() + static_cast<long>(i), s.begin() + static_cast<long>(i + es));
   return s;
 }
 
@@ -116,10 +124,11 @@ inline std::string data_dir() {
   return "";
 }
 
-#define REQUIRE_DATA(dir)                                                                     \
-  const std::string dir = testutil::data_dir();                                               \
+#define REQUIRE_DATA(dir)                       \
+  const std::string dir = testutil::data_dir(); \
   if (dir.empty()) GTEST_SKIP() << "shared data folder not found (set ADAPTISO_DATA); skipped"
 
+#ifdef ADAPTISO_CLI  // the command-line tests only
 struct RunResult {
   int code;
   std::string out, err;
@@ -132,23 +141,33 @@ inline RunResult run_cli(const std::string& args) {
   int rc = std::system(cmd.c_str());
   return {WIFEXITED(rc) ? WEXITSTATUS(rc) : 128, read_bytes(t / "out"), read_bytes(t / "err")};
 }
+#endif
 
-// The tetrahedral grid of a volume's kept voxels with gradients (what prepare builds, minus the file).
+// The Delaunay grid of a volume's kept voxels with least-squares gradients (the paper's grid, as
+// prepare builds it, minus the reduction).
 inline adaptiso::TetGrid build_grid(const adaptiso::Volume& v, const std::vector<std::int64_t>& kept) {
-  adaptiso::TetGrid g;
-  auto r = adaptiso::value_range(v);
-  g.source.dims = v.dims;
-  g.source.spacing = v.spacing;
-  g.source.origin = v.origin;
-  g.source.direction = v.direction;
-  g.source.min = r.min;
-  g.source.max = r.max;
-  g.source.type = std::string(adaptiso::scalar_name(v.type));
+  adaptiso::TetGrid g = adaptiso::delaunay_grid(v, adaptiso::value_range(v), kept);
   g.source.method = "test";
-  adaptiso::tetrahedralize(v, kept, g);
-  adaptiso::VertexRings rings = adaptiso::vertex_rings(g);
-  adaptiso::compute_gradients(g, rings);
+  adaptiso::least_squares_gradients(g);
   return g;
+}
+
+// A grid and its index, shared, as an Extractor or the view server take them.
+inline std::shared_ptr<const adaptiso::PreparedGrid> prepared(adaptiso::TetGrid g, adaptiso::IntervalTree index) {
+  auto p = std::make_shared<adaptiso::PreparedGrid>();
+  p->grid = std::move(g);
+  p->index = std::move(index);
+  return p;
+}
+inline std::shared_ptr<const adaptiso::PreparedGrid> prepared(adaptiso::TetGrid g, std::uint32_t depth = adaptiso::kDefaultTreeDepth) {
+  adaptiso::IntervalTree index = adaptiso::build_interval_tree(g, depth);
+  return prepared(std::move(g), std::move(index));
+}
+
+inline std::vector<std::int64_t> all_voxels(const adaptiso::Volume& v) {
+  std::vector<std::int64_t> k(static_cast<std::size_t>(v.voxel_count()));
+  std::iota(k.begin(), k.end(), 0);
+  return k;
 }
 
 // Edge census of an indexed triangle mesh: an edge used by two triangles in opposite directions is

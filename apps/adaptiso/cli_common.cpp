@@ -3,11 +3,12 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <iostream>
 #include <mutex>
 
-#include "../../src/volume/io_util.hpp"
+#include "adaptiso/number.hpp"
 
 namespace adaptiso::cli {
 
@@ -26,7 +27,7 @@ Volume VolumeInput::load() const {
   if (!dims.empty() || !type.empty()) {
     if (dims.empty() || type.empty()) throw InputError(fmt::format("{}: raw input needs both --dims and --type", path));
     RawOptions r;
-    auto d = detail::parse_numbers(dims, 3, "--dims");
+    auto d = parse_number_list(dims, 3, "--dims");
     for (int a = 0; a < 3; ++a) {
       if (d[a] < 1 || d[a] != static_cast<double>(static_cast<std::int64_t>(d[a])))
         throw InputError(fmt::format("--dims: {} is not a positive whole number", d[a]));
@@ -37,7 +38,7 @@ Volume VolumeInput::load() const {
     r.type = *t;
     r.big_endian = endian == "big";
     if (!spacing.empty()) {
-      auto s = detail::parse_numbers(spacing, 3, "--spacing");
+      auto s = parse_number_list(spacing, 3, "--spacing");
       r.spacing = {s[0], s[1], s[2]};
     }
     r.header_bytes = header_bytes;
@@ -84,10 +85,34 @@ void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << std::endl; 
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-nlohmann::json volume_json(const Volume& v) {
-  auto r = value_range(v);
-  return {{"dims", v.dims},   {"spacing", v.spacing}, {"origin", v.origin}, {"direction", v.direction},
-          {"type", std::string(scalar_name(v.type))}, {"min", r.min}, {"max", r.max}, {"voxels", v.voxel_count()}};
+nlohmann::json volume_json(const Volume& v, const ValueRange& r) {
+  return {{"dims", v.dims},
+          {"spacing", v.spacing},
+          {"origin", v.origin},
+          {"direction", v.direction},
+          {"type", std::string(scalar_name(v.type))},
+          {"min", r.min},
+          {"max", r.max},
+          {"voxels", v.voxel_count()}};
+}
+
+std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, double min, double max) {
+  std::vector<double> out;
+  for (const auto& s : tokens) {
+    auto x = parse_finite(s);
+    if (!x) throw InputError(fmt::format("--iso: '{}' is not a finite number", s.substr(0, 40)));
+    out.push_back(relative ? min + *x * (max - min) : *x);
+  }
+  if (out.empty()) throw InputError("--iso: give at least one iso-value");
+  return out;
+}
+
+std::string flag_for(const std::string& option) {
+  if (option == "web_dir") return "--web";
+  if (option == "structural_gradient") return "--gradient";
+  std::string flag = "--" + option;
+  std::replace(flag.begin(), flag.end(), '_', '-');
+  return flag;
 }
 
 }  // namespace adaptiso::cli

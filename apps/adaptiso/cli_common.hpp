@@ -46,7 +46,13 @@ private:
 
 void print_json(const nlohmann::json& j);
 double seconds_since(std::chrono::steady_clock::time_point t0);
-nlohmann::json volume_json(const Volume& v);
+nlohmann::json volume_json(const Volume& v, const ValueRange& range);
+
+// Parses "--iso" values (comma-separated numbers); relative ones map [0,1] onto [min, max].
+std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, double min, double max);
+
+// The command-line flag of a library option named in an OptionError ("max_error" → "--max-error").
+std::string flag_for(const std::string& option);
 
 using Clock = std::chrono::steady_clock;
 

@@ -3,7 +3,7 @@
 
 #include <iostream>
 
-#include "adaptiso/mesh.hpp"
+#include "adaptiso/mesh_io.hpp"
 #include "adaptiso/surface_distance.hpp"
 #include "cli_common.hpp"
 
@@ -19,11 +19,14 @@ void add_compare(CLI::App& app) {
   cmd->add_option("A", *a, "First mesh (.ply)")->required();
   cmd->add_option("B", *b, "Second mesh (.ply)")->required();
   cmd->add_option("--voxel", *voxel, "Length of a voxel in the meshes' units, for the figures in voxels")
-      ->capture_default_str()->check(CLI::PositiveNumber);
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--samples", *samples, "Minimum samples per direction (at least 4 per triangle are taken)")
-      ->capture_default_str()->check(CLI::Range(std::size_t{1000}, std::size_t{100'000'000}));
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{1000}, std::size_t{100'000'000}));
   cmd->add_option("--max-samples", *max_samples, "Most samples per direction (besides the vertices)")
-      ->capture_default_str()->check(CLI::Range(std::size_t{1000}, std::size_t{100'000'000}));
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{1000}, std::size_t{100'000'000}));
   out->add(cmd);
   cmd->callback([=] {
     auto t0 = Clock::now();
@@ -33,18 +36,32 @@ void add_compare(CLI::App& app) {
     o.max_samples = std::max(*max_samples, *samples);
     SurfaceDistance d = surface_distance(ma, mb, o);
     auto stats = [&](const DistanceStats& s) {
-      return nlohmann::json{{"samples", s.samples}, {"mean", s.mean},          {"rms", s.rms},          {"p95", s.p95},
-                            {"max", s.max},         {"mean_voxels", s.mean / *voxel}, {"rms_voxels", s.rms / *voxel},
-                            {"p95_voxels", s.p95 / *voxel}, {"max_voxels", s.max / *voxel}};
+      return nlohmann::json{{"samples", s.samples},
+                            {"mean", s.mean},
+                            {"rms", s.rms},
+                            {"p95", s.p95},
+                            {"max", s.max},
+                            {"mean_voxels", s.mean / *voxel},
+                            {"rms_voxels", s.rms / *voxel},
+                            {"p95_voxels", s.p95 / *voxel},
+                            {"max_voxels", s.max / *voxel}};
     };
-    nlohmann::json j = {{"a", *a}, {"b", *b}, {"a_triangles", ma.triangle_count()}, {"b_triangles", mb.triangle_count()},
-                        {"voxel", *voxel}, {"a_to_b", stats(d.a_to_b)}, {"b_to_a", stats(d.b_to_a)},
-                        {"hausdorff", d.hausdorff()}, {"hausdorff_voxels", d.hausdorff() / *voxel}, {"seconds", seconds_since(t0)}};
+    nlohmann::json j = {{"a", *a},
+                        {"b", *b},
+                        {"a_triangles", ma.triangle_count()},
+                        {"b_triangles", mb.triangle_count()},
+                        {"voxel", *voxel},
+                        {"a_to_b", stats(d.a_to_b)},
+                        {"b_to_a", stats(d.b_to_a)},
+                        {"hausdorff", d.hausdorff()},
+                        {"hausdorff_voxels", d.hausdorff() / *voxel},
+                        {"seconds", seconds_since(t0)}};
     if (out->json) return print_json(j);
     if (out->quiet) return;
     auto line = [&](const char* name, const DistanceStats& s) {
-      std::cout << fmt::format("{}: mean {:.4g}  rms {:.4g}  p95 {:.4g}  max {:.4g}   (voxels: {:.3g} / {:.3g} / {:.3g} / {:.3g})  [{} samples]\n",
-                               name, s.mean, s.rms, s.p95, s.max, s.mean / *voxel, s.rms / *voxel, s.p95 / *voxel, s.max / *voxel, s.samples);
+      std::cout << fmt::format(
+          "{}: mean {:.4g}  rms {:.4g}  p95 {:.4g}  max {:.4g}   (voxels: {:.3g} / {:.3g} / {:.3g} / {:.3g})  [{} samples]\n", name, s.mean,
+          s.rms, s.p95, s.max, s.mean / *voxel, s.rms / *voxel, s.p95 / *voxel, s.max / *voxel, s.samples);
     };
     line("A→B", d.a_to_b);
     line("B→A", d.b_to_a);

@@ -4,12 +4,13 @@
 #include <filesystem>
 #include <iostream>
 
-#include "adaptiso/extract.hpp"
+#include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/marching_cubes.hpp"
-#include "adaptiso/mesh.hpp"
+#include "adaptiso/mesh_io.hpp"
+#include "adaptiso/prepare.hpp"
 #include "cli_common.hpp"
-#include "pipeline.hpp"
+#include "options.hpp"
 
 namespace adaptiso::cli {
 namespace {
@@ -27,35 +28,38 @@ struct MeshOutputFlags {
   std::string output;
   void add(CLI::App* app) {
     app->add_option("--iso", isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
-        ->required()->delimiter(',');
-    app->add_option("-o,--output", output, "Mesh file (.ply .obj .stl .glb); with several iso-values each name gets -<iso> before the extension")
+        ->required()
+        ->delimiter(',');
+    app->add_option("-o,--output", output,
+                    "Mesh file (.ply .obj .stl .glb); with several iso-values each name gets -<iso> before the extension")
         ->required();
   }
   // Refuses an unknown mesh type before any long work.
   void check() const {
-    std::string ext = std::filesystem::path(output).extension().string();
-    for (auto& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-    if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb")
-      throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", output, ext));
+    if (!is_mesh_file_name(output))
+      throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", output,
+                                   std::filesystem::path(output).extension().string()));
   }
   std::vector<double> values(bool relative, double min, double max) const { return parse_iso_values(isos, relative, min, max); }
   std::string path(std::size_t i) const { return output_name(output, isos[i], isos.size() > 1); }
 };
 
 // The human-readable line for one surface; `how` describes where its triangles came from.
-void print_surface(double iso, bool in_range, double min, double max, std::size_t triangles, std::size_t vertices,
-                   const std::string& how, double seconds, const std::string& path) {
+void print_surface(double iso, bool in_range, double min, double max, std::size_t triangles, std::size_t vertices, const std::string& how,
+                   double seconds, const std::string& path) {
   if (!in_range)
     std::cout << fmt::format("iso {:.6g} lies outside the value range [{:.6g}, {:.6g}]: empty mesh, wrote {}\n", iso, min, max, path);
   else
-    std::cout << fmt::format("iso {:.6g}: {} triangles, {} vertices {} in {:.4f} s; wrote {}\n", iso, triangles, vertices, how, seconds, path);
+    std::cout << fmt::format("iso {:.6g}: {} triangles, {} vertices {} in {:.4f} s; wrote {}\n", iso, triangles, vertices, how, seconds,
+                             path);
 }
 
 // Extracts every iso-value with one Extractor (so consecutive values sweep incrementally), writes
 // the meshes and returns the per-value statistics.
-nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const MeshOutputFlags& mesh_out,
-                           const std::vector<double>& isos, const OutputFlags& out) {
-  Extractor ex(g, index);
+nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
+                           const OutputFlags& out) {
+  const TetGrid& grid = prepared->grid;
+  Extractor ex(prepared);
   nlohmann::json results = nlohmann::json::array();
   for (std::size_t i = 0; i < isos.size(); ++i) {
     ExtractStats st = ex.extract(isos[i]);
@@ -71,14 +75,14 @@ nlohmann::json extract_all(const TetGrid& g, const IntervalTree& index, const Me
                        {"active_tetrahedra", st.active},
                        {"walked_entries", st.walked},
                        {"marched_tetrahedra", st.marched},
-                       {"incremental", ex.last_was_incremental()},
+                       {"incremental", st.incremental},
                        {"seconds", st.sweep_seconds + st.march_seconds},
                        {"sweep_seconds", st.sweep_seconds},
                        {"march_seconds", st.march_seconds},
                        {"write_seconds", t_write},
                        {"output", path}});
     if (!out.json && !out.quiet)
-      print_surface(st.iso, st.in_range, g.source.min, g.source.max, st.triangles, st.vertices,
+      print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
                     fmt::format("from {} active tetrahedra", st.active), st.sweep_seconds + st.march_seconds, path);
   }
   return results;
@@ -99,12 +103,12 @@ void add_extract(CLI::App& app) {
   cmd->callback([=] {
     mesh_out->check();
     auto t0 = Clock::now();
-    IntervalTree index;
-    TetGrid g = load_grid(*input, nullptr, &index);
+    auto p = std::make_shared<const PreparedGrid>(load_grid(*input));
+    const TetGrid& grid = p->grid;
     const double t_load = seconds_since(t0);
-    auto values = mesh_out->values(*relative, g.source.min, g.source.max);
-    nlohmann::json j = {{"grid", *input}, {"vertices", g.vertex_count()}, {"tetrahedra", g.tet_count()}, {"load_seconds", t_load}};
-    j["surfaces"] = extract_all(g, index, *mesh_out, values, *out);
+    auto values = mesh_out->values(*relative, grid.source.min, grid.source.max);
+    nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
+    j["surfaces"] = extract_all(p, *mesh_out, values, *out);
     if (out->json) print_json(j);
   });
 }
@@ -112,13 +116,11 @@ void add_extract(CLI::App& app) {
 void add_run(CLI::App& app) {
   auto* cmd = app.add_subcommand("run", "All stages at once: volume → reduced grid → iso-surface mesh");
   auto in = std::make_shared<VolumeInput>();
-  auto rf = std::make_shared<ReduceFlags>();
-  auto pf = std::make_shared<PipelineFlags>();
+  auto pf = std::make_shared<PrepareFlags>();
   auto out = std::make_shared<OutputFlags>();
   auto mesh_out = std::make_shared<MeshOutputFlags>();
   auto save = std::make_shared<std::string>();
   in->add(cmd);
-  rf->add(cmd);
   pf->add(cmd);
   out->add(cmd);
   mesh_out->add(cmd);
@@ -130,23 +132,24 @@ void add_run(CLI::App& app) {
     const double t_load = seconds_since(t_all);
     auto range = value_range(v);
     // Parse before the long preprocessing so a typo fails at once.
-    auto values = mesh_out->values(rf->o.relative, range.min, range.max);
+    const PrepareOptions options = pf->options(in->path);
+    auto values = mesh_out->values(options.relative, range.min, range.max);
     TerminalProgress tp(!out->quiet && !out->json);
-    Prepared p = prepare_grid(v, in->path, *rf, *pf, tp.callback());
+    auto p = std::make_shared<const PreparedGrid>(prepare(v, range, options, tp.callback()));
     tp.finish();
-    nlohmann::json j = p.stats;
+    nlohmann::json j = nlohmann::json::parse(to_json(p->stats));
     j["seconds"]["load"] = t_load;
     if (!save->empty()) {
       auto t0 = Clock::now();
-      save_grid(p.grid, *save, nlohmann::json{{"prepare", p.stats}}.dump(), &p.index);
+      save_grid(*p, *save);
       j["seconds"]["save"] = seconds_since(t0);
       j["grid"] = *save;
     }
     if (!out->json && !out->quiet)
       std::cout << fmt::format("kept {} of {} voxels ({:.2f} %), {} tetrahedra; piecewise-linear error max {:.6g} (bound {:.6g})\n",
-                               p.grid.vertex_count(), v.voxel_count(), 100.0 * j["ratio"].get<double>(), p.grid.tet_count(),
-                               j["pl_max_error"].get<double>(), j["max_error"].get<double>());
-    j["surfaces"] = extract_all(p.grid, p.index, *mesh_out, values, *out);
+                               p->stats.kept, p->stats.voxels, 100.0 * j["ratio"].get<double>(), p->stats.tetrahedra, p->stats.pl_max_error,
+                               p->stats.max_error);
+    j["surfaces"] = extract_all(p, *mesh_out, values, *out);
     j["seconds"]["total"] = seconds_since(t_all);
     if (out->json) print_json(j);
   });
@@ -178,12 +181,17 @@ void add_mc(CLI::App& app) {
       const std::string path = mesh_out->path(i);
       write_mesh(m, path);
       const bool in_range = values[i] >= range.min && values[i] <= range.max;
-      j["surfaces"].push_back({{"iso", values[i]}, {"in_range", in_range}, {"triangles", m.triangle_count()},
-                               {"vertices", m.vertex_count()}, {"cubes_cut", st.cubes_cut},
-                               {"ambiguous_faces", st.ambiguous_faces}, {"seconds", t_mc}, {"output", path}});
+      j["surfaces"].push_back({{"iso", values[i]},
+                               {"in_range", in_range},
+                               {"triangles", m.triangle_count()},
+                               {"vertices", m.vertex_count()},
+                               {"cubes_cut", st.cubes_cut},
+                               {"ambiguous_faces", st.ambiguous_faces},
+                               {"seconds", t_mc},
+                               {"output", path}});
       if (!out->json && !out->quiet)
-        print_surface(values[i], in_range, range.min, range.max, m.triangle_count(), m.vertex_count(),
-                      "(full-resolution marching cubes)", t_mc, path);
+        print_surface(values[i], in_range, range.min, range.max, m.triangle_count(), m.vertex_count(), "(full-resolution marching cubes)",
+                      t_mc, path);
     }
     if (out->json) print_json(j);
   });

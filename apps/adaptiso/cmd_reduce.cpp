@@ -5,7 +5,7 @@
 
 #include "adaptiso/point_cloud.hpp"
 #include "cli_common.hpp"
-#include "reduce_options.hpp"
+#include "options.hpp"
 
 namespace adaptiso::cli {
 
@@ -26,7 +26,8 @@ void add_reduce(CLI::App& app) {
     TerminalProgress tp(!out->quiet && !out->json);
     auto t0 = Clock::now();
     ReduceOptions o = rf->options();
-    ReduceResult r = reduce(v, o, tp.callback());
+    const ValueRange range = value_range(v);
+    ReduceResult r = reduce(v, range, o, tp.callback());
     double secs = seconds_since(t0);
     tp.finish();
     nlohmann::json j = {{"voxels", v.voxel_count()},
@@ -46,15 +47,14 @@ void add_reduce(CLI::App& app) {
         throw InputError("--verify checks the reconstruction error bound; use --method reconstruction or both");
       double e = verify_reconstruction(v, r);
       j["max_error_found"] = e;
-      if (e > r.max_error + error_tolerance(v, r.max_error))
+      if (e > r.max_error + error_tolerance(range, r.max_error))
         throw std::runtime_error(fmt::format("verification failed: error {} exceeds the bound {}", e, r.max_error));
     }
     write_points_ply(*output, v, r.kept);
     if (out->json) return print_json(j);
     if (out->quiet) return;
-    std::cout << fmt::format("kept {} of {} voxels ({:.4f} %), method {}, {:.3f} s ({:.1f} M voxels/s)\n", r.kept.size(),
-                             v.voxel_count(), 100.0 * j["ratio"].get<double>(), rf->method, secs,
-                             j["voxels_per_second"].get<double>() / 1e6);
+    std::cout << fmt::format("kept {} of {} voxels ({:.4f} %), method {}, {:.3f} s ({:.1f} M voxels/s)\n", r.kept.size(), v.voxel_count(),
+                             100.0 * j["ratio"].get<double>(), rf->method, secs, j["voxels_per_second"].get<double>() / 1e6);
     if (*verify) std::cout << fmt::format("verified: largest error {} (bound {})\n", j["max_error_found"].get<double>(), r.max_error);
     std::cout << "wrote " << *output << "\n";
   });

@@ -1,5 +1,6 @@
 // adaptiso view: prepare (or load) a grid and serve the interactive viewer page (README "Viewer").
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include <cstdlib>
 #include <filesystem>
@@ -7,51 +8,52 @@
 #include <thread>
 
 #include "adaptiso/grid_file.hpp"
+#include "adaptiso/prepare.hpp"
 #include "adaptiso/view_server.hpp"
 #include "cli_common.hpp"
-#include "pipeline.hpp"
-
-#ifndef ADAPTISO_WEB_DIR
-#define ADAPTISO_WEB_DIR "web"
-#endif
+#include "options.hpp"
 
 namespace adaptiso::cli {
+namespace {
+
+// The page's folder: --web, else $ADAPTISO_WEB, else share/adaptiso/web beside the executable's
+// folder (the installed layout, which the build tree mirrors).
+std::string default_web_dir() {
+  if (const char* env = std::getenv("ADAPTISO_WEB")) return env;
+  std::error_code ec;
+  const auto exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  if (ec) return "share/adaptiso/web";
+  return (exe.parent_path().parent_path() / "share" / "adaptiso" / "web").string();
+}
+
+}  // namespace
 
 void add_view(CLI::App& app) {
   auto* cmd = app.add_subcommand("view", "Serve the interactive viewer for a volume (prepared on the fly) or a grid file (.adg)");
   auto in = std::make_shared<VolumeInput>();
-  auto rf = std::make_shared<ReduceFlags>();
-  auto pf = std::make_shared<PipelineFlags>();
+  auto pf = std::make_shared<PrepareFlags>();
   auto out = std::make_shared<OutputFlags>();
   auto opt = std::make_shared<ViewOptions>();
   in->add(cmd);
-  rf->add(cmd);
   pf->add(cmd);
   out->add(cmd);
   cmd->add_option("--host", opt->host, "Address to listen on (default 127.0.0.1: reach it through an SSH tunnel)")->capture_default_str();
   cmd->add_option("--port", opt->port, "Port (0: any free port)")->capture_default_str()->check(CLI::Range(0, 65535));
-  cmd->add_option("--web", opt->web_dir, "Folder of the viewer page (default: the source tree's web/, or $ADAPTISO_WEB)");
+  cmd->add_option("--web", opt->web_dir, "Folder of the viewer page (default: share/adaptiso/web beside the program, or $ADAPTISO_WEB)");
   cmd->callback([=] {
     ViewOptions o = *opt;
-    if (o.web_dir.empty()) o.web_dir = std::getenv("ADAPTISO_WEB") ? std::getenv("ADAPTISO_WEB") : ADAPTISO_WEB_DIR;
+    if (o.web_dir.empty()) o.web_dir = default_web_dir();
     const bool is_grid = std::filesystem::path(in->path).extension() == ".adg";
     std::shared_ptr<const Volume> volume;
-    std::shared_ptr<TetGrid> grid;
-    std::shared_ptr<IntervalTree> index;
-    nlohmann::json facts;
     // Read the input before serving, so an unreadable file fails at once with exit code 2.
-    if (is_grid) {
-      index = std::make_shared<IntervalTree>();
-      std::string meta;
-      grid = std::make_shared<TetGrid>(load_grid(in->path, &meta, index.get()));
-      auto m = nlohmann::json::parse(meta, nullptr, false);
-      if (!m.is_discarded() && m.contains("prepare")) facts = m["prepare"];
-    } else {
+    std::shared_ptr<const PreparedGrid> grid;
+    if (is_grid)
+      grid = std::make_shared<const PreparedGrid>(load_grid(in->path));
+    else
       volume = std::make_shared<const Volume>(in->load());
-    }
     ViewServer server(o);
     if (volume) server.set_volume(volume);
-    if (grid) server.set_grid(grid, index, facts);
+    if (grid) server.set_grid(grid);
     const int port = server.bind();
     const std::string host = o.host == "0.0.0.0" ? "localhost" : o.host;
     std::cout << fmt::format("adaptiso view: serving http://{}:{}/  (Ctrl-C to stop)\n", host, port);
@@ -64,16 +66,17 @@ void add_view(CLI::App& app) {
         try {
           TerminalProgress tp(!out->quiet && !out->json);
           auto term = tp.callback();
-          Prepared p = prepare_grid(*volume, in->path, *rf, *pf, [&](std::string_view stage, double f) {
+          auto p = std::make_shared<const PreparedGrid>(prepare(*volume, pf->options(in->path), [&](std::string_view stage, double f) {
             server.set_progress(std::string(stage), f);
             if (term) term(stage, f);
-          });
+          }));
           tp.finish();
-          auto g = std::make_shared<TetGrid>(std::move(p.grid));
-          auto idx = std::make_shared<IntervalTree>(std::move(p.index));
-          server.set_grid(g, idx, p.stats);
+          server.set_grid(p);
           if (!out->quiet)
-            std::cout << fmt::format("ready: {} kept vertices, {} tetrahedra\n", g->vertex_count(), g->tet_count()) << std::flush;
+            std::cout << fmt::format("ready: {} kept vertices, {} tetrahedra\n", p->grid.vertex_count(), p->grid.tet_count()) << std::flush;
+        } catch (const OptionError& e) {
+          server.set_failed(fmt::format("{}: {}", flag_for(e.option()), e.detail()));
+          std::cerr << "adaptiso: preparation failed: " << flag_for(e.option()) << ": " << e.detail() << "\n";
         } catch (const std::exception& e) {
           server.set_failed(e.what());
           std::cerr << "adaptiso: preparation failed: " << e.what() << "\n";

@@ -20,15 +20,16 @@ void add_info(CLI::App& app) {
     auto t0 = Clock::now();
     Volume v = in->load();
     double load_s = seconds_since(t0);
-    auto h = histogram(v, *bins);
-    auto j = volume_json(v);
+    const ValueRange range = value_range(v);
+    auto h = histogram(v, range, *bins);
+    auto j = volume_json(v, range);
     j["file"] = in->path;
     j["histogram"] = {{"min", h.min}, {"max", h.max}, {"counts", h.counts}};
     j["seconds"] = load_s;
     if (out->json) return print_json(j);
-    std::cout << fmt::format("{}\n  dims     {} x {} x {} ({} voxels)\n  type     {}\n  spacing  {} {} {}\n  origin   {} {} {}\n",
-                             in->path, v.dims[0], v.dims[1], v.dims[2], v.voxel_count(), scalar_name(v.type), v.spacing[0],
-                             v.spacing[1], v.spacing[2], v.origin[0], v.origin[1], v.origin[2]);
+    std::cout << fmt::format("{}\n  dims     {} x {} x {} ({} voxels)\n  type     {}\n  spacing  {} {} {}\n  origin   {} {} {}\n", in->path,
+                             v.dims[0], v.dims[1], v.dims[2], v.voxel_count(), scalar_name(v.type), v.spacing[0], v.spacing[1],
+                             v.spacing[2], v.origin[0], v.origin[1], v.origin[2]);
     if (v.is_oblique())
       std::cout << fmt::format("  direction [{:.4f} {:.4f} {:.4f}; {:.4f} {:.4f} {:.4f}; {:.4f} {:.4f} {:.4f}] (oblique, kept as stored)\n",
                                v.direction[0], v.direction[1], v.direction[2], v.direction[3], v.direction[4], v.direction[5],
@@ -38,8 +39,9 @@ void add_info(CLI::App& app) {
     for (auto c : h.counts) peak = std::max(peak, c);
     const double w = (h.max - h.min) / static_cast<double>(h.counts.size());
     for (std::size_t b = 0; b < h.counts.size(); ++b)
-      std::cout << fmt::format("    [{:>12.6g}, {:>12.6g}) {:>12} {}\n", h.min + b * w, h.min + (b + 1) * w, h.counts[b],
-                               std::string(static_cast<std::size_t>(40.0 * static_cast<double>(h.counts[b]) / static_cast<double>(peak)), '#'));
+      std::cout << fmt::format(
+          "    [{:>12.6g}, {:>12.6g}) {:>12} {}\n", h.min + b * w, h.min + (b + 1) * w, h.counts[b],
+          std::string(static_cast<std::size_t>(40.0 * static_cast<double>(h.counts[b]) / static_cast<double>(peak)), '#'));
     std::cout << fmt::format("  read in {:.3f} s\n", load_s);
   });
 }
@@ -65,10 +67,12 @@ void add_generate(CLI::App& app) {
     }
     Volume v = make_synthetic(*name, *size, t);
     write_nrrd(v, *output);
-    auto j = volume_json(v);
+    auto j = volume_json(v, value_range(v));
     j["output"] = *output;
-    if (out->json) print_json(j);
-    else if (!out->quiet) std::cout << fmt::format("wrote {} ({}³ {})\n", *output, *size, scalar_name(t));
+    if (out->json)
+      print_json(j);
+    else if (!out->quiet)
+      std::cout << fmt::format("wrote {} ({}³ {})\n", *output, *size, scalar_name(t));
   });
 }
 

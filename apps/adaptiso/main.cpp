@@ -36,6 +36,9 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     std::cerr << "adaptiso: " << e.what() << " (see adaptiso --help)\n";
     return 2;
+  } catch (const adaptiso::OptionError& e) {
+    std::cerr << "adaptiso: " << adaptiso::cli::flag_for(e.option()) << ": " << e.detail() << "\n";
+    return 2;
   } catch (const adaptiso::InputError& e) {
     std::cerr << "adaptiso: " << e.what() << "\n";
     return 2;

@@ -9,10 +9,10 @@
 //   peer_bench vtksweep VOLUME ISO[,ISO...]    flying edges per iso-value
 //   peer_bench world VOLUME MESH.ply           rewrite a grid-frame mesh (scikit-image's) in world coordinates
 //   peer_bench dump VOLUME OUT.raw             float32 raw copy (for scikit-image)
+#include <meshoptimizer.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Dense.h>
 #include <openvdb/tools/VolumeToMesh.h>
-#include <meshoptimizer.h>
 
 #include <algorithm>
 #include <chrono>
@@ -25,16 +25,15 @@
 
 #include <cstring>
 
-#include "adaptiso/mesh.hpp"
+#include "adaptiso/mesh_io.hpp"
+#include "adaptiso/volume_io.hpp"
 #include "peer_vtk.hpp"
 #include "timing.hpp"
-#include "adaptiso/volume_io.hpp"
 
 using namespace adaptiso;
 using Clock = std::chrono::steady_clock;
 
 static int repeat = 3;
-
 
 // Peers mesh in the grid frame (spacing ⊙ index); adaptiso writes world coordinates (origin and
 // direction applied). Bring peer meshes into the same frame before comparing.

@@ -25,7 +25,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-
 vtkSmartPointer<vtkImageData> image(const float* values, const int dims[3], const double spacing[3]) {
   auto img = vtkSmartPointer<vtkImageData>::New();
   img->SetDimensions(dims[0], dims[1], dims[2]);
@@ -68,7 +67,10 @@ double contour_image(const float* values, const int dims[3], const double spacin
   f->SetInputData(img);
   f->SetValue(0, iso);
   f->ComputeNormalsOn();
-  double t = best_of(repeat, [&] { f->Modified(); f->Update(); });
+  double t = best_of(repeat, [&] {
+    f->Modified();
+    f->Update();
+  });
   to_mesh(f->GetOutput(), out);
   return t;
 }
@@ -104,13 +106,17 @@ void vtk_grid_contours(const std::string& vtu, const std::vector<double>& isos, 
   t0 = Clock::now();
   c->Update();  // builds the scalar tree
   const double first = std::chrono::duration<double>(Clock::now() - t0).count();
-  std::printf("{\"method\":\"vtkContour3DLinearGrid+vtkSpanSpace\",\"stage\":\"setup\",\"load_seconds\":%.3f,\"first_seconds\":%.3f}\n", load, first);
+  std::printf("{\"method\":\"vtkContour3DLinearGrid+vtkSpanSpace\",\"stage\":\"setup\",\"load_seconds\":%.3f,\"first_seconds\":%.3f}\n",
+              load, first);
   for (double iso : isos) {
     c->SetValue(0, iso);
-    double t = best_of(repeat, [&] { c->Modified(); c->Update(); });
+    double t = best_of(repeat, [&] {
+      c->Modified();
+      c->Update();
+    });
     vtkPolyData* out = vtkPolyData::SafeDownCast(c->GetOutputDataObject(0));
-    std::printf("{\"method\":\"vtkContour3DLinearGrid+vtkSpanSpace\",\"iso\":%.9g,\"triangles\":%lld,\"seconds\":%.6f,\"threads\":%u}\n", iso,
-                out ? (long long)out->GetNumberOfCells() : 0LL, t, std::thread::hardware_concurrency());
+    std::printf("{\"method\":\"vtkContour3DLinearGrid+vtkSpanSpace\",\"iso\":%.9g,\"triangles\":%lld,\"seconds\":%.6f,\"threads\":%u}\n",
+                iso, out ? (long long)out->GetNumberOfCells() : 0LL, t, std::thread::hardware_concurrency());
   }
   std::fflush(stdout);
 }

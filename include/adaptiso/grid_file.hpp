@@ -9,8 +9,8 @@
 //   40  u64       T, tetrahedra
 //   48  u64       E, index entries (non-constant tetrahedra)       [version 2]
 //   56  u32       D, index depth; u32 reserved                      [version 2]
-//   64  char[M]   metadata: UTF-8 JSON (source dims, spacing, origin, direction, value range,
-//                 reduction settings, timings)
+//   64  char[M]   metadata: UTF-8 JSON: "source" (GridSource: dims, spacing, origin, direction,
+//                 value range, reduction settings) and "prepare" (PrepareStats, prepare.hpp)
 //       u32[N][3] ijk;  f64[N] values;  f32[N][3] gradients;  u32[T][4] tets
 //       index: (f64 split, u64 begin, u64 end)[2^(D+1) - 1];  u32[E] by_min;  u32[E] by_max
 //       u32       CRC-32 (zlib) of every preceding byte
@@ -22,14 +22,16 @@
 #include <string>
 
 #include "adaptiso/interval_tree.hpp"
+#include "adaptiso/prepare.hpp"
 #include "adaptiso/tet_grid.hpp"
 
 namespace adaptiso {
 
-void save_grid(const TetGrid& grid, const std::string& path, const std::string& extra_metadata_json = "{}",
-               const IntervalTree* index = nullptr);
-// With `index`, fills it from the file, or builds it when the file has none.
-TetGrid load_grid(const std::string& path, std::string* metadata_json = nullptr, IntervalTree* index = nullptr);
+// Writes the grid, its index (unless with_index is false: loading then builds it) and its
+// statistics, atomically.
+void save_grid(const PreparedGrid& grid, const std::string& path, bool with_index = true);
+// The grid, its index (built now when the file has none) and its statistics.
+PreparedGrid load_grid(const std::string& path);
 
 // Bytes the grid and its index occupy in memory (= the file without header and metadata), per vertex.
 double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index);

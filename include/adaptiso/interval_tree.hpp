@@ -55,11 +55,11 @@ void finish_interval_tree(IntervalTree& tree, const TetGrid& grid);
 
 struct SweepState {
   double iso = 0;
-  bool valid = false;                // false until the first sweep_to
-  std::vector<std::uint32_t> pmin;   // per node: entries of by_min with tmin < iso
-  std::vector<std::uint32_t> pmax;   // per node: entries of by_max with tmax < iso
-  std::vector<std::uint8_t> flags;   // per tetrahedron: bit 0 tmin < iso, bit 1 tmax >= iso
-  std::uint64_t walked = 0;          // list entries visited by the last sweep (statistics)
+  bool valid = false;               // false until the first sweep_to
+  std::vector<std::uint32_t> pmin;  // per node: entries of by_min with tmin < iso
+  std::vector<std::uint32_t> pmax;  // per node: entries of by_max with tmax < iso
+  std::vector<std::uint8_t> flags;  // per tetrahedron: bit 0 tmin < iso, bit 1 tmax >= iso
+  std::uint64_t walked = 0;         // list entries visited by the last sweep (statistics)
   // The entries the last (non-initial) sweep walked on the side that can make a tetrahedron active
   // (by minimum when the iso-value rose, by maximum when it fell), each tetrahedron at most once,
   // in node pre-order: the tetrahedra that became active are exactly those of them whose flags are

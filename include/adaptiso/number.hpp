@@ -1,22 +1,18 @@
-// adaptiso/number.hpp — parsing a number typed by a user (command line, URL parameter).
+// adaptiso/number.hpp — parsing numbers typed by a user (command line, URL parameter, header field).
 #pragma once
-#include <cmath>
 #include <optional>
 #include <string>
+#include <string_view>
+#include <vector>
 
 namespace adaptiso {
 
 // The whole string as a finite double, or nothing ("1e999", "nan", "12x", "" are nothing).
-inline std::optional<double> parse_finite(const std::string& s) {
-  std::size_t used = 0;
-  double x = 0;
-  try {
-    x = std::stod(s, &used);
-  } catch (const std::exception&) {
-    return std::nullopt;
-  }
-  if (s.empty() || used != s.size() || !std::isfinite(x)) return std::nullopt;
-  return x;
-}
+// Subnormal numbers such as 1e-320 are finite and accepted.
+std::optional<double> parse_finite(const std::string& s);
+
+// Numbers separated by whitespace or commas; throws InputError naming `what` when a token is not
+// a number or the count differs from `expected` (expected < 0: any count).
+std::vector<double> parse_number_list(std::string_view s, int expected, const std::string& what);
 
 }  // namespace adaptiso

@@ -49,11 +49,11 @@ struct ReduceOptions {
 
 // Merge state of the implicit octree, kept for verification.
 struct OctreeMerges {
-  int levels = 0;        // m, with S = 2^m
-  std::int64_t size = 0; // S
+  int levels = 0;         // m, with S = 2^m
+  std::int64_t size = 0;  // S
   Dims dims{};
-  std::vector<Dims> counts;                        // [l-1]: cubes per axis at level l (those meeting the volume)
-  std::vector<std::vector<std::uint8_t>> merged;   // [l-1]: 1 if the cube merged
+  std::vector<Dims> counts;                       // [l-1]: cubes per axis at level l (those meeting the volume)
+  std::vector<std::vector<std::uint8_t>> merged;  // [l-1]: 1 if the cube merged
   bool is_merged(int level, std::int64_t cx, std::int64_t cy, std::int64_t cz) const {
     const Dims& n = counts[static_cast<std::size_t>(level - 1)];
     return merged[static_cast<std::size_t>(level - 1)][static_cast<std::size_t>(cx + n[0] * (cy + n[1] * cz))] != 0;
@@ -65,16 +65,19 @@ struct ReduceResult {
   double max_error = 0;            // absolute bound used
   double threshold = 0;            // absolute gradient threshold used
   std::int64_t kept_reconstruction = 0, kept_structural = 0;
-  OctreeMerges octree;             // empty for the structural method
+  OctreeMerges octree;  // empty for the structural method
 };
 
-// Throws InputError for bad options (negative error, even kernel, …).
+// Throws OptionError for bad options (negative error, even kernel, …), named as in ReduceOptions.
 ReduceResult reduce(const Volume& v, const ReduceOptions& options, const Progress& progress = {});
+// The same with the value range already known (it is scanned once otherwise).
+ReduceResult reduce(const Volume& v, const ValueRange& range, const ReduceOptions& options, const Progress& progress = {});
 
 // The two criteria on their own (sorted voxel indices; corners not added).
 std::vector<std::int64_t> structural_analysis(const Volume& v, const ReduceOptions& options, double* threshold_used,
                                               const Progress& progress = {});
-std::vector<std::int64_t> reconstruction_analysis(const Volume& v, double max_error, OctreeMerges* merges,
+std::vector<std::int64_t> reconstruction_analysis(const Volume& v, double max_error, OctreeMerges* merges, const Progress& progress = {});
+std::vector<std::int64_t> reconstruction_analysis(const Volume& v, const ValueRange& range, double max_error, OctreeMerges* merges,
                                                   const Progress& progress = {});
 
 // Checks the guarantee voxel by voxel: returns the largest |value − trilinear reconstruction| over
@@ -88,5 +91,6 @@ std::vector<std::int64_t> volume_corners(const Volume& v);
 // Rounding allowance used when comparing errors with the bound: a few ulps of the data magnitude,
 // so that error 0 means "exact up to floating-point rounding".
 double error_tolerance(const Volume& v, double bound);
+double error_tolerance(const ValueRange& range, double bound);
 
 }  // namespace adaptiso

@@ -21,7 +21,7 @@ struct SurfaceDistance {
 struct DistanceOptions {
   std::size_t min_samples = 200'000;  // per direction; at least 4 per triangle as well
   std::size_t max_samples = 4'000'000;
-  std::uint64_t seed = 1;             // fixed: the same meshes give the same figures
+  std::uint64_t seed = 1;  // fixed: the same meshes give the same figures
 };
 
 // Throws InputError when either mesh has no triangles. Parallel.

@@ -45,9 +45,7 @@ struct Volume {
   std::vector<unsigned char> bytes;  // voxel_count() * scalar_size(type) bytes, native endianness
 
   std::int64_t voxel_count() const { return dims[0] * dims[1] * dims[2]; }
-  std::int64_t index(std::int64_t i, std::int64_t j, std::int64_t k) const {
-    return i + dims[0] * (j + dims[1] * k);
-  }
+  std::int64_t index(std::int64_t i, std::int64_t j, std::int64_t k) const { return i + dims[0] * (j + dims[1] * k); }
   // Value at a voxel as double (slow path for tests and tools; algorithms use visit_values).
   double at(std::int64_t i, std::int64_t j, std::int64_t k) const;
   double at(std::int64_t linear) const;
@@ -80,14 +78,22 @@ std::size_t checked_volume_bytes(Dims dims, std::size_t element_size, const std:
 template <class F>
 decltype(auto) visit_values(const Volume& v, F&& f) {
   switch (v.type) {
-    case ScalarType::u8: return f(v.values<std::uint8_t>());
-    case ScalarType::i8: return f(v.values<std::int8_t>());
-    case ScalarType::u16: return f(v.values<std::uint16_t>());
-    case ScalarType::i16: return f(v.values<std::int16_t>());
-    case ScalarType::u32: return f(v.values<std::uint32_t>());
-    case ScalarType::i32: return f(v.values<std::int32_t>());
-    case ScalarType::f32: return f(v.values<float>());
-    case ScalarType::f64: break;
+    case ScalarType::u8:
+      return f(v.values<std::uint8_t>());
+    case ScalarType::i8:
+      return f(v.values<std::int8_t>());
+    case ScalarType::u16:
+      return f(v.values<std::uint16_t>());
+    case ScalarType::i16:
+      return f(v.values<std::int16_t>());
+    case ScalarType::u32:
+      return f(v.values<std::uint32_t>());
+    case ScalarType::i32:
+      return f(v.values<std::int32_t>());
+    case ScalarType::f32:
+      return f(v.values<float>());
+    case ScalarType::f64:
+      break;
   }
   return f(v.values<double>());
 }
@@ -109,6 +115,8 @@ struct Histogram {
   std::vector<std::uint64_t> counts;  // bin b covers [min + b·w, min + (b+1)·w), the last bin includes max
 };
 Histogram histogram(const Volume& v, int bins);
+Histogram histogram(const Volume& v, const ValueRange& range, int bins);
+Histogram histogram(std::span<const double> values, const ValueRange& range, int bins);
 
 // Rejects NaN and ±Inf values (float types only): throws InputError naming `what`, the count and the
 // first offending voxel. adaptiso needs finite values: a NaN has no place on either side of an

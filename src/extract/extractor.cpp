@@ -1,19 +1,21 @@
-// The Extractor: sweeping simplices plus marching tetrahedra with an incremental update of the
-// mesh for small changes of iso-value (see extract.hpp).
+// The Extractor: sweeping simplices plus marching tetrahedra, with an incremental update of the
+// mesh for small changes of iso-value (see extractor.hpp).
 //
 // After a step from c0 to c1 a tetrahedron keeps its triangles, and every corner keeps its cut
 // edge, unless one of its vertices lies in [min(c0,c1), max(c0,c1)): its case code changes. Every
 // active tetrahedron owns a slot that carries its case, the interval of iso-values keeping that
-// case and the positions of its 1 or 2 triangles in the mesh, so a step is one read-only pass over
+// case and the places of its 1 or 2 triangles in the mesh, so a step is one read-only pass over
 // the case intervals plus work proportional to what changed: the slots, triangles and vertices of
 // unchanged tetrahedra stay where they are. Tetrahedra that entered come from the entries the sweep
 // walked; an edge a re-marched tetrahedron cut before is found among its old corners, so only edges
 // cut for the first time need a hash map. A vertex dies exactly when its edge stops being cut that
 // way, which the changed tetrahedra around it see in their tables (no use counts). Freed slots,
-// triangle positions and vertices are reused in ascending order, then the arrays grow; when more
-// were freed than filled, entries from the end move into the remaining holes. Everything is decided
-// in block order (not by thread timing), so the mesh depends only on the history of iso-values.
-#include <tbb/enumerable_thread_specific.h>
+// triangle places and vertices are reused in ascending order, then the arrays grow; when more
+// were freed than filled, entries from the end move into the remaining holes (Compaction).
+// Everything is decided in block order (not by thread timing), so the mesh depends only on the
+// history of iso-values.
+#include "adaptiso/extractor.hpp"
+
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -23,10 +25,9 @@
 #include <limits>
 #include <stdexcept>
 
-#include "adaptiso/extract.hpp"
-#include "extract/march_internal.hpp"
+#include "extract/extractor_state.hpp"
 
-namespace adaptiso {
+namespace adaptiso::detail {
 namespace {
 constexpr std::uint32_t kNone = ~std::uint32_t{0};
 constexpr std::uint32_t kNewBit = std::uint32_t{1} << 31;  // marks a chunk's index of a first-cut edge corner
@@ -34,116 +35,136 @@ constexpr std::uint32_t kNewBit = std::uint32_t{1} << 31;  // marks a chunk's in
 // Work split into this many blocks for the streaming passes (a multiple of the thread count keeps
 // the cores busy; few enough that per-block bookkeeping stays negligible).
 std::size_t block_count(std::size_t n) { return std::max<std::size_t>(1, std::min<std::size_t>(256, n / 16384)); }
+// Block b of n items: [begin, end).
+std::size_t block_begin(std::size_t n, std::size_t blocks, std::size_t b) { return n * b / blocks; }
 
 bool cut(std::uint8_t code) { return code != 0 && code != 15; }
 
-// The incremental step reads the grid and its own arrays at scattered places (the tetrahedra that
-// changed are few and far between); prefetching a few iterations ahead overlaps those misses.
-inline void prefetch(const void* p) { __builtin_prefetch(p); }
-
-// Where new entry k goes when `freed` (ascending) of [0, old_n) were released: freed[k] or, past
-// the freed ones, the end.
-std::uint32_t placed(const std::vector<std::uint32_t>& freed, std::size_t old_n, std::size_t k) {
-  return k < freed.size() ? freed[k] : static_cast<std::uint32_t>(old_n + (k - freed.size()));
+// Runs f(from, to) for every move of a compaction, in parallel (each place is moved from and to once).
+template <class F>
+void apply_moves(const Compaction& c, F&& f) {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, c.moves.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) f(c.moves[i].first, c.moves[i].second);
+  });
 }
 
-// Slots [0, old_n) of which `freed` (ascending) are released and `fill` new entries arrive, placed
-// as by placed(). Returns the new count and, when fewer arrive than were freed, the live entries
-// from the end that move into the remaining holes below the new count, as (from, to) pairs.
-std::size_t place(const std::vector<std::uint32_t>& freed, std::size_t fill, std::size_t old_n,
-                  std::vector<std::pair<std::uint32_t, std::uint32_t>>& moves) {
-  moves.clear();
-  const std::size_t n = old_n + fill - freed.size();
-  if (fill >= freed.size()) return n;
-  std::size_t h = fill, f = static_cast<std::size_t>(std::lower_bound(freed.begin(), freed.end(), n) - freed.begin());
-  for (std::size_t from = n; from < old_n; ++from) {
-    if (f < freed.size() && freed[f] == from) {
-      ++f;
-      continue;
-    }
-    if (h >= freed.size() || freed[h] >= n) throw std::logic_error("extractor: slots out of balance");
-    moves.emplace_back(static_cast<std::uint32_t>(from), freed[h++]);
-  }
-  return n;
+// Concatenates per-block lists in block order.
+template <class T>
+void concatenate(const std::vector<std::vector<T>>& parts, std::vector<T>& out) {
+  out.clear();
+  for (const auto& part : parts) out.insert(out.end(), part.begin(), part.end());
 }
 }  // namespace
 
-Extractor::Extractor(const TetGrid& grid, const IntervalTree& tree) : grid_(grid), tree_(tree) {}
-Extractor::~Extractor() = default;
+void Compaction::plan(const std::vector<std::uint32_t>& freed_places, std::size_t fill, std::size_t old_n) {
+  freed = &freed_places;
+  old_count = old_n;
+  moves.clear();
+  count = old_n + fill - freed_places.size();
+  if (fill >= freed_places.size()) return;
+  const auto& f = freed_places;
+  std::size_t hole = fill;  // freed places below `fill` are taken by new entries
+  std::size_t skip = static_cast<std::size_t>(std::lower_bound(f.begin(), f.end(), count) - f.begin());
+  for (std::size_t from = count; from < old_n; ++from) {
+    if (skip < f.size() && f[skip] == from) {  // freed itself: nothing to move
+      ++skip;
+      continue;
+    }
+    if (hole >= f.size() || f[hole] >= count) throw std::logic_error("extractor: slots out of balance");
+    moves.emplace_back(static_cast<std::uint32_t>(from), f[hole++]);
+  }
+}
 
-void Extractor::fresh(double iso) {
-  active_.clear();
-  active_tetrahedra(tree_, state_, active_);
-  sort_ids(active_, grid_.tet_count(), bitmap_);
+ExtractorState::ExtractorState(std::shared_ptr<const PreparedGrid> p, const ExtractorOptions& o)
+    : prepared(std::move(p)), grid(prepared->grid), tree(prepared->index), options(o) {
+  scratch.parallel_min_tetrahedra = o.parallel_min_tetrahedra;
+}
+
+void ExtractorState::fresh(double iso) {
+  active.clear();
+  active_tetrahedra(tree, sweep, active);
+  sort_ids(active, grid.tet_count(), bitmap_);
   // Edge ends (64 bytes per vertex, about 0.7 vertices per active tetrahedron) are kept only up to
   // edge_cache_max_tetrahedra; larger surfaces are re-interpolated from the grid, a little slower.
-  cache_ends_ = active_.size() <= edge_cache_max_tetrahedra;
-  march_tetrahedra_into(grid_, active_, iso, mesh_, scratch_, &gaps_, cache_ends_ ? &ends_ : nullptr);
-  if (!cache_ends_) std::vector<EdgeEnds>().swap(ends_);
-  marched_ = active_.size();
-  codes_.swap(scratch_.codes);
-  keys_.swap(scratch_.order);
+  cache_ends = active.size() <= options.edge_cache_max_tetrahedra;
+  march_tetrahedra_into(grid, active, iso, mesh, scratch, &gaps, cache_ends ? &ends : nullptr);
+  if (!cache_ends) std::vector<EdgeEnds>().swap(ends);
+  marched = active.size();
+  codes.swap(scratch.codes);
+  keys.swap(scratch.order);
   // Slots in active order: each owns the triangles the march wrote for it.
-  const auto& first = scratch_.first_triangle;
-  const std::size_t n = active_.size();
-  resize_for_overwrite(slot_tris_, n);
-  resize_for_overwrite(owner_, mesh_.triangles.size());
+  const auto& first = scratch.first_triangle;
+  const std::size_t n = active.size();
+  resize_for_overwrite(slot_tris, n);
+  resize_for_overwrite(owner, mesh.triangles.size());
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const auto& r) {
     for (std::size_t s = r.begin(); s < r.end(); ++s) {
       const auto f = static_cast<std::uint32_t>(first[s]);
-      slot_tris_[s] = {f, first[s + 1] > f + 1 ? f + 1 : kNone};
-      for (std::uint64_t k = first[s]; k < first[s + 1]; ++k) owner_[k] = static_cast<std::uint32_t>(s);
+      slot_tris[s] = {f, first[s + 1] > f + 1 ? f + 1 : kNone};
+      for (std::uint64_t k = first[s]; k < first[s + 1]; ++k) owner[k] = static_cast<std::uint32_t>(s);
     }
   });
 }
 
-bool Extractor::update(double iso) {
-  const TetGrid& g = grid_;
-  if (!state_.entering_complete) return false;
-  const std::size_t n_old = active_.size();
-  const std::size_t T_old = mesh_.triangles.size();
-  const std::uint32_t V_old = static_cast<std::uint32_t>(keys_.size());
-  if (V_old >= kNewBit || T_old >= kNone || n_old + state_.entering.size() >= kNone)
+bool ExtractorState::step(double iso) {
+  if (!sweep.entering_complete) return false;
+  old_slots_ = active.size();
+  old_triangles_ = mesh.triangles.size();
+  old_vertices_ = static_cast<std::uint32_t>(keys.size());
+  if (old_vertices_ >= kNewBit || old_triangles_ >= kNone || old_slots_ + sweep.entering.size() >= kNone)
     throw std::length_error("extractor: too many mesh elements");
   // Give up as soon as more would change than a fresh march is worth.
-  const double limit = max_changed_fraction < 1 ? max_changed_fraction * static_cast<double>(std::max<std::size_t>(n_old, 1))
-                                                : std::numeric_limits<double>::infinity();
+  const double limit = options.max_changed_fraction < 1
+                           ? options.max_changed_fraction * static_cast<double>(std::max<std::size_t>(old_slots_, 1))
+                           : std::numeric_limits<double>::infinity();
+  if (!collect_entered(iso, limit)) return false;
+  if (!find_changed(iso, limit)) return false;  // codes and gaps are rebuilt by the fresh march
+  release_changed();
+  split_work();
+  march_work();
+  place_vertices();
+  place_slots();
+  place_triangles();
+  finish_vertices(iso);
+  return true;
+}
 
-  // 1. Entered: the sweep's entering entries that are active now (they were not at c0; those active
-  // at both changed case and are found by the pass below), with their case at iso while their
-  // values are at hand. Each comes once, in tree order (deterministic).
-  const auto& entering = state_.entering;
-  const std::size_t tb = block_count(entering.size());
-  entered_parts_.resize(tb);
-  tbb::parallel_for(std::size_t{0}, tb, [&](std::size_t b) {
+// The sweep's entering entries that are active now (they were not at the previous iso-value;
+// those active at both changed case and are found by find_changed), with their case at iso while
+// their values are at hand. Each comes once, in tree order (deterministic).
+bool ExtractorState::collect_entered(double iso, double limit) {
+  const auto& entering = sweep.entering;
+  const std::size_t blocks = block_count(entering.size());
+  entered_parts_.resize(blocks);
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
     auto& part = entered_parts_[b];
     part.clear();
-    const std::size_t end = entering.size() * (b + 1) / tb;
-    for (std::size_t i = entering.size() * b / tb; i < end; ++i) {
+    const std::size_t end = block_begin(entering.size(), blocks, b + 1);
+    for (std::size_t i = block_begin(entering.size(), blocks, b); i < end; ++i) {
       if (i + 16 < end) {
-        prefetch(&g.tets[entering[i + 16]]);
-        prefetch(&state_.flags[entering[i + 16]]);
+        prefetch(&grid.tets[entering[i + 16]]);
+        prefetch(&sweep.flags[entering[i + 16]]);
       }
-      if (i + 8 < end) prefetch_values(g, entering[i + 8]);
-      if (const std::uint32_t t = entering[i]; state_.flags[t] == 3) {
+      if (i + 8 < end) prefetch_values(grid, entering[i + 8]);
+      if (const std::uint32_t t = entering[i]; sweep.flags[t] == 3) {
         Entered e{t, 0, {}};
-        e.code = code_and_gap(g, t, iso, e.gap);
+        e.code = code_and_gap(grid, t, iso, e.gap);
         part.push_back(e);
       }
     }
   });
-  entered_.clear();
-  for (const auto& part : entered_parts_) entered_.insert(entered_.end(), part.begin(), part.end());
-  const std::size_t E = entered_.size();
-  if (static_cast<double>(E) > limit) return false;
+  concatenate(entered_parts_, entered_);
+  return static_cast<double>(entered_.size()) <= limit;
+}
 
-  // 2. Slots whose iso-value left their case interval get their new case (in parallel, per block
-  // in slot order). The old triangles stay in place until step 7 reuses their places.
-  const std::size_t blocks = block_count(n_old);
+// Slots whose iso-value left their case interval get their new case (in parallel, per block in
+// slot order). Their old triangles stay in place until place_triangles reuses the places.
+bool ExtractorState::find_changed(double iso, double limit) {
+  const std::size_t blocks = block_count(old_slots_);
   changed_.resize(blocks);
   changed_old_.resize(blocks);
   block_cut_.resize(blocks);
-  std::atomic<std::size_t> changed_so_far{E};
+  std::atomic<std::size_t> changed_so_far{entered_.size()};
   std::atomic<bool> too_many{false};
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
     auto& list = changed_[b];
@@ -151,8 +172,8 @@ bool Extractor::update(double iso) {
     list.clear();
     old_codes.clear();
     if (too_many.load(std::memory_order_relaxed)) return;
-    const Gap* gap = gaps_.data();
-    for (std::size_t s = n_old * b / blocks; s < n_old * (b + 1) / blocks; ++s)
+    const Gap* gap = gaps.data();
+    for (std::size_t s = block_begin(old_slots_, blocks, b); s < block_begin(old_slots_, blocks, b + 1); ++s)
       if (!(gap[s].below < iso && iso <= gap[s].above)) list.push_back(static_cast<std::uint32_t>(s));
     if (static_cast<double>(changed_so_far.fetch_add(list.size()) + list.size()) > limit) {
       too_many = true;
@@ -162,46 +183,56 @@ bool Extractor::update(double iso) {
     const std::size_t m = list.size();
     std::size_t cuts = 0;
     for (std::size_t i = 0; i < m; ++i) {
-      if (i + 32 < m) prefetch(&active_[list[i + 32]]);
-      if (i + 16 < m) prefetch(&g.tets[active_[list[i + 16]]]);
-      if (i + 8 < m) prefetch_values(g, active_[list[i + 8]]);
-      old_codes.push_back(codes_[list[i]]);
-      codes_[list[i]] = code_and_gap(g, active_[list[i]], iso, gaps_[list[i]]);
-      cuts += cut(codes_[list[i]]);
+      if (i + 32 < m) prefetch(&active[list[i + 32]]);
+      if (i + 16 < m) prefetch(&grid.tets[active[list[i + 16]]]);
+      if (i + 8 < m) prefetch_values(grid, active[list[i + 8]]);
+      old_codes.push_back(codes[list[i]]);
+      codes[list[i]] = code_and_gap(grid, active[list[i]], iso, gaps[list[i]]);
+      cuts += cut(codes[list[i]]);
     }
     block_cut_[b] = cuts;
   });
-  if (too_many) return false;  // codes_ and gaps_ are rebuilt by the fresh march
+  return !too_many;
+}
 
-  // 3. Release the old triangles of the changed slots: their positions become free, and so does
-  // every corner whose local edge the new case does not cut the same way (below, above). Such a
-  // vertex is dead: one of its edge's ends crossed the iso-value, so every tetrahedron around the
-  // edge changed case and none keeps it; a corner whose edge is still cut that way lives on in
-  // every tetrahedron around it. Several of them report it; sort_ids drops the repeats.
-  tbb::enumerable_thread_specific<std::vector<std::uint32_t>> released;
-  free_parts_.resize(blocks);
+// The old triangles of the changed slots free their places, and every corner whose local edge
+// the new case does not cut the same way (below, above) is released. Such a vertex is dead: one of
+// its edge's ends crossed the iso-value, so every tetrahedron around the edge changed case and
+// none keeps it; a corner whose edge is still cut that way lives on in every tetrahedron around
+// it. Several changed tetrahedra report a dead vertex; sort_ids drops the repeats.
+void ExtractorState::release_changed() {
+  const std::size_t blocks = changed_.size();
+  freed_triangle_parts_.resize(blocks);
+  released_parts_.resize(blocks);
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-    auto& dead = released.local();
-    auto& freed = free_parts_[b];
+    auto& freed = freed_triangle_parts_[b];
+    auto& dead = released_parts_[b];
     freed.clear();
+    dead.clear();
     const auto& list = changed_[b];
     for (std::size_t i = 0; i < list.size(); ++i) {
-      if (i + 16 < list.size()) prefetch(&slot_tris_[list[i + 16]]);
+      if (i + 16 < list.size()) prefetch(&slot_tris[list[i + 16]]);
       if (i + 8 < list.size())
-        for (std::uint32_t k : slot_tris_[list[i + 8]])
-          if (k != kNone) prefetch(&mesh_.triangles[k]);
+        for (std::uint32_t k : slot_tris[list[i + 8]])
+          if (k != kNone) prefetch(&mesh.triangles[k]);
       const Case& was = kCases[changed_old_[b][i]];
-      const unsigned now = codes_[list[i]];
+      const unsigned now = codes[list[i]];
       for (int q = 0; q < was.triangles; ++q) {
-        const std::uint32_t k = slot_tris_[list[i]][q];
+        const std::uint32_t k = slot_tris[list[i]][q];
         freed.push_back(k);
         for (int e = 0; e < 3; ++e)
-          if (const LocalEdge le = was.tri[q][e]; ((now >> le.below) & 1) || !((now >> le.above) & 1)) dead.push_back(mesh_.triangles[k][e]);
+          if (const LocalEdge le = was.tri[q][e]; ((now >> le.below) & 1) || !((now >> le.above) & 1)) dead.push_back(mesh.triangles[k][e]);
       }
     }
   });
+  concatenate(released_parts_, dead_);
+  sort_ids(dead_, old_vertices_, bitmap_);
+}
 
-  // 4. The work: changed slots still cut (block order), then the entered tetrahedra (tree order).
+// The changed slots split into those still cut (to re-march, block order, with their old case)
+// and those that left.
+void ExtractorState::split_work() {
+  const std::size_t blocks = changed_.size();
   std::vector<std::size_t> work_at(blocks + 1, 0), leave_at(blocks + 1, 0);
   for (std::size_t b = 0; b < blocks; ++b) {
     work_at[b + 1] = work_at[b] + block_cut_[b];
@@ -214,7 +245,7 @@ bool Extractor::update(double iso) {
     std::size_t w = work_at[b], l = leave_at[b];
     for (std::size_t i = 0; i < changed_[b].size(); ++i) {
       const std::uint32_t s = changed_[b][i];
-      if (cut(codes_[s])) {
+      if (cut(codes[s])) {
         work_old_[w] = changed_old_[b][i];
         work_[w++] = s;
       } else {
@@ -222,19 +253,21 @@ bool Extractor::update(double iso) {
       }
     }
   });
-  const std::size_t R = work_.size();
-  const std::size_t W = R + E;
-  if (6 * W >= kNewBit) throw std::length_error("extractor: too many mesh elements");
-  marched_ = W;
-  auto work_tet = [&](std::size_t w) { return w < R ? active_[work_[w]] : entered_[w - R].tet; };
-  auto work_code = [&](std::size_t w) { return w < R ? codes_[work_[w]] : entered_[w - R].code; };
+}
 
-  // New triangles, by chunks of consecutive work: a corner on an edge the tetrahedron cut before
-  // (the same local edge, cut the same way, in the old case's table) keeps that vertex, read from
-  // the old triangle's corner (corners lie in table order); edges cut for the first time are
-  // numbered as one sequential pass would (number_chunk_edges, as in march_tetrahedra): V_old + k
-  // for the k-th.
-  const std::size_t C = 16 * W < parallel_min_triangles ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+// New triangles for the work (re-marched slots, then entered tetrahedra), by chunks of consecutive
+// work: a corner on an edge the tetrahedron cut before (the same local edge, cut the same way, in
+// the old case's table) keeps that vertex, read from the old triangle's corner (corners lie in
+// table order); edges cut for the first time are numbered as one sequential pass would
+// (number_chunk_edges, as in the fresh march): provisionally old_vertices_ + k for the k-th.
+void ExtractorState::march_work() {
+  const std::size_t R = work_.size(), E = entered_.size(), W = R + E;
+  if (6 * W >= kNewBit) throw std::length_error("extractor: too many mesh elements");
+  marched = W;
+  auto work_tet = [&](std::size_t w) { return w < R ? active[work_[w]] : entered_[w - R].tet; };
+  auto work_code = [&](std::size_t w) { return w < R ? codes[work_[w]] : entered_[w - R].code; };
+  const std::size_t C =
+      16 * W < options.parallel_min_tetrahedra ? 1 : static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
   chunks_.resize(C);
   chunk_tris_.resize(C);
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
@@ -243,21 +276,21 @@ bool Extractor::update(double iso) {
     ch.order.clear();
     ch.pending.clear();
     tris.clear();
-    ch.map = std::make_shared<EdgeMap>((W * (c + 1) / C - W * c / C) / 2 + 16, ch.slots);
-    const std::size_t w_end = W * (c + 1) / C;
-    for (std::size_t w = W * c / C; w < w_end; ++w) {
+    const std::size_t w_end = block_begin(W, C, c + 1);
+    ch.map = std::make_shared<EdgeMap>((w_end - block_begin(W, C, c)) / 2 + 16, ch.slots);
+    for (std::size_t w = block_begin(W, C, c); w < w_end; ++w) {
       if (w + 32 < std::min(w_end, R)) {
-        prefetch(&active_[work_[w + 32]]);
-        prefetch(&codes_[work_[w + 32]]);
-        prefetch(&slot_tris_[work_[w + 32]]);
+        prefetch(&active[work_[w + 32]]);
+        prefetch(&codes[work_[w + 32]]);
+        prefetch(&slot_tris[work_[w + 32]]);
       }
       if (w + 16 < w_end) {
-        prefetch(&g.tets[work_tet(w + 16)]);
+        prefetch(&grid.tets[work_tet(w + 16)]);
         if (w + 16 < R)
-          for (std::uint32_t k : slot_tris_[work_[w + 16]])
-            if (k != kNone) prefetch(&mesh_.triangles[k]);
+          for (std::uint32_t k : slot_tris[work_[w + 16]])
+            if (k != kNone) prefetch(&mesh.triangles[k]);
       }
-      const auto& t = g.tets[work_tet(w)];
+      const auto& t = grid.tets[work_tet(w)];
       const Case& cs = kCases[work_code(w)];
       // The old corners: local edge (below, above) and vertex, one per corner of the old triangles.
       LocalEdge old_edge[6];
@@ -268,7 +301,7 @@ bool Extractor::update(double iso) {
         for (int q = 0; q < was.triangles; ++q)
           for (int e = 0; e < 3; ++e) {
             old_edge[olds] = was.tri[q][e];
-            old_vertex[olds++] = mesh_.triangles[slot_tris_[work_[w]][q]][e];
+            old_vertex[olds++] = mesh.triangles[slot_tris[work_[w]][q]][e];
           }
       }
       for (int q = 0; q < cs.triangles; ++q) {
@@ -297,169 +330,190 @@ bool Extractor::update(double iso) {
     }
   });
   number_chunk_edges(chunks_, new_keys_);
-  std::vector<std::size_t> tri_offset(C + 1, 0);
-  for (std::size_t c = 0; c < C; ++c) tri_offset[c + 1] = tri_offset[c] + chunk_tris_[c].size();
-  const std::size_t new_tri_count = tri_offset[C];
-  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // provisional ids: new ones after V_old
+  chunk_tri_offset_.assign(C + 1, 0);
+  for (std::size_t c = 0; c < C; ++c) chunk_tri_offset_[c + 1] = chunk_tri_offset_[c] + chunk_tris_[c].size();
+  tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {  // provisional ids: new ones after the old vertices
     const auto& ch = chunks_[c];
     for (auto& tri : chunk_tris_[c])
       for (auto& v : tri)
-        if (v & kNewBit) v = V_old + ch.global[ch.local[v & ~kNewBit]];
+        if (v & kNewBit) v = old_vertices_ + ch.global[ch.local[v & ~kNewBit]];
   });
-  dead_.clear();
-  for (const auto& d : released) dead_.insert(dead_.end(), d.begin(), d.end());
-  sort_ids(dead_, V_old, bitmap_);
+}
 
-  // 5. Vertex slots: new vertices take the lowest freed slots, then the end; live vertices from
-  // the end fill the holes that remain below the new count (tail_ maps them).
-  const bool cached = cache_ends_;
+// Vertex places: new vertices take the lowest places of dead ones, then the end; live vertices
+// from the end fill the holes that remain below the new count.
+void ExtractorState::place_vertices() {
   const std::size_t N = new_keys_.size();
-  const auto V = static_cast<std::uint32_t>(place(dead_, N, V_old, moves_));
-  tail_.assign(V_old > V ? V_old - V : 0, kNone);
-  // Moves go from [V, V_old) to holes below V, each from and to once: safe in parallel.
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, moves_.size(), 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const auto [from, to] = moves_[i];
-      tail_[from - V] = to;
-      keys_[to] = keys_[from];
-      if (cached) ends_[to] = ends_[from];
-    }
+  vertex_places_.plan(dead_, N, old_vertices_);
+  const std::size_t V = vertex_places_.count;
+  vertex_moved_to_.assign(old_vertices_ > V ? old_vertices_ - V : 0, kNone);
+  apply_moves(vertex_places_, [&](std::uint32_t from, std::uint32_t to) {
+    vertex_moved_to_[from - V] = to;
+    keys[to] = keys[from];
+    if (cache_ends) ends[to] = ends[from];
   });
-  auto new_slot = [&](std::size_t k) { return placed(dead_, V_old, k); };
-  keys_.resize(V);
-  if (cached) ends_.resize(V);
+  keys.resize(V);
+  if (cache_ends) ends.resize(V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, N, 1024), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) {
-      if (cached && k + 8 < r.end()) prefetch_edge(g, new_keys_[k + 8]);
-      keys_[new_slot(k)] = new_keys_[k];
-      if (cached) ends_[new_slot(k)] = gather_edge(g, new_keys_[k]);
+      if (cache_ends && k + 8 < r.end()) prefetch_edge(grid, new_keys_[k + 8]);
+      const std::uint32_t v = vertex_places_.place_of_new(k);
+      keys[v] = new_keys_[k];
+      if (cache_ends) ends[v] = gather_edge(grid, new_keys_[k]);
     }
   });
-  auto final_vertex = [&](std::uint32_t p) {
-    if (p >= V_old) return new_slot(p - V_old);
-    return p >= V ? tail_[p - V] : p;
-  };
+}
 
-  // 6. Active slots: the entered tetrahedra take the slots of those that left, then the end; live
-  // slots from the end fill the remaining holes (their triangles learn their new owner).
-  const std::size_t n = place(leaving_, E, n_old, moves_);
+// A corner's vertex after place_vertices: provisional new ids map to their places, old vertices
+// that moved from the end to their holes, the rest stay.
+std::uint32_t ExtractorState::final_vertex(std::uint32_t p) const {
+  if (p >= old_vertices_) return vertex_places_.place_of_new(p - old_vertices_);
+  return p >= vertex_places_.count ? vertex_moved_to_[p - vertex_places_.count] : p;
+}
+
+// Slots: the entered tetrahedra take the slots of those that left, then the end; live slots from
+// the end fill the remaining holes (their triangles learn their new owner).
+void ExtractorState::place_slots() {
+  const std::size_t E = entered_.size();
+  slot_places_.plan(leaving_, E, old_slots_);
+  const std::size_t n = slot_places_.count;
   entered_slot_.resize(E);
-  if (n > n_old) {
-    active_.resize(n);
-    codes_.resize(n);
-    gaps_.resize(n);
-    slot_tris_.resize(n);
+  if (n > old_slots_) {
+    active.resize(n);
+    codes.resize(n);
+    gaps.resize(n);
+    slot_tris.resize(n);
   }
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, E, 4096), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) {
-      const std::uint32_t s = placed(leaving_, n_old, k);
-      active_[s] = entered_[k].tet;
-      codes_[s] = entered_[k].code;
-      gaps_[s] = entered_[k].gap;
+      const std::uint32_t s = slot_places_.place_of_new(k);
+      active[s] = entered_[k].tet;
+      codes[s] = entered_[k].code;
+      gaps[s] = entered_[k].gap;
       entered_slot_[k] = s;
     }
   });
-  if (!moves_.empty()) slot_tail_.assign(n_old - n, kNone);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, moves_.size(), 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const auto [from, to] = moves_[i];
-      active_[to] = active_[from];
-      codes_[to] = codes_[from];
-      gaps_[to] = gaps_[from];
-      slot_tris_[to] = slot_tris_[from];
-      slot_tail_[from - n] = to;
-      for (std::uint32_t k : slot_tris_[to])
-        if (k != kNone) owner_[k] = to;  // only unchanged slots keep their old triangles; the others are rewritten
-    }
-  });
-  if (!moves_.empty())  // re-marched slots that moved
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, work_.size(), 16384), [&](const auto& r) {
-      for (std::size_t i = r.begin(); i < r.end(); ++i)
-        if (work_[i] >= n) work_[i] = slot_tail_[work_[i] - n];
+  if (!slot_places_.moves.empty()) {
+    slot_moved_to_.assign(old_slots_ - n, kNone);
+    apply_moves(slot_places_, [&](std::uint32_t from, std::uint32_t to) {
+      active[to] = active[from];
+      codes[to] = codes[from];
+      gaps[to] = gaps[from];
+      slot_tris[to] = slot_tris[from];
+      slot_moved_to_[from - n] = to;
+      for (std::uint32_t k : slot_tris[to])
+        if (k != kNone) owner[k] = to;  // only unchanged slots keep their old triangles; the others are rewritten
     });
-  active_.resize(n);
-  codes_.resize(n);
-  gaps_.resize(n);
-  slot_tris_.resize(n);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, work_.size(), 16384), [&](const auto& r) {
+      for (std::size_t i = r.begin(); i < r.end(); ++i)  // re-marched slots that moved
+        if (work_[i] >= n) work_[i] = slot_moved_to_[work_[i] - n];
+    });
+  }
+  active.resize(n);
+  codes.resize(n);
+  gaps.resize(n);
+  slot_tris.resize(n);
+}
 
-  // 7. Triangle positions: the new triangles (in work order) take the freed positions ascending,
-  // then the end; live triangles from the end fill the remaining holes.
-  free_.clear();
-  for (const auto& part : free_parts_) free_.insert(free_.end(), part.begin(), part.end());
-  sort_ids(free_, T_old, bitmap_);  // no repeats: each triangle had one owner
-  const std::size_t T = place(free_, new_tri_count, T_old, moves_);
-  if (T > T_old) {
-    mesh_.triangles.resize(T);
-    owner_.resize(T);
+// Triangle places: the new triangles (in work order) take the freed places ascending, then the
+// end; live triangles from the end fill the remaining holes.
+void ExtractorState::place_triangles() {
+  concatenate(freed_triangle_parts_, freed_triangles_);
+  sort_ids(freed_triangles_, old_triangles_, bitmap_);  // no repeats: each triangle had one owner
+  const std::size_t C = chunk_tris_.size(), R = work_.size(), W = R + entered_.size();
+  triangle_places_.plan(freed_triangles_, chunk_tri_offset_[C], old_triangles_);
+  const std::size_t T = triangle_places_.count;
+  if (T > old_triangles_) {
+    mesh.triangles.resize(T);
+    owner.resize(T);
   }
   // Two moves may belong to one slot (its two triangles): its entries are touched atomically.
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, moves_.size(), 4096), [&](const auto& r) {
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const auto [from, to] = moves_[i];
-      mesh_.triangles[to] = mesh_.triangles[from];
-      const std::uint32_t s = owner_[from];
-      owner_[to] = s;
-      for (auto& k : slot_tris_[s])
-        if (std::atomic_ref<std::uint32_t> a(k); a.load(std::memory_order_relaxed) == from) a.store(to, std::memory_order_relaxed);
-    }
+  apply_moves(triangle_places_, [&](std::uint32_t from, std::uint32_t to) {
+    mesh.triangles[to] = mesh.triangles[from];
+    const std::uint32_t s = owner[from];
+    owner[to] = s;
+    for (auto& k : slot_tris[s])
+      if (std::atomic_ref<std::uint32_t> a(k); a.load(std::memory_order_relaxed) == from) a.store(to, std::memory_order_relaxed);
   });
-  auto tri_pos = [&](std::size_t j) { return placed(free_, T_old, j); };
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
-    std::size_t j = tri_offset[c];
-    for (std::size_t w = W * c / C; w < W * (c + 1) / C; ++w) {
+    std::size_t j = chunk_tri_offset_[c];
+    for (std::size_t w = block_begin(W, C, c); w < block_begin(W, C, c + 1); ++w) {
       const std::uint32_t s = w < R ? work_[w] : entered_slot_[w - R];
-      auto& mine = slot_tris_[s];
+      auto& mine = slot_tris[s];
       mine = {kNone, kNone};
-      for (int q = 0; q < kCases[codes_[s]].triangles; ++q, ++j) {
-        const std::uint32_t p = tri_pos(j);
-        const auto& tri = chunk_tris_[c][j - tri_offset[c]];
-        mesh_.triangles[p] = {final_vertex(tri[0]), final_vertex(tri[1]), final_vertex(tri[2])};
-        owner_[p] = s;
+      for (int q = 0; q < kCases[codes[s]].triangles; ++q, ++j) {
+        const std::uint32_t p = triangle_places_.place_of_new(j);
+        const auto& tri = chunk_tris_[c][j - chunk_tri_offset_[c]];
+        mesh.triangles[p] = {final_vertex(tri[0]), final_vertex(tri[1]), final_vertex(tri[2])};
+        owner[p] = s;
         mine[q] = p;
       }
     }
   });
-  mesh_.triangles.resize(T);
-  owner_.resize(T);
-  // Unchanged triangles that use a vertex moved in step 5.
-  if (!tail_.empty())
+  mesh.triangles.resize(T);
+  owner.resize(T);
+}
+
+// Unchanged triangles that use a vertex moved in place_vertices learn its new place; then every
+// vertex is interpolated at the new iso-value.
+void ExtractorState::finish_vertices(double iso) {
+  const std::size_t V = vertex_places_.count, T = mesh.triangles.size();
+  if (!vertex_moved_to_.empty())
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t k = r.begin(); k < r.end(); ++k)
-        for (auto& v : mesh_.triangles[k])
-          if (v >= V) v = tail_[v - V];
+        for (auto& v : mesh.triangles[k])
+          if (v >= V) v = vertex_moved_to_[v - V];
     });
-  if (cached) {
-    interpolate_vertices(ends_, iso, mesh_);
-  } else {
-    interpolate_vertices(g, keys_, iso, mesh_);
-  }
-  return true;
+  if (cache_ends)
+    interpolate_vertices(ends, iso, mesh);
+  else
+    interpolate_vertices(grid, keys, iso, mesh);
 }
+
+}  // namespace adaptiso::detail
+
+namespace adaptiso {
+
+Extractor::Extractor(std::shared_ptr<const PreparedGrid> grid, const ExtractorOptions& options) {
+  if (!grid) throw std::invalid_argument("Extractor: no grid");
+  state_ = std::make_unique<detail::ExtractorState>(std::move(grid), options);
+}
+Extractor::~Extractor() = default;
+Extractor::Extractor(Extractor&&) noexcept = default;
+Extractor& Extractor::operator=(Extractor&&) noexcept = default;
+
+const Mesh& Extractor::mesh() const { return state_->mesh; }
+const std::vector<std::uint32_t>& Extractor::active() const { return state_->active; }
+const std::vector<std::uint64_t>& Extractor::vertex_edges() const { return state_->keys; }
+bool Extractor::last_was_incremental() const { return state_->incremental; }
+const PreparedGrid& Extractor::grid() const { return *state_->prepared; }
 
 ExtractStats Extractor::extract(double iso) {
   using Clock = std::chrono::steady_clock;
+  auto& s = *state_;
   ExtractStats st;
   st.iso = iso;
-  st.in_range = iso >= grid_.source.min && iso <= grid_.source.max;
-  auto t0 = Clock::now();
+  st.in_range = iso >= s.grid.source.min && iso <= s.grid.source.max;
+  const auto t0 = Clock::now();
   // Above this many entering entries a fresh march is cheaper than a step.
-  state_.entering_limit = max_changed_fraction >= 1 ? ~std::size_t{0}
-                                                   : static_cast<std::size_t>(max_changed_fraction * static_cast<double>(active_.size())) + 1024;
-  sweep_to(tree_, grid_, state_, iso);
-  auto t1 = Clock::now();
+  s.sweep.entering_limit = s.options.max_changed_fraction >= 1
+                               ? ~std::size_t{0}
+                               : static_cast<std::size_t>(s.options.max_changed_fraction * static_cast<double>(s.active.size())) + 1024;
+  sweep_to(s.tree, s.grid, s.sweep, iso);
+  const auto t1 = Clock::now();
   // Should anything below throw, the state is half updated: the next call then starts afresh.
-  const bool had_previous = valid_;
-  valid_ = false;
-  incremental_ = had_previous && update(iso);
-  if (!incremental_) fresh(iso);
-  iso_ = iso;
-  valid_ = true;
-  auto t2 = Clock::now();
-  st.walked = state_.walked;
-  st.active = active_.size();
-  st.marched = marched_;
-  st.triangles = mesh_.triangle_count();
-  st.vertices = mesh_.vertex_count();
+  const bool had_previous = s.valid;
+  s.valid = false;
+  s.incremental = had_previous && s.step(iso);
+  if (!s.incremental) s.fresh(iso);
+  s.valid = true;
+  const auto t2 = Clock::now();
+  st.walked = s.sweep.walked;
+  st.active = s.active.size();
+  st.marched = s.marched;
+  st.triangles = s.mesh.triangle_count();
+  st.vertices = s.mesh.vertex_count();
+  st.incremental = s.incremental;
   st.sweep_seconds = std::chrono::duration<double>(t1 - t0).count();
   st.march_seconds = std::chrono::duration<double>(t2 - t1).count();
   return st;

@@ -9,17 +9,19 @@
 #include <vector>
 
 #include "adaptiso/error.hpp"
-#include "extract/march_internal.hpp"
+#include "extract/edge_point.hpp"
 
 namespace adaptiso {
 namespace {
+using detail::kEdgeMargin;
+using detail::to_world;
 
 // Cube corner c = x + 2y + 4z. Edges 0-3 run along x at (y,z) = (0,0),(1,0),(0,1),(1,1);
 // 4-7 along y at (x,z) = (0,0),(1,0),(0,1),(1,1); 8-11 along z at (x,y) = (0,0),(1,0),(0,1),(1,1).
 struct CubeEdge {
-  int a, b;     // corners, a has the lower coordinate
-  int axis;     // 0 x, 1 y, 2 z
-  int du, dv;   // offsets of the edge's start along the other two axes (x/y/z order, skipping axis)
+  int a, b;    // corners, a has the lower coordinate
+  int axis;    // 0 x, 1 y, 2 z
+  int du, dv;  // offsets of the edge's start along the other two axes (x/y/z order, skipping axis)
 };
 
 constexpr std::array<CubeEdge, 12> make_edges() {
@@ -210,8 +212,8 @@ void run_chunk(const Volume& v, const T* f, double iso, Chunk& ch, bool last) {
         const std::size_t q = static_cast<std::size_t>(i + nx * j);
         const std::uint8_t* lo = above_lo.data() + q;
         const std::uint8_t* hi = above_hi.data() + q;
-        const int code = lo[0] | (lo[1] << 1) | (lo[nx] << 2) | (lo[nx + 1] << 3) | (hi[0] << 4) | (hi[1] << 5) | (hi[nx] << 6) |
-                         (hi[nx + 1] << 7);
+        const int code =
+            lo[0] | (lo[1] << 1) | (lo[nx] << 2) | (lo[nx + 1] << 3) | (hi[0] << 4) | (hi[1] << 5) | (hi[nx] << 6) | (hi[nx + 1] << 7);
         if (code == 0 || code == 255) continue;
         const CubeCase& cc = kCubeCases[code];
         ++ch.cubes_cut;
@@ -224,9 +226,12 @@ void run_chunk(const Volume& v, const T* f, double iso, Chunk& ch, bool last) {
           if (!(needed >> e & 1)) continue;
           const CubeEdge& ce = kEdges[e];
           std::int64_t ei = i, ej = j, ek = k;
-          if (ce.axis == 0) ej += ce.du, ek += ce.dv;
-          else if (ce.axis == 1) ei += ce.du, ek += ce.dv;
-          else ei += ce.du, ej += ce.dv;
+          if (ce.axis == 0)
+            ej += ce.du, ek += ce.dv;
+          else if (ce.axis == 1)
+            ei += ce.du, ek += ce.dv;
+          else
+            ei += ce.du, ej += ce.dv;
           std::uint32_t* slot;
           std::size_t map_index = 0;
           bool top = false;
@@ -273,9 +278,8 @@ Mesh marching_cubes(const Volume& v, double iso, MarchingCubesStats* stats) {
     chunks[c].k1 = layers * (c + 1) / nchunks;
   }
   visit_values(v, [&](auto span) {
-    tbb::parallel_for(std::size_t{0}, chunks.size(), [&](std::size_t c) {
-      run_chunk(v, span.data(), iso, chunks[c], c + 1 == chunks.size());
-    });
+    tbb::parallel_for(std::size_t{0}, chunks.size(),
+                      [&](std::size_t c) { run_chunk(v, span.data(), iso, chunks[c], c + 1 == chunks.size()); });
   });
   // Vertices on a slab's top plane belong to the next slab (which made them for its bottom plane).
   std::size_t total = 0;

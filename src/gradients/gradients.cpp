@@ -1,5 +1,5 @@
-// Vertex gradients by least squares over the 1-ring — Lürig & Ertl §2.3 — and the error of the
-// tetrahedral grid's linear reconstruction at every original voxel.
+// Vertex gradients — least squares over the 1-ring (Lürig & Ertl §2.3) or central differences of
+// the volume — and the error of the tetrahedral grid's linear reconstruction at every original voxel.
 #include "adaptiso/gradients.hpp"
 
 #include <tbb/combinable.h>
@@ -8,12 +8,45 @@
 #include <Eigen/SVD>
 #include <atomic>
 #include <cmath>
+#include <numeric>
 
 namespace adaptiso {
 
-void compute_gradients(TetGrid& g, const VertexRings& rings, const Progress& progress) {
-  const std::size_t n = g.vertex_count();
-  g.gradients.assign(n, {0, 0, 0});
+VertexRings vertex_rings(const TetGrid& grid) {
+  const std::size_t n = grid.vertex_count();
+  VertexRings r;
+  r.offsets.assign(n + 1, 0);
+  // Count directed edge slots per vertex (with duplicates), fill, then sort and unique per vertex.
+  for (const auto& t : grid.tets)
+    for (int i = 0; i < 4; ++i) r.offsets[t[i] + 1] += 3;
+  for (std::size_t i = 0; i < n; ++i) r.offsets[i + 1] += r.offsets[i];
+  std::vector<std::uint32_t> nb(r.offsets[n]);
+  std::vector<std::uint64_t> fill(r.offsets.begin(), r.offsets.end() - 1);
+  for (const auto& t : grid.tets)
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j)
+        if (i != j) nb[fill[t[i]]++] = t[j];
+  std::vector<std::uint64_t> counts(n);
+  tbb::parallel_for(std::size_t{0}, n, [&](std::size_t v) {
+    auto b = nb.begin() + static_cast<long>(r.offsets[v]), e = nb.begin() + static_cast<long>(r.offsets[v + 1]);
+    std::sort(b, e);
+    counts[v] = static_cast<std::uint64_t>(std::unique(b, e) - b);
+  });
+  r.neighbours.reserve(std::accumulate(counts.begin(), counts.end(), std::uint64_t{0}));
+  std::vector<std::uint64_t> off(n + 1, 0);
+  for (std::size_t v = 0; v < n; ++v) {
+    r.neighbours.insert(r.neighbours.end(), nb.begin() + static_cast<long>(r.offsets[v]),
+                        nb.begin() + static_cast<long>(r.offsets[v] + counts[v]));
+    off[v + 1] = r.neighbours.size();
+  }
+  r.offsets = std::move(off);
+  return r;
+}
+
+void least_squares_gradients(TetGrid& grid, const Progress& progress) {
+  const VertexRings rings = vertex_rings(grid);
+  const std::size_t n = grid.vertex_count();
+  grid.gradients.assign(n, {0, 0, 0});
   std::atomic<std::size_t> done{0};
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024), [&](const tbb::blocked_range<std::size_t>& r) {
     Eigen::MatrixXd A;
@@ -22,12 +55,12 @@ void compute_gradients(TetGrid& g, const VertexRings& rings, const Progress& pro
       const std::size_t k = static_cast<std::size_t>(rings.offsets[v + 1] - rings.offsets[v]) + 1;
       A.resize(static_cast<Eigen::Index>(k), 4);
       b.resize(static_cast<Eigen::Index>(k));
-      const Vec3 pv = g.position(static_cast<std::uint32_t>(v));
+      const Vec3 pv = grid.position(static_cast<std::uint32_t>(v));
       // Centred at the vertex (better conditioned; a is then the fitted value at v).
       auto row = [&](Eigen::Index i, std::uint32_t u) {
-        Vec3 p = g.position(u);
+        Vec3 p = grid.position(u);
         A.row(i) << 1.0, p[0] - pv[0], p[1] - pv[1], p[2] - pv[2];
-        b(i) = g.values[u] - g.values[v];
+        b(i) = grid.values[u] - grid.values[v];
       };
       row(0, static_cast<std::uint32_t>(v));
       for (std::uint64_t j = rings.offsets[v]; j < rings.offsets[v + 1]; ++j)
@@ -35,14 +68,48 @@ void compute_gradients(TetGrid& g, const VertexRings& rings, const Progress& pro
       Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeThinU | Eigen::ComputeThinV);
       svd.setThreshold(1e-9);  // relative to the largest singular value: drops undetermined directions
       Eigen::Vector4d x = svd.solve(b);
-      g.gradients[v] = {static_cast<float>(x(1)), static_cast<float>(x(2)), static_cast<float>(x(3))};
+      grid.gradients[v] = {static_cast<float>(x(1)), static_cast<float>(x(2)), static_cast<float>(x(3))};
     }
     std::size_t d = done += r.size();
     report(progress, "gradients", static_cast<double>(d) / static_cast<double>(n));
   });
 }
 
-ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& g, const Progress& progress) {
+void central_difference_gradients(TetGrid& grid, const Volume& vol, const Progress& progress) {
+  const std::size_t n = grid.vertex_count();
+  grid.gradients.resize(n);
+  const Dims d = vol.dims;
+  const std::int64_t stride[3] = {1, d[0], d[0] * d[1]};
+  visit_values(vol, [&]<class T>(std::span<const T> values) {
+    const T* f = values.data();
+    std::atomic<std::size_t> done{0};
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t v = r.begin(); v < r.end(); ++v) {
+        const auto& p = grid.ijk[v];
+        const std::int64_t i = vol.index(p[0], p[1], p[2]);
+        std::array<float, 3> out{0, 0, 0};
+        for (int a = 0; a < 3; ++a) {
+          const std::int64_t c = p[a], s = stride[a];
+          double diff = 0;
+          if (d[a] == 1)
+            diff = 0;  // one voxel thick: no variation along this axis is known
+          else if (c == 0)
+            diff = static_cast<double>(f[i + s]) - static_cast<double>(f[i]);
+          else if (c == d[a] - 1)
+            diff = static_cast<double>(f[i]) - static_cast<double>(f[i - s]);
+          else
+            diff = 0.5 * (static_cast<double>(f[i + s]) - static_cast<double>(f[i - s]));
+          out[a] = static_cast<float>(diff / vol.spacing[a]);
+        }
+        grid.gradients[v] = out;
+      }
+      const std::size_t k = done += r.size();
+      report(progress, "gradients", static_cast<double>(k) / static_cast<double>(std::max<std::size_t>(n, 1)));
+    });
+  });
+}
+
+ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& grid, const Progress& progress) {
   const std::size_t nvox = static_cast<std::size_t>(vol.voxel_count());
   std::vector<std::uint8_t> claimed(nvox, 0);
   struct Acc {
@@ -51,11 +118,11 @@ ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& g, 
   };
   tbb::combinable<Acc> acc;
   std::atomic<std::size_t> done{0};
-  const std::size_t nt = g.tet_count();
+  const std::size_t nt = grid.tet_count();
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nt, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
     Acc& a = acc.local();
     for (std::size_t t = r.begin(); t < r.end(); ++t) {
-      const auto& T = g.tets[t];
+      const auto& T = grid.tets[t];
       std::int64_t P[4][3];
       std::int64_t lo[3], hi[3];
       for (int c = 0; c < 3; ++c) {
@@ -64,7 +131,7 @@ ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& g, 
       }
       for (int i = 0; i < 4; ++i)
         for (int c = 0; c < 3; ++c) {
-          P[i][c] = g.ijk[T[i]][c];
+          P[i][c] = grid.ijk[T[i]][c];
           lo[c] = std::min(lo[c], P[i][c]);
           hi[c] = std::max(hi[c], P[i][c]);
         }
@@ -91,7 +158,7 @@ ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& g, 
             const std::size_t idx = static_cast<std::size_t>(vol.index(x, y, z));
             if (std::atomic_ref<std::uint8_t>(claimed[idx]).exchange(1) != 0) continue;
             double rec = 0;
-            for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * g.values[T[i]];
+            for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * grid.values[T[i]];
             double e = std::abs(vol.at(static_cast<std::int64_t>(idx)) - rec);
             a.max = std::max(a.max, e);
             a.sq += e * e;

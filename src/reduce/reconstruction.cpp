@@ -15,11 +15,11 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 
+#include <fmt/format.h>
 #include <algorithm>
 #include <atomic>
 #include <bit>
 #include <cmath>
-#include <fmt/format.h>
 #include <limits>
 
 #include "adaptiso/reduce.hpp"
@@ -77,8 +77,7 @@ private:
   bool test_rows(const std::int64_t lo[3], const std::int64_t hi[3], Row row) const {
     double c[8];
     for (int i = 0; i < 8; ++i) c[i] = static_cast<double>(row(i & 2 ? hi[1] : lo[1], i & 4 ? hi[2] : lo[2])[i & 1 ? hi[0] - lo[0] : 0]);
-    const double wx = static_cast<double>(hi[0] - lo[0]), wy = static_cast<double>(hi[1] - lo[1]),
-                 wz = static_cast<double>(hi[2] - lo[2]);
+    const double wx = static_cast<double>(hi[0] - lo[0]), wy = static_cast<double>(hi[1] - lo[1]), wz = static_cast<double>(hi[2] - lo[2]);
     for (std::int64_t z = lo[2]; z <= hi[2]; ++z) {
       const double tz = wz > 0 ? static_cast<double>(z - lo[2]) / wz : 0.0;
       for (std::int64_t y = lo[1]; y <= hi[1]; ++y) {
@@ -212,8 +211,7 @@ private:
       set_merged(l, cx, cy, cz);
     } else {
       for (int i = 0; i < 8; ++i)
-        if (exists[i] && ch[i].merged)
-          add_clipped_corners(l - 1, 2 * cx + (i & 1), 2 * cy + ((i >> 1) & 1), 2 * cz + ((i >> 2) & 1));
+        if (exists[i] && ch[i].merged) add_clipped_corners(l - 1, 2 * cx + (i & 1), 2 * cy + ((i >> 1) & 1), 2 * cz + ((i >> 2) & 1));
     }
     return {ok, mn, mx};
   }
@@ -250,14 +248,18 @@ bool dropped(const OctreeMerges& om, const std::int64_t c[3], const int tz[3]) {
 
 }  // namespace
 
-std::vector<std::int64_t> reconstruction_analysis(const Volume& vol, double max_error, OctreeMerges* merges,
+std::vector<std::int64_t> reconstruction_analysis(const Volume& vol, double max_error, OctreeMerges* merges, const Progress& progress) {
+  return reconstruction_analysis(vol, value_range(vol), max_error, merges, progress);
+}
+
+std::vector<std::int64_t> reconstruction_analysis(const Volume& vol, const ValueRange& range, double max_error, OctreeMerges* merges,
                                                   const Progress& progress) {
   if (!(max_error >= 0) || !std::isfinite(max_error))
-    throw InputError(fmt::format("--max-error must be a non-negative number, got {}", max_error));
+    throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", max_error));
   OctreeMerges local;
   OctreeMerges& om = merges ? *merges : local;
   om = OctreeMerges{};
-  const double bound = max_error + error_tolerance(vol, max_error);
+  const double bound = max_error + error_tolerance(range, max_error);
   std::vector<std::int64_t> forced;
   visit_values(vol, [&]<class T>(std::span<const T> vals) {
     Octree<T> tree(vol, vals, bound, om, progress);
@@ -364,8 +366,10 @@ double verify_reconstruction(const Volume& vol, const ReduceResult& r) {
         for (int a = 0; a < 3; ++a) ahi[a] = std::min(alo[a] + 2, d[a] - 1);
         int leaf = 0;
         for (int l = 1; l <= om.levels; ++l)
-          if (om.is_merged(l, cx >> (l - 1), cy >> (l - 1), cz >> (l - 1))) leaf = l;
-          else break;
+          if (om.is_merged(l, cx >> (l - 1), cy >> (l - 1), cz >> (l - 1)))
+            leaf = l;
+          else
+            break;
         if (leaf == 0) {
           for (std::int64_t z = alo[2]; z <= ahi[2]; ++z)
             for (std::int64_t y = alo[1]; y <= ahi[1]; ++y)
@@ -387,10 +391,10 @@ double verify_reconstruction(const Volume& vol, const ReduceResult& r) {
             for (std::int64_t x = alo[0]; x <= ahi[0]; ++x) {
               double t[3];
               const std::int64_t p[3] = {x, y, z};
-              for (int a = 0; a < 3; ++a) t[a] = hi[a] > lo[a] ? static_cast<double>(p[a] - lo[a]) / static_cast<double>(hi[a] - lo[a]) : 0.0;
+              for (int a = 0; a < 3; ++a)
+                t[a] = hi[a] > lo[a] ? static_cast<double>(p[a] - lo[a]) / static_cast<double>(hi[a] - lo[a]) : 0.0;
               double rec = 0;
-              for (int i = 0; i < 8; ++i)
-                rec += c[i] * (i & 1 ? t[0] : 1 - t[0]) * (i & 2 ? t[1] : 1 - t[1]) * (i & 4 ? t[2] : 1 - t[2]);
+              for (int i = 0; i < 8; ++i) rec += c[i] * (i & 1 ? t[0] : 1 - t[0]) * (i & 2 ? t[1] : 1 - t[1]) * (i & 4 ? t[2] : 1 - t[2]);
               w = std::max(w, std::abs(vol.at(x, y, z) - rec));
             }
       }

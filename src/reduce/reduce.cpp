@@ -1,8 +1,8 @@
 // Vertex reduction front door: resolves relative units, runs the chosen criteria, unites the
 // kept sets with the 8 corners of the volume (Lürig & Ertl §2.1).
+#include <fmt/format.h>
 #include <algorithm>
 #include <cmath>
-#include <fmt/format.h>
 
 #include "adaptiso/reduce.hpp"
 
@@ -10,29 +10,30 @@ namespace adaptiso {
 
 std::vector<std::int64_t> volume_corners(const Volume& v) {
   std::vector<std::int64_t> c;
-  for (int i = 0; i < 8; ++i)
-    c.push_back(v.index(i & 1 ? v.dims[0] - 1 : 0, i & 2 ? v.dims[1] - 1 : 0, i & 4 ? v.dims[2] - 1 : 0));
+  for (int i = 0; i < 8; ++i) c.push_back(v.index(i & 1 ? v.dims[0] - 1 : 0, i & 2 ? v.dims[1] - 1 : 0, i & 4 ? v.dims[2] - 1 : 0));
   std::sort(c.begin(), c.end());
   c.erase(std::unique(c.begin(), c.end()), c.end());
   return c;
 }
 
-double error_tolerance(const Volume& v, double bound) {
-  auto r = value_range(v);
+double error_tolerance(const Volume& v, double bound) { return error_tolerance(value_range(v), bound); }
+
+double error_tolerance(const ValueRange& r, double bound) {
   double mag = std::max({std::abs(r.min), std::abs(r.max), std::abs(bound), 1e-300});
   return 16 * std::numeric_limits<double>::epsilon() * mag;
 }
 
-ReduceResult reduce(const Volume& v, const ReduceOptions& o, const Progress& progress) {
+ReduceResult reduce(const Volume& v, const ReduceOptions& o, const Progress& progress) { return reduce(v, value_range(v), o, progress); }
+
+ReduceResult reduce(const Volume& v, const ValueRange& range, const ReduceOptions& o, const Progress& progress) {
   if (v.voxel_count() == 0) throw InputError("reduce: the volume is empty");
   ReduceResult r;
   if (!(o.max_error >= 0) || !std::isfinite(o.max_error))
-    throw InputError(fmt::format("--max-error must be a non-negative number, got {}", o.max_error));
-  auto range = value_range(v);
+    throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
   r.max_error = o.relative ? o.max_error * (range.max - range.min) : o.max_error;
   std::vector<std::int64_t> a, b;
   if (o.method != ReduceMethod::structural) {
-    a = reconstruction_analysis(v, r.max_error, &r.octree, progress);
+    a = reconstruction_analysis(v, range, r.max_error, &r.octree, progress);
     r.kept_reconstruction = static_cast<std::int64_t>(a.size());
   }
   if (o.method != ReduceMethod::reconstruction) {

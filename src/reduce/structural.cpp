@@ -6,13 +6,13 @@
 // threshold costs six reads). The Canny operator convolves the volume with the partial derivatives
 // of a 3D Gaussian (separable: one 1D pass per axis), which needs three float fields of the
 // volume's size; border values are replicated.
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
-#include <tbb/blocked_range.h>
 
+#include <fmt/format.h>
 #include <atomic>
 #include <cmath>
-#include <fmt/format.h>
 
 #include "adaptiso/reduce.hpp"
 
@@ -45,8 +45,10 @@ std::vector<std::int64_t> suppress(const Dims& dm, double threshold, GradFn grad
           if (nx < 0 || ny < 0 || nz < 0 || nx >= dm[0] || ny >= dm[1] || nz >= dm[2]) continue;
           Grad h = grad(nx, ny, nz);
           double mn = std::sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]);
-          if (mn > m) ok = false;
-          else if (mn < m) strictly = true;
+          if (mn > m)
+            ok = false;
+          else if (mn < m)
+            strictly = true;
         }
         if (ok && strictly) out.push_back(x + dm[0] * (y + dm[1] * z));
       }
@@ -97,10 +99,9 @@ void convolve_axis(const std::vector<float>& in, std::vector<float>& out, const 
 
 }  // namespace
 
-std::vector<std::int64_t> structural_analysis(const Volume& vol, const ReduceOptions& o, double* threshold_used,
-                                              const Progress& progress) {
+std::vector<std::int64_t> structural_analysis(const Volume& vol, const ReduceOptions& o, double* threshold_used, const Progress& progress) {
   if (!(o.threshold >= 0) || !std::isfinite(o.threshold))
-    throw InputError(fmt::format("--threshold must be a non-negative number, got {}", o.threshold));
+    throw OptionError("threshold", fmt::format("must be a non-negative number, got {}", o.threshold));
   const Dims dm = vol.dims;
   if (o.gradient == GradientOperator::central) {
     return visit_values(vol, [&]<class T>(std::span<const T> vals) {
@@ -112,9 +113,12 @@ std::vector<std::int64_t> structural_analysis(const Volume& vol, const ReduceOpt
         Grad g{};
         for (int a = 0; a < 3; ++a) {
           if (dm[a] == 1) continue;
-          if (p[a] == 0) g[a] = static_cast<double>(v[i + stride[a]]) - static_cast<double>(v[i]);
-          else if (p[a] == dm[a] - 1) g[a] = static_cast<double>(v[i]) - static_cast<double>(v[i - stride[a]]);
-          else g[a] = 0.5 * (static_cast<double>(v[i + stride[a]]) - static_cast<double>(v[i - stride[a]]));
+          if (p[a] == 0)
+            g[a] = static_cast<double>(v[i + stride[a]]) - static_cast<double>(v[i]);
+          else if (p[a] == dm[a] - 1)
+            g[a] = static_cast<double>(v[i]) - static_cast<double>(v[i - stride[a]]);
+          else
+            g[a] = 0.5 * (static_cast<double>(v[i + stride[a]]) - static_cast<double>(v[i - stride[a]]));
         }
         return g;
       };
@@ -125,9 +129,9 @@ std::vector<std::int64_t> structural_analysis(const Volume& vol, const ReduceOpt
     });
   }
   // Canny: derivative-of-Gaussian kernels, normalised so that a unit ramp has derivative 1.
-  if (!(o.sigma > 0) || o.sigma > 100) throw InputError(fmt::format("--sigma must be in (0, 100], got {}", o.sigma));
+  if (!(o.sigma > 0) || o.sigma > 100) throw OptionError("sigma", fmt::format("must be in (0, 100], got {}", o.sigma));
   int ks = o.kernel > 0 ? o.kernel : 2 * static_cast<int>(std::ceil(3 * o.sigma)) + 1;
-  if (ks % 2 == 0 || ks < 3 || ks > 401) throw InputError(fmt::format("--kernel must be odd and between 3 and 401, got {}", ks));
+  if (ks % 2 == 0 || ks < 3 || ks > 401) throw OptionError("kernel", fmt::format("must be odd and between 3 and 401, got {}", ks));
   const int r = ks / 2;
   std::vector<double> G(static_cast<std::size_t>(ks)), D(static_cast<std::size_t>(ks));
   double gs = 0, ds = 0;

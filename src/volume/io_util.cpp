@@ -43,8 +43,7 @@ std::string read_text(const std::string& path, std::uint64_t max_bytes) {
   return std::string(b.begin(), b.end());
 }
 
-void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected,
-                   const std::string& what) {
+void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected, const std::string& what) {
   z_stream zs{};
   if (inflateInit2(&zs, 15 + 32) != Z_OK) throw std::runtime_error("zlib: inflateInit failed");
   std::size_t in_done = 0, out_done = 0;
@@ -81,8 +80,7 @@ void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, 
     }
   }
   inflateEnd(&zs);
-  if (out_done != expected)
-    throw InputError(fmt::format("{}: compressed data holds {} bytes, expected {}", what, out_done, expected));
+  if (out_done != expected) throw InputError(fmt::format("{}: compressed data holds {} bytes, expected {}", what, out_done, expected));
 }
 
 bool host_is_little_endian() { return std::endian::native == std::endian::little; }
@@ -103,29 +101,6 @@ std::string lower(std::string_view s) {
   std::string r(s);
   for (auto& c : r) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
   return r;
-}
-
-std::vector<double> parse_numbers(std::string_view s, int expected, const std::string& what) {
-  std::vector<double> out;
-  std::size_t i = 0;
-  while (i < s.size()) {
-    while (i < s.size() && (std::isspace(static_cast<unsigned char>(s[i])) || s[i] == ',')) ++i;
-    if (i >= s.size()) break;
-    std::size_t j = i;
-    while (j < s.size() && !std::isspace(static_cast<unsigned char>(s[j])) && s[j] != ',') ++j;
-    double v = 0;
-    std::string tok(s.substr(i, j - i));
-    char* end = nullptr;
-    errno = 0;
-    v = std::strtod(tok.c_str(), &end);
-    if (end != tok.c_str() + tok.size() || tok.empty())
-      throw InputError(fmt::format("{}: '{}' is not a number", what, tok));
-    out.push_back(v);
-    i = j;
-  }
-  if (expected >= 0 && static_cast<int>(out.size()) != expected)
-    throw InputError(fmt::format("{}: expected {} numbers, found {}", what, expected, out.size()));
-  return out;
 }
 
 }  // namespace adaptiso::detail

@@ -6,6 +6,7 @@
 #include <string_view>
 #include <vector>
 
+#include "adaptiso/number.hpp"
 #include "adaptiso/volume.hpp"
 
 namespace adaptiso::detail {
@@ -18,8 +19,7 @@ std::string read_text(const std::string& path, std::uint64_t max_bytes);
 
 // zlib or gzip stream (auto-detected) into exactly `expected` bytes; InputError naming `what`
 // if the stream is corrupt, ends early, or holds more data than expected.
-void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected,
-                   const std::string& what);
+void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected, const std::string& what);
 // The largest number of bytes a deflate stream of `compressed` bytes can expand to.
 inline std::uint64_t max_inflated_size(std::uint64_t compressed) { return compressed * 1040 + 1024; }
 
@@ -28,8 +28,5 @@ bool host_is_little_endian();
 
 std::string trim(std::string_view s);
 std::string lower(std::string_view s);
-// Whitespace-separated numbers; InputError naming `what` if any token is not a number or the count
-// differs from `expected` (expected < 0: any count).
-std::vector<double> parse_numbers(std::string_view s, int expected, const std::string& what);
 
 }  // namespace adaptiso::detail

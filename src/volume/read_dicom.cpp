@@ -8,10 +8,10 @@
 #include <gdcmTag.h>
 #include <gdcmTrace.h>
 
+#include <fmt/format.h>
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fmt/format.h>
 #include <map>
 #include <set>
 
@@ -23,15 +23,26 @@ namespace {
 
 std::optional<ScalarType> gdcm_type(const gdcm::PixelFormat& pf) {
   switch (pf.GetScalarType()) {
-    case gdcm::PixelFormat::UINT8: return ScalarType::u8;
-    case gdcm::PixelFormat::INT8: return ScalarType::i8;
-    case gdcm::PixelFormat::UINT12: case gdcm::PixelFormat::UINT16: return ScalarType::u16;
-    case gdcm::PixelFormat::INT12: case gdcm::PixelFormat::INT16: return ScalarType::i16;
-    case gdcm::PixelFormat::UINT32: return ScalarType::u32;
-    case gdcm::PixelFormat::INT32: return ScalarType::i32;
-    case gdcm::PixelFormat::FLOAT32: return ScalarType::f32;
-    case gdcm::PixelFormat::FLOAT64: return ScalarType::f64;
-    default: return std::nullopt;
+    case gdcm::PixelFormat::UINT8:
+      return ScalarType::u8;
+    case gdcm::PixelFormat::INT8:
+      return ScalarType::i8;
+    case gdcm::PixelFormat::UINT12:
+    case gdcm::PixelFormat::UINT16:
+      return ScalarType::u16;
+    case gdcm::PixelFormat::INT12:
+    case gdcm::PixelFormat::INT16:
+      return ScalarType::i16;
+    case gdcm::PixelFormat::UINT32:
+      return ScalarType::u32;
+    case gdcm::PixelFormat::INT32:
+      return ScalarType::i32;
+    case gdcm::PixelFormat::FLOAT32:
+      return ScalarType::f32;
+    case gdcm::PixelFormat::FLOAT64:
+      return ScalarType::f64;
+    default:
+      return std::nullopt;
   }
 }
 
@@ -71,8 +82,8 @@ Volume read_dicom_folder(const std::string& path) {
     }
   if (series.empty()) throw InputError(fmt::format("{}: holds no DICOM files", path));
   if (series.size() > 1)
-    throw InputError(fmt::format("{}: holds {} DICOM series (SeriesInstanceUID {} and {}); pass a folder with one series",
-                                 path, series.size(), series.begin()->first, std::next(series.begin())->first));
+    throw InputError(fmt::format("{}: holds {} DICOM series (SeriesInstanceUID {} and {}); pass a folder with one series", path,
+                                 series.size(), series.begin()->first, std::next(series.begin())->first));
   auto& sfiles = series.begin()->second;
 
   // Orientation from the first file; slice normal = row × column direction.
@@ -80,7 +91,7 @@ Volume read_dicom_folder(const std::string& path) {
   if (const char* s = scanner.GetValue(sfiles[0].c_str(), t_iop)) {
     std::string str(s);
     std::replace(str.begin(), str.end(), '\\', ' ');
-    auto n = detail::parse_numbers(str, -1, sfiles[0] + ": ImageOrientationPatient");
+    auto n = parse_number_list(str, -1, sfiles[0] + ": ImageOrientationPatient");
     if (n.size() == 6) std::copy(n.begin(), n.end(), iop.begin());
   }
   std::array<double, 3> nrm{iop[1] * iop[5] - iop[2] * iop[4], iop[2] * iop[3] - iop[0] * iop[5], iop[0] * iop[4] - iop[1] * iop[3]};
@@ -90,7 +101,7 @@ Volume read_dicom_folder(const std::string& path) {
     if (const char* p = scanner.GetValue(f.c_str(), t_ipp)) {
       std::string str(p);
       std::replace(str.begin(), str.end(), '\\', ' ');
-      auto n = detail::parse_numbers(str, -1, f + ": ImagePositionPatient");
+      auto n = parse_number_list(str, -1, f + ": ImagePositionPatient");
       if (n.size() == 3) s.ipp = {n[0], n[1], n[2]};
     }
     s.key = s.ipp[0] * nrm[0] + s.ipp[1] * nrm[1] + s.ipp[2] * nrm[2];
@@ -118,8 +129,7 @@ Volume read_dicom_folder(const std::string& path) {
     std::int64_t cols = img.GetDimension(0), rows = img.GetDimension(1);
     std::int64_t frames = img.GetNumberOfDimensions() > 2 ? img.GetDimension(2) : 1;
     if (si == 0) {
-      if (frames > 1 && slices.size() > 1)
-        throw InputError(fmt::format("{}: mixes a multi-frame file with other slices", path));
+      if (frames > 1 && slices.size() > 1) throw InputError(fmt::format("{}: mixes a multi-frame file with other slices", path));
       frames_per_file = frames;
       v.dims = {cols, rows, static_cast<std::int64_t>(slices.size()) * frames};
       v.type = *type;
@@ -127,8 +137,8 @@ Volume read_dicom_folder(const std::string& path) {
       const double* sp = img.GetSpacing();
       v.spacing = {sp[0], sp[1], frames > 1 ? sp[2] : 1.0};
     } else if (cols != v.dims[0] || rows != v.dims[1] || *type != v.type) {
-      throw InputError(fmt::format("{}: slice is {}x{} {}, the series' first is {}x{} {}", slices[si].file, cols, rows,
-                                   scalar_name(*type), v.dims[0], v.dims[1], scalar_name(v.type)));
+      throw InputError(fmt::format("{}: slice is {}x{} {}, the series' first is {}x{} {}", slices[si].file, cols, rows, scalar_name(*type),
+                                   v.dims[0], v.dims[1], scalar_name(v.type)));
     }
     const std::size_t slice_bytes = static_cast<std::size_t>(cols * rows * frames) * scalar_size(v.type);
     if (img.GetBufferLength() != slice_bytes)
@@ -150,9 +160,9 @@ Volume read_dicom_folder(const std::string& path) {
     for (std::size_t i = 1; i < slices.size(); ++i) {
       double gap = slices[i].key - slices[i - 1].key;
       if (std::abs(gap - mean) > 0.1 * mean)
-        throw InputError(fmt::format("{}: slices are not evenly spaced ({:.3f} mm between {} and {}, mean {:.3f} mm); a slice may be missing",
-                                     path, gap, fs::path(slices[i - 1].file).filename().string(),
-                                     fs::path(slices[i].file).filename().string(), mean));
+        throw InputError(
+            fmt::format("{}: slices are not evenly spaced ({:.3f} mm between {} and {}, mean {:.3f} mm); a slice may be missing", path, gap,
+                        fs::path(slices[i - 1].file).filename().string(), fs::path(slices[i].file).filename().string(), mean));
     }
     v.spacing[2] = mean;
   }

@@ -1,9 +1,9 @@
 // MetaImage reader (.mha with LOCAL data, .mhd with a detached ElementDataFile, one file per slice
 // via LIST or a format string, zlib CompressedData). Parsed directly: the format is a few
 // "Key = Value" lines ending with ElementDataFile.
+#include <fmt/format.h>
 #include <cmath>
 #include <filesystem>
-#include <fmt/format.h>
 #include <map>
 
 #include "adaptiso/volume_io.hpp"
@@ -14,9 +14,8 @@ namespace {
 
 std::optional<ScalarType> met_type(const std::string& t) {
   static const std::map<std::string, ScalarType> m = {
-      {"MET_UCHAR", ScalarType::u8},  {"MET_CHAR", ScalarType::i8},  {"MET_USHORT", ScalarType::u16},
-      {"MET_SHORT", ScalarType::i16}, {"MET_UINT", ScalarType::u32}, {"MET_INT", ScalarType::i32},
-      {"MET_FLOAT", ScalarType::f32}, {"MET_DOUBLE", ScalarType::f64}};
+      {"MET_UCHAR", ScalarType::u8}, {"MET_CHAR", ScalarType::i8}, {"MET_USHORT", ScalarType::u16}, {"MET_SHORT", ScalarType::i16},
+      {"MET_UINT", ScalarType::u32}, {"MET_INT", ScalarType::i32}, {"MET_FLOAT", ScalarType::f32},  {"MET_DOUBLE", ScalarType::f64}};
   auto it = m.find(t);
   if (it == m.end()) return std::nullopt;
   return it->second;
@@ -72,10 +71,10 @@ Volume read_metaimage(const std::string& path) {
     auto it = kv.find(k);
     return it == kv.end() ? std::string{} : it->second;
   };
-  int ndims = kv.count("NDims") ? static_cast<int>(detail::parse_numbers(get("NDims"), 1, path + ": NDims")[0]) : 3;
+  int ndims = kv.count("NDims") ? static_cast<int>(parse_number_list(get("NDims"), 1, path + ": NDims")[0]) : 3;
   if (ndims != 2 && ndims != 3) throw InputError(fmt::format("{}: NDims = {}; adaptiso reads 2D slices and 3D volumes", path, ndims));
   if (get("DimSize").empty()) throw InputError(fmt::format("{}: MetaImage header has no DimSize", path));
-  auto ds = detail::parse_numbers(get("DimSize"), ndims, path + ": DimSize");
+  auto ds = parse_number_list(get("DimSize"), ndims, path + ": DimSize");
   Dims dims{1, 1, 1};
   for (int a = 0; a < ndims; ++a) {
     if (!(ds[a] >= 1) || ds[a] != std::floor(ds[a]) || ds[a] > 1e12)
@@ -89,7 +88,7 @@ Volume read_metaimage(const std::string& path) {
   const std::size_t bytes = checked_volume_bytes(dims, scalar_size(*type), path);
   const bool msb = is_true(get("ElementByteOrderMSB")) || is_true(get("BinaryDataByteOrderMSB"));
   const bool compressed = is_true(get("CompressedData"));
-  std::int64_t header_size = get("HeaderSize").empty() ? 0 : static_cast<std::int64_t>(detail::parse_numbers(get("HeaderSize"), 1, path)[0]);
+  std::int64_t header_size = get("HeaderSize").empty() ? 0 : static_cast<std::int64_t>(parse_number_list(get("HeaderSize"), 1, path)[0]);
 
   // Data sources: LOCAL, one file, a LIST, or "format min max step".
   fs::path dir = fs::path(path).parent_path();
@@ -104,7 +103,7 @@ Volume read_metaimage(const std::string& path) {
   } else if (edf.find('%') != std::string::npos) {
     auto sp = edf.find(' ');
     if (sp == std::string::npos) throw InputError(fmt::format("{}: ElementDataFile format needs 'min max step'", path));
-    auto nums = detail::parse_numbers(edf.substr(sp + 1), -1, path + ": ElementDataFile");
+    auto nums = parse_number_list(edf.substr(sp + 1), -1, path + ": ElementDataFile");
     if (nums.size() < 2) throw InputError(fmt::format("{}: ElementDataFile format needs 'min max step'", path));
     int lo = static_cast<int>(nums[0]), hi = static_cast<int>(nums[1]), st = nums.size() > 2 ? static_cast<int>(nums[2]) : 1;
     if (st <= 0 || hi < lo || (hi - lo) / st > 1000000) throw InputError(fmt::format("{}: ElementDataFile range is invalid", path));
@@ -132,8 +131,8 @@ Volume read_metaimage(const std::string& path) {
     avail += compressed ? detail::max_inflated_size(s) : s;
   }
   if (bytes > avail)
-    throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the data holds only {} bytes", path, dims[0],
-                                 dims[1], dims[2], scalar_name(*type), bytes, avail));
+    throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the data holds only {} bytes", path, dims[0], dims[1], dims[2],
+                                 scalar_name(*type), bytes, avail));
   v.bytes.resize(bytes);
   for (std::size_t fi = 0; fi < files.size(); ++fi) {
     const std::string& f = files[fi];
@@ -143,34 +142,37 @@ Volume read_metaimage(const std::string& path) {
     if (compressed) {
       std::uint64_t csize = fsize - std::min(fsize, start);
       if (!get("CompressedDataSize").empty() && files.size() == 1) {
-        auto c = detail::parse_numbers(get("CompressedDataSize"), 1, path)[0];
+        auto c = parse_number_list(get("CompressedDataSize"), 1, path)[0];
         if (c > 0 && c <= static_cast<double>(csize)) csize = static_cast<std::uint64_t>(c);
       }
       auto comp = detail::read_bytes(f, start, csize);
       detail::inflate_exact(comp.data(), comp.size(), dst, per_file, f);
     } else {
-      if (header_size > 0) start += static_cast<std::uint64_t>(header_size);
-      else if (header_size == -1) start = fsize >= per_file ? fsize - per_file : 0;
+      if (header_size > 0)
+        start += static_cast<std::uint64_t>(header_size);
+      else if (header_size == -1)
+        start = fsize >= per_file ? fsize - per_file : 0;
       auto raw = detail::read_bytes(f, start, per_file);
       std::copy(raw.begin(), raw.end(), dst);
     }
   }
-  if (msb == detail::host_is_little_endian()) detail::byteswap(v.bytes.data(), scalar_size(v.type), static_cast<std::size_t>(v.voxel_count()));
+  if (msb == detail::host_is_little_endian())
+    detail::byteswap(v.bytes.data(), scalar_size(v.type), static_cast<std::size_t>(v.voxel_count()));
 
   std::string sp = get("ElementSpacing").empty() ? get("ElementSize") : get("ElementSpacing");
   if (!sp.empty()) {
-    auto s = detail::parse_numbers(sp, -1, path + ": ElementSpacing");
+    auto s = parse_number_list(sp, -1, path + ": ElementSpacing");
     for (int a = 0; a < std::min<int>(3, static_cast<int>(s.size())); ++a) v.spacing[a] = std::abs(s[a]);
   }
   for (const char* k : {"Offset", "Position", "Origin"})
     if (!get(k).empty()) {
-      auto o = detail::parse_numbers(get(k), -1, path + ": " + k);
+      auto o = parse_number_list(get(k), -1, path + ": " + k);
       for (int a = 0; a < std::min<int>(3, static_cast<int>(o.size())); ++a) v.origin[a] = o[a];
       break;
     }
   for (const char* k : {"TransformMatrix", "Rotation", "Orientation"})
     if (!get(k).empty()) {
-      auto m = detail::parse_numbers(get(k), -1, path + ": " + k);
+      auto m = parse_number_list(get(k), -1, path + ": " + k);
       if (ndims == 3 && m.size() == 9) {
         // MetaImage stores the matrix row by row with row a = direction of index axis a.
         for (int a = 0; a < 3; ++a)

@@ -3,9 +3,9 @@
 // integer data). Geometry from the sform when set, else the qform, else pixdim.
 #include <nifti2_io.h>
 
+#include <fmt/format.h>
 #include <cmath>
 #include <filesystem>
-#include <fmt/format.h>
 #include <memory>
 #include <mutex>
 
@@ -18,15 +18,24 @@ std::mutex nifti_mutex;
 
 std::optional<ScalarType> from_nifti(int dt) {
   switch (dt) {
-    case DT_UINT8: return ScalarType::u8;
-    case DT_INT8: return ScalarType::i8;
-    case DT_UINT16: return ScalarType::u16;
-    case DT_INT16: return ScalarType::i16;
-    case DT_UINT32: return ScalarType::u32;
-    case DT_INT32: return ScalarType::i32;
-    case DT_FLOAT32: return ScalarType::f32;
-    case DT_FLOAT64: return ScalarType::f64;
-    default: return std::nullopt;
+    case DT_UINT8:
+      return ScalarType::u8;
+    case DT_INT8:
+      return ScalarType::i8;
+    case DT_UINT16:
+      return ScalarType::u16;
+    case DT_INT16:
+      return ScalarType::i16;
+    case DT_UINT32:
+      return ScalarType::u32;
+    case DT_INT32:
+      return ScalarType::i32;
+    case DT_FLOAT32:
+      return ScalarType::f32;
+    case DT_FLOAT64:
+      return ScalarType::f64;
+    default:
+      return std::nullopt;
   }
 }
 struct NimFree {
@@ -42,11 +51,11 @@ Volume read_nifti(const std::string& path) {
   if (!nim) throw InputError(fmt::format("{}: not a readable NIfTI-1/NIfTI-2 file", path));
   auto type = from_nifti(nim->datatype);
   if (!type)
-    throw InputError(fmt::format("{}: NIfTI datatype {} ({}) is not supported", path, nim->datatype,
-                                 nifti_datatype_string(nim->datatype)));
+    throw InputError(fmt::format("{}: NIfTI datatype {} ({}) is not supported", path, nim->datatype, nifti_datatype_string(nim->datatype)));
   for (int a = 4; a <= 7; ++a)
     if (nim->dim[0] >= a && nim->dim[a] > 1)
-      throw InputError(fmt::format("{}: NIfTI has {} dimensions with size > 1 beyond x,y,z; adaptiso reads 3D scalar volumes", path, nim->dim[0]));
+      throw InputError(
+          fmt::format("{}: NIfTI has {} dimensions with size > 1 beyond x,y,z; adaptiso reads 3D scalar volumes", path, nim->dim[0]));
   Dims dims{nim->nx, nim->ny, nim->dim[0] >= 3 ? nim->nz : 1};
   std::size_t bytes = checked_volume_bytes(dims, scalar_size(*type), path);
   // Bound the allocation by what the image file can hold.
@@ -56,10 +65,9 @@ Volume read_nifti(const std::string& path) {
   std::uint64_t offset = static_cast<std::uint64_t>(std::max<std::int64_t>(nim->iname_offset, 0));
   std::uint64_t avail = gz ? detail::max_inflated_size(on_disk) : (on_disk > offset ? on_disk - offset : 0);
   if (bytes > avail)
-    throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the file holds only {} bytes", path, dims[0],
-                                 dims[1], dims[2], scalar_name(*type), bytes, avail));
-  if (nifti_image_load(nim.get()) != 0 || !nim->data)
-    throw InputError(fmt::format("{}: NIfTI data is truncated or unreadable", path));
+    throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the file holds only {} bytes", path, dims[0], dims[1], dims[2],
+                                 scalar_name(*type), bytes, avail));
+  if (nifti_image_load(nim.get()) != 0 || !nim->data) throw InputError(fmt::format("{}: NIfTI data is truncated or unreadable", path));
 
   Volume v;
   v.dims = dims;

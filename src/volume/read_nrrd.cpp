@@ -3,9 +3,9 @@
 // on disk before teem allocates anything.
 #include <teem/nrrd.h>
 
+#include <fmt/format.h>
 #include <cmath>
 #include <filesystem>
-#include <fmt/format.h>
 #include <mutex>
 
 #include "adaptiso/volume_io.hpp"
@@ -32,8 +32,7 @@ std::string biff_message() {
   }
   // Strip "[nrrd] _nrrdFunction: " prefixes.
   if (auto b = best.find("] "); best.starts_with("[") && b != std::string::npos) best = best.substr(b + 2);
-  if (auto c = best.find(": "); c != std::string::npos && best.substr(0, c).find(' ') == std::string::npos)
-    best = best.substr(c + 2);
+  if (auto c = best.find(": "); c != std::string::npos && best.substr(0, c).find(' ') == std::string::npos) best = best.substr(c + 2);
   return best;
 }
 
@@ -48,15 +47,24 @@ struct NrrdHolder {
 
 std::optional<ScalarType> from_teem(int t) {
   switch (t) {
-    case nrrdTypeChar: return ScalarType::i8;
-    case nrrdTypeUChar: return ScalarType::u8;
-    case nrrdTypeShort: return ScalarType::i16;
-    case nrrdTypeUShort: return ScalarType::u16;
-    case nrrdTypeInt: return ScalarType::i32;
-    case nrrdTypeUInt: return ScalarType::u32;
-    case nrrdTypeFloat: return ScalarType::f32;
-    case nrrdTypeDouble: return ScalarType::f64;
-    default: return std::nullopt;
+    case nrrdTypeChar:
+      return ScalarType::i8;
+    case nrrdTypeUChar:
+      return ScalarType::u8;
+    case nrrdTypeShort:
+      return ScalarType::i16;
+    case nrrdTypeUShort:
+      return ScalarType::u16;
+    case nrrdTypeInt:
+      return ScalarType::i32;
+    case nrrdTypeUInt:
+      return ScalarType::u32;
+    case nrrdTypeFloat:
+      return ScalarType::f32;
+    case nrrdTypeDouble:
+      return ScalarType::f64;
+    default:
+      return std::nullopt;
   }
 }
 
@@ -101,12 +109,14 @@ Volume read_nrrd(const std::string& path) {
     h.nio->skipData = AIR_TRUE;
     if (nrrdLoad(h.n, path.c_str(), h.nio)) throw InputError(fmt::format("{}: cannot read NRRD header: {}", path, biff_message()));
     auto t = from_teem(h.n->type);
-    if (!t) throw InputError(fmt::format("{}: NRRD type '{}' is not supported (use 8/16/32-bit integers, float or double)",
-                                         path, airEnumStr(nrrdType, h.n->type)));
+    if (!t)
+      throw InputError(fmt::format("{}: NRRD type '{}' is not supported (use 8/16/32-bit integers, float or double)", path,
+                                   airEnumStr(nrrdType, h.n->type)));
     type = *t;
     unsigned dim = h.n->dim;
     unsigned first = 0;
-    if (dim == 4 && h.n->axis[0].size == 1) first = 1;  // a 1-component axis in front
+    if (dim == 4 && h.n->axis[0].size == 1)
+      first = 1;  // a 1-component axis in front
     else if (dim != 2 && dim != 3)
       throw InputError(fmt::format("{}: NRRD has {} axes; adaptiso reads 2D slices and 3D scalar volumes", path, dim));
     for (unsigned a = first; a < dim; ++a) dims[a - first] = static_cast<std::int64_t>(h.n->axis[a].size);
@@ -119,17 +129,17 @@ Volume read_nrrd(const std::string& path) {
     }
     const NrrdEncoding* enc = h.nio->encoding;
     std::uint64_t bound = on_disk;
-    if (enc->isCompression) bound = enc == nrrdEncodingGzip ? detail::max_inflated_size(on_disk) : on_disk * 50000;
-    else if (enc == nrrdEncodingAscii) bound = on_disk * scalar_size(type);
+    if (enc->isCompression)
+      bound = enc == nrrdEncodingGzip ? detail::max_inflated_size(on_disk) : on_disk * 50000;
+    else if (enc == nrrdEncodingAscii)
+      bound = on_disk * scalar_size(type);
     if (expected > bound)
-      throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the data file(s) hold only {} bytes{}", path,
-                                   dims[0], dims[1], dims[2], scalar_name(type), expected, on_disk,
-                                   enc->isCompression ? " compressed" : ""));
+      throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the data file(s) hold only {} bytes{}", path, dims[0],
+                                   dims[1], dims[2], scalar_name(type), expected, on_disk, enc->isCompression ? " compressed" : ""));
   }
   NrrdHolder h;
   if (nrrdLoad(h.n, path.c_str(), h.nio)) throw InputError(fmt::format("{}: cannot read NRRD data: {}", path, biff_message()));
-  if (nrrdElementNumber(h.n) * nrrdElementSize(h.n) != expected)
-    throw InputError(fmt::format("{}: NRRD changed while reading", path));
+  if (nrrdElementNumber(h.n) * nrrdElementSize(h.n) != expected) throw InputError(fmt::format("{}: NRRD changed while reading", path));
   Volume v;
   v.dims = dims;
   v.type = type;
@@ -144,8 +154,10 @@ Volume read_nrrd(const std::string& path) {
     double len = 0;
     bool have_dir = h.n->spaceDim >= 3;
     for (unsigned c = 0; have_dir && c < 3; ++c) {
-      if (!std::isfinite(ax.spaceDirection[c])) have_dir = false;
-      else len += ax.spaceDirection[c] * ax.spaceDirection[c];
+      if (!std::isfinite(ax.spaceDirection[c]))
+        have_dir = false;
+      else
+        len += ax.spaceDirection[c] * ax.spaceDirection[c];
     }
     len = std::sqrt(len);
     if (have_dir && len > 0) {

@@ -11,14 +11,14 @@ Volume read_raw(const std::string& path, const RawOptions& o) {
   const std::uint64_t size = detail::file_size_or_throw(path);
   const std::size_t bytes = checked_volume_bytes(o.dims, scalar_size(o.type), path);
   if (size < o.header_bytes || size - o.header_bytes != bytes)
-    throw InputError(fmt::format("{}: file has {} bytes but {}x{}x{} {} plus a {}-byte header needs {}", path, size, o.dims[0],
-                                 o.dims[1], o.dims[2], scalar_name(o.type), o.header_bytes, bytes + o.header_bytes));
+    throw InputError(fmt::format("{}: file has {} bytes but {}x{}x{} {} plus a {}-byte header needs {}", path, size, o.dims[0], o.dims[1],
+                                 o.dims[2], scalar_name(o.type), o.header_bytes, bytes + o.header_bytes));
   Volume v;
   v.dims = o.dims;
   v.type = o.type;
   v.spacing = o.spacing;
   for (int a = 0; a < 3; ++a)
-    if (!(v.spacing[a] > 0)) throw InputError(fmt::format("{}: --spacing must be positive", path));
+    if (!(v.spacing[a] > 0)) throw OptionError("spacing", fmt::format("must be positive (reading {})", path));
   v.bytes = detail::read_bytes(path, o.header_bytes, bytes);
   if (o.big_endian == detail::host_is_little_endian())
     detail::byteswap(v.bytes.data(), scalar_size(v.type), static_cast<std::size_t>(v.voxel_count()));

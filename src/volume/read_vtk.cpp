@@ -1,10 +1,10 @@
 // VTK readers: XML ImageData (.vti: ascii, inline base64 "binary", appended raw or base64, zlib
 // compressed or not) and legacy STRUCTURED_POINTS (.vtk: ASCII or big-endian BINARY). Both are
 // parsed directly; only the scalar point-data array is read.
+#include <fmt/format.h>
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <fmt/format.h>
 #include <map>
 
 #include "adaptiso/volume_io.hpp"
@@ -15,8 +15,8 @@ namespace {
 
 std::optional<ScalarType> vtk_xml_type(const std::string& t) {
   static const std::map<std::string, ScalarType> m = {
-      {"Int8", ScalarType::i8},     {"UInt8", ScalarType::u8},     {"Int16", ScalarType::i16},
-      {"UInt16", ScalarType::u16},  {"Int32", ScalarType::i32},    {"UInt32", ScalarType::u32},
+      {"Int8", ScalarType::i8},     {"UInt8", ScalarType::u8},    {"Int16", ScalarType::i16},
+      {"UInt16", ScalarType::u16},  {"Int32", ScalarType::i32},   {"UInt32", ScalarType::u32},
       {"Float32", ScalarType::f32}, {"Float64", ScalarType::f64}, {"Char", ScalarType::i8}};
   auto it = m.find(t);
   if (it == m.end()) return std::nullopt;
@@ -25,9 +25,8 @@ std::optional<ScalarType> vtk_xml_type(const std::string& t) {
 
 std::optional<ScalarType> vtk_legacy_type(const std::string& t) {
   static const std::map<std::string, ScalarType> m = {
-      {"unsigned_char", ScalarType::u8}, {"char", ScalarType::i8},     {"unsigned_short", ScalarType::u16},
-      {"short", ScalarType::i16},        {"unsigned_int", ScalarType::u32}, {"int", ScalarType::i32},
-      {"float", ScalarType::f32},        {"double", ScalarType::f64}};
+      {"unsigned_char", ScalarType::u8}, {"char", ScalarType::i8}, {"unsigned_short", ScalarType::u16}, {"short", ScalarType::i16},
+      {"unsigned_int", ScalarType::u32}, {"int", ScalarType::i32}, {"float", ScalarType::f32},          {"double", ScalarType::f64}};
   auto it = m.find(t);
   if (it == m.end()) return std::nullopt;
   return it->second;
@@ -113,8 +112,7 @@ Volume read_vti(const std::string& path) {
   std::size_t xml_end = appended_tag == std::string::npos ? text.size() : appended_tag;
   Tag file = find_tag(text, "VTKFile", 0, xml_end);
   if (file.begin == std::string::npos) throw InputError(fmt::format("{}: not a VTK XML file (no <VTKFile>)", path));
-  if (file.attrs["type"] != "ImageData")
-    throw InputError(fmt::format("{}: VTK XML type '{}' is not ImageData", path, file.attrs["type"]));
+  if (file.attrs["type"] != "ImageData") throw InputError(fmt::format("{}: VTK XML type '{}' is not ImageData", path, file.attrs["type"]));
   const bool big = file.attrs["byte_order"] == "BigEndian";
   const std::size_t hs = file.attrs["header_type"] == "UInt64" ? 8 : 4;
   const std::string compressor = file.attrs["compressor"];
@@ -122,7 +120,7 @@ Volume read_vti(const std::string& path) {
     throw InputError(fmt::format("{}: compressor {} is not supported (only zlib)", path, compressor));
   Tag img = find_tag(text, "ImageData", file.end, xml_end);
   if (img.begin == std::string::npos) throw InputError(fmt::format("{}: no <ImageData> element", path));
-  auto ext = detail::parse_numbers(img.attrs["WholeExtent"], 6, path + ": WholeExtent");
+  auto ext = parse_number_list(img.attrs["WholeExtent"], 6, path + ": WholeExtent");
   Dims dims{};
   for (int a = 0; a < 3; ++a) {
     double n = ext[2 * a + 1] - ext[2 * a] + 1;
@@ -131,16 +129,16 @@ Volume read_vti(const std::string& path) {
   }
   Volume v;
   if (!img.attrs["Spacing"].empty()) {
-    auto s = detail::parse_numbers(img.attrs["Spacing"], 3, path + ": Spacing");
+    auto s = parse_number_list(img.attrs["Spacing"], 3, path + ": Spacing");
     for (int a = 0; a < 3; ++a) v.spacing[a] = std::abs(s[a]);
   }
   if (!img.attrs["Direction"].empty()) {
-    auto d = detail::parse_numbers(img.attrs["Direction"], 9, path + ": Direction");
+    auto d = parse_number_list(img.attrs["Direction"], 9, path + ": Direction");
     std::copy(d.begin(), d.end(), v.direction.begin());
   }
   Vec3 o{0, 0, 0};
   if (!img.attrs["Origin"].empty()) {
-    auto od = detail::parse_numbers(img.attrs["Origin"], 3, path + ": Origin");
+    auto od = parse_number_list(img.attrs["Origin"], 3, path + ": Origin");
     o = {od[0], od[1], od[2]};
   }
   v.origin = o;
@@ -181,8 +179,14 @@ Volume read_vti(const std::string& path) {
     unsigned char b[8];
     std::memcpy(b, p, hs);
     if (big != !detail::host_is_little_endian()) std::reverse(b, b + hs);
-    if (hs == 4) { std::uint32_t x; std::memcpy(&x, b, 4); return x; }
-    std::uint64_t x; std::memcpy(&x, b, 8); return x;
+    if (hs == 4) {
+      std::uint32_t x;
+      std::memcpy(&x, b, 4);
+      return x;
+    }
+    std::uint64_t x;
+    std::memcpy(&x, b, 8);
+    return x;
   };
   // Decodes one binary array (header + data, compressed or not) starting at `p` with `n` bytes.
   auto decode_binary = [&](const unsigned char* p, std::size_t n) {
@@ -215,7 +219,7 @@ Volume read_vti(const std::string& path) {
 
   if (format == "ascii") {
     if (arr_close == std::string::npos) throw InputError(fmt::format("{}: unterminated DataArray", path));
-    auto nums = detail::parse_numbers(std::string_view(text).substr(arr.end, arr_close - arr.end), -1, path);
+    auto nums = parse_number_list(std::string_view(text).substr(arr.end, arr_close - arr.end), -1, path);
     if (nums.size() != static_cast<std::size_t>(v.voxel_count()))
       throw InputError(fmt::format("{}: ascii array has {} values, expected {}", path, nums.size(), v.voxel_count()));
     v.bytes.assign(bytes, 0);
@@ -229,13 +233,14 @@ Volume read_vti(const std::string& path) {
     Tag ap = find_tag(text, "AppendedData", appended_tag, text.size());
     std::size_t us = text.find('_', ap.end);
     if (us == std::string::npos) throw InputError(fmt::format("{}: <AppendedData> has no '_' marker", path));
-    auto off = detail::parse_numbers(arr.attrs["offset"], 1, path + ": offset")[0];
+    auto off = parse_number_list(arr.attrs["offset"], 1, path + ": offset")[0];
     if (off < 0 || us + 1 + static_cast<std::size_t>(off) > text.size())
       throw InputError(fmt::format("{}: appended data offset {} is beyond the end of the file", path, off));
     std::size_t start = us + 1 + static_cast<std::size_t>(off);
     if (ap.attrs["encoding"] == "base64") {
       std::size_t stop = text.find('<', start);
-      auto raw = base64_decode(std::string_view(text).substr(start, stop == std::string::npos ? std::string::npos : stop - start), path, SIZE_MAX);
+      auto raw =
+          base64_decode(std::string_view(text).substr(start, stop == std::string::npos ? std::string::npos : stop - start), path, SIZE_MAX);
       decode_binary(raw.data(), raw.size());
     } else {
       decode_binary(all.data() + start, all.size() - start);
@@ -267,7 +272,8 @@ Volume read_legacy_vtk(const std::string& path) {
   if (!l0 || l0->rfind("# vtk DataFile", 0) != 0) throw InputError(fmt::format("{}: not a legacy VTK file", path));
   next_line();  // title
   std::optional<std::string> mode;
-  while ((mode = next_line()) && mode->empty()) {}
+  while ((mode = next_line()) && mode->empty()) {
+  }
   if (!mode || (*mode != "BINARY" && *mode != "ASCII")) throw InputError(fmt::format("{}: expected ASCII or BINARY", path));
   const bool binary = *mode == "BINARY";
   Volume v;
@@ -282,16 +288,16 @@ Volume read_legacy_vtk(const std::string& path) {
       if (detail::trim(rest) != "STRUCTURED_POINTS")
         throw InputError(fmt::format("{}: DATASET {} is not supported (STRUCTURED_POINTS only)", path, detail::trim(rest)));
     } else if (key == "dimensions") {
-      auto d = detail::parse_numbers(rest, 3, path + ": DIMENSIONS");
+      auto d = parse_number_list(rest, 3, path + ": DIMENSIONS");
       for (int a = 0; a < 3; ++a) {
         if (!(d[a] >= 1) || d[a] > 1e12) throw InputError(fmt::format("{}: DIMENSIONS must be positive", path));
         dims[a] = static_cast<std::int64_t>(d[a]);
       }
     } else if (key == "spacing" || key == "aspect_ratio") {
-      auto s = detail::parse_numbers(rest, 3, path + ": SPACING");
+      auto s = parse_number_list(rest, 3, path + ": SPACING");
       for (int a = 0; a < 3; ++a) v.spacing[a] = std::abs(s[a]);
     } else if (key == "origin") {
-      auto o = detail::parse_numbers(rest, 3, path + ": ORIGIN");
+      auto o = parse_number_list(rest, 3, path + ": ORIGIN");
       v.origin = {o[0], o[1], o[2]};
     } else if (key == "point_data") {
       continue;
@@ -326,7 +332,7 @@ Volume read_legacy_vtk(const std::string& path) {
   } else {
     if (bytes > fsize * es) throw InputError(fmt::format("{}: file too short for {} values", path, v.voxel_count()));
     std::string t = detail::read_text(path, fsize);
-    auto nums = detail::parse_numbers(std::string_view(t).substr(pos), -1, path);
+    auto nums = parse_number_list(std::string_view(t).substr(pos), -1, path);
     if (nums.size() < static_cast<std::size_t>(v.voxel_count()))
       throw InputError(fmt::format("{}: file is truncated: {} of {} values", path, nums.size(), v.voxel_count()));
     v.bytes.assign(bytes, 0);

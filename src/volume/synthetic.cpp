@@ -3,9 +3,9 @@
 
 #include <tbb/parallel_for.h>
 
+#include <fmt/format.h>
 #include <cmath>
 #include <functional>
-#include <fmt/format.h>
 #include <numbers>
 #include <random>
 
@@ -13,12 +13,10 @@ namespace adaptiso {
 
 std::vector<std::string> synthetic_names() { return {"sphere", "marschner-lobb", "linear", "noise", "torus"}; }
 
-ScalarType synthetic_default_type(const std::string& name) {
-  return name == "sphere" ? ScalarType::i16 : ScalarType::f32;
-}
+ScalarType synthetic_default_type(const std::string& name) { return name == "sphere" ? ScalarType::i16 : ScalarType::f32; }
 
 Volume make_synthetic(const std::string& name, std::int64_t n, ScalarType type) {
-  if (n < 2 || n > 4096) throw InputError(fmt::format("generate: --size {} must be between 2 and 4096", n));
+  if (n < 2 || n > 4096) throw OptionError("size", fmt::format("{} must be between 2 and 4096", n));
   Volume v = make_volume({n, n, n}, type);
   const bool is_int = type != ScalarType::f32 && type != ScalarType::f64;
   const double c = (n - 1) / 2.0;

@@ -5,50 +5,86 @@
 #include <tbb/parallel_reduce.h>
 #include <unistd.h>
 
+#include <fmt/format.h>
 #include <algorithm>
 #include <cmath>
-#include <fmt/format.h>
 #include <limits>
 
 namespace adaptiso {
 
 std::size_t scalar_size(ScalarType t) {
   switch (t) {
-    case ScalarType::u8: case ScalarType::i8: return 1;
-    case ScalarType::u16: case ScalarType::i16: return 2;
-    case ScalarType::u32: case ScalarType::i32: case ScalarType::f32: return 4;
-    case ScalarType::f64: return 8;
+    case ScalarType::u8:
+    case ScalarType::i8:
+      return 1;
+    case ScalarType::u16:
+    case ScalarType::i16:
+      return 2;
+    case ScalarType::u32:
+    case ScalarType::i32:
+    case ScalarType::f32:
+      return 4;
+    case ScalarType::f64:
+      return 8;
   }
   return 8;
 }
 
 std::string_view scalar_name(ScalarType t) {
   switch (t) {
-    case ScalarType::u8: return "uint8";
-    case ScalarType::i8: return "int8";
-    case ScalarType::u16: return "uint16";
-    case ScalarType::i16: return "int16";
-    case ScalarType::u32: return "uint32";
-    case ScalarType::i32: return "int32";
-    case ScalarType::f32: return "float32";
-    case ScalarType::f64: return "float64";
+    case ScalarType::u8:
+      return "uint8";
+    case ScalarType::i8:
+      return "int8";
+    case ScalarType::u16:
+      return "uint16";
+    case ScalarType::i16:
+      return "int16";
+    case ScalarType::u32:
+      return "uint32";
+    case ScalarType::i32:
+      return "int32";
+    case ScalarType::f32:
+      return "float32";
+    case ScalarType::f64:
+      return "float64";
   }
   return "?";
 }
 
 std::optional<ScalarType> parse_scalar_type(std::string_view n) {
-  struct Alias { std::string_view name; ScalarType t; };
-  static constexpr Alias aliases[] = {
-      {"uint8", ScalarType::u8},   {"uchar", ScalarType::u8},   {"unsigned char", ScalarType::u8},
-      {"u8", ScalarType::u8},      {"int8", ScalarType::i8},    {"char", ScalarType::i8},
-      {"signed char", ScalarType::i8}, {"i8", ScalarType::i8},
-      {"uint16", ScalarType::u16}, {"ushort", ScalarType::u16}, {"unsigned short", ScalarType::u16},
-      {"u16", ScalarType::u16},    {"int16", ScalarType::i16},  {"short", ScalarType::i16},
-      {"i16", ScalarType::i16},    {"uint32", ScalarType::u32}, {"uint", ScalarType::u32},
-      {"unsigned int", ScalarType::u32}, {"u32", ScalarType::u32}, {"int32", ScalarType::i32},
-      {"int", ScalarType::i32},    {"i32", ScalarType::i32},    {"float32", ScalarType::f32},
-      {"float", ScalarType::f32},  {"f32", ScalarType::f32},    {"float64", ScalarType::f64},
-      {"double", ScalarType::f64}, {"f64", ScalarType::f64}};
+  struct Alias {
+    std::string_view name;
+    ScalarType t;
+  };
+  static constexpr Alias aliases[] = {{"uint8", ScalarType::u8},
+                                      {"uchar", ScalarType::u8},
+                                      {"unsigned char", ScalarType::u8},
+                                      {"u8", ScalarType::u8},
+                                      {"int8", ScalarType::i8},
+                                      {"char", ScalarType::i8},
+                                      {"signed char", ScalarType::i8},
+                                      {"i8", ScalarType::i8},
+                                      {"uint16", ScalarType::u16},
+                                      {"ushort", ScalarType::u16},
+                                      {"unsigned short", ScalarType::u16},
+                                      {"u16", ScalarType::u16},
+                                      {"int16", ScalarType::i16},
+                                      {"short", ScalarType::i16},
+                                      {"i16", ScalarType::i16},
+                                      {"uint32", ScalarType::u32},
+                                      {"uint", ScalarType::u32},
+                                      {"unsigned int", ScalarType::u32},
+                                      {"u32", ScalarType::u32},
+                                      {"int32", ScalarType::i32},
+                                      {"int", ScalarType::i32},
+                                      {"i32", ScalarType::i32},
+                                      {"float32", ScalarType::f32},
+                                      {"float", ScalarType::f32},
+                                      {"f32", ScalarType::f32},
+                                      {"float64", ScalarType::f64},
+                                      {"double", ScalarType::f64},
+                                      {"f64", ScalarType::f64}};
   for (const auto& a : aliases)
     if (a.name == n) return a.t;
   return std::nullopt;
@@ -64,8 +100,7 @@ void Volume::set(std::int64_t linear, double v) {
     T* p = reinterpret_cast<T*>(bytes.data()) + linear;
     if constexpr (std::is_integral_v<T>) {
       double r = std::round(v);
-      r = std::clamp(r, static_cast<double>(std::numeric_limits<T>::lowest()),
-                     static_cast<double>(std::numeric_limits<T>::max()));
+      r = std::clamp(r, static_cast<double>(std::numeric_limits<T>::lowest()), static_cast<double>(std::numeric_limits<T>::max()));
       *p = static_cast<T>(r);
     } else {
       *p = static_cast<T>(v);
@@ -81,8 +116,7 @@ Vec3 Volume::world_to_voxel(const Vec3& w) const {
   Vec3 r{w[0] - origin[0], w[1] - origin[1], w[2] - origin[2]};
   double c00 = d[4] * d[8] - d[5] * d[7], c01 = d[5] * d[6] - d[3] * d[8], c02 = d[3] * d[7] - d[4] * d[6];
   double det = d[0] * c00 + d[1] * c01 + d[2] * c02;
-  double inv[9] = {c00, d[2] * d[7] - d[1] * d[8], d[1] * d[5] - d[2] * d[4],
-                   c01, d[0] * d[8] - d[2] * d[6], d[2] * d[3] - d[0] * d[5],
+  double inv[9] = {c00, d[2] * d[7] - d[1] * d[8], d[1] * d[5] - d[2] * d[4], c01, d[0] * d[8] - d[2] * d[6], d[2] * d[3] - d[0] * d[5],
                    c02, d[1] * d[6] - d[0] * d[7], d[0] * d[4] - d[1] * d[3]};
   Vec3 g{};
   for (int a = 0; a < 3; ++a) g[a] = (inv[3 * a] * r[0] + inv[3 * a + 1] * r[1] + inv[3 * a + 2] * r[2]) / det;
@@ -98,18 +132,16 @@ bool Volume::is_oblique() const {
 
 std::size_t checked_volume_bytes(Dims dims, std::size_t element_size, const std::string& what) {
   for (int a = 0; a < 3; ++a)
-    if (dims[a] <= 0)
-      throw InputError(fmt::format("{}: dimensions {}x{}x{} must all be positive", what, dims[0], dims[1], dims[2]));
+    if (dims[a] <= 0) throw InputError(fmt::format("{}: dimensions {}x{}x{} must all be positive", what, dims[0], dims[1], dims[2]));
   const std::uint64_t limit = [] {
     long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-    return pages > 0 && page > 0 ? static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page)
-                                 : std::uint64_t{1} << 40;
+    return pages > 0 && page > 0 ? static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page) : std::uint64_t{1} << 40;
   }();
   std::uint64_t bytes = element_size;
   for (int a = 0; a < 3; ++a) {
     if (static_cast<std::uint64_t>(dims[a]) > limit / bytes)
-      throw InputError(fmt::format("{}: dimensions {}x{}x{} are absurd (more bytes than this machine's memory)",
-                                   what, dims[0], dims[1], dims[2]));
+      throw InputError(
+          fmt::format("{}: dimensions {}x{}x{} are absurd (more bytes than this machine's memory)", what, dims[0], dims[1], dims[2]));
     bytes *= static_cast<std::uint64_t>(dims[a]);
   }
   return static_cast<std::size_t>(bytes);
@@ -138,35 +170,53 @@ ValueRange value_range(const Volume& v) {
           }
           return MM{lo, hi};
         },
-        [](MM a, MM b) { return MM{std::min(a.first, b.first), std::max(a.second, b.second)}; });
+        [](MM a, MM b) {
+          return MM{std::min(a.first, b.first), std::max(a.second, b.second)};
+        });
     return ValueRange{static_cast<double>(mm.first), static_cast<double>(mm.second)};
   });
 }
 
-Histogram histogram(const Volume& v, int bins) {
-  if (bins < 1) throw InputError("histogram: the number of bins must be positive");
-  Histogram h;
-  auto r = value_range(v);
-  h.min = r.min;
-  h.max = r.max;
+namespace {
+
+// Counts of `vals` in `bins` equal bins over r (values outside r land in the end bins).
+template <class T>
+std::vector<std::uint64_t> bin_counts(std::span<const T> vals, const ValueRange& r, int bins) {
   using Counts = std::vector<std::uint64_t>;
   const double w = (r.max - r.min) / bins;
-  h.counts = visit_values(v, [&]<class T>(std::span<const T> vals) {
-    return tbb::parallel_reduce(
-        tbb::blocked_range<std::size_t>(0, vals.size(), 1 << 16), Counts(bins, 0),
-        [&](const tbb::blocked_range<std::size_t>& rg, Counts c) {
-          for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
-            int b = w > 0 ? static_cast<int>((static_cast<double>(vals[i]) - r.min) / w) : 0;
-            c[std::clamp(b, 0, bins - 1)]++;
-          }
-          return c;
-        },
-        [](Counts a, const Counts& b) {
-          for (std::size_t i = 0; i < a.size(); ++i) a[i] += b[i];
-          return a;
-        });
-  });
+  return tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, vals.size(), 1 << 16), Counts(static_cast<std::size_t>(bins), 0),
+      [&](const tbb::blocked_range<std::size_t>& rg, Counts c) {
+        for (std::size_t i = rg.begin(); i < rg.end(); ++i) {
+          const int b = w > 0 ? static_cast<int>((static_cast<double>(vals[i]) - r.min) / w) : 0;
+          c[static_cast<std::size_t>(std::clamp(b, 0, bins - 1))]++;
+        }
+        return c;
+      },
+      [](Counts a, const Counts& b) {
+        for (std::size_t i = 0; i < a.size(); ++i) a[i] += b[i];
+        return a;
+      });
+}
+
+void check_bins(int bins) {
+  if (bins < 1) throw OptionError("bins", "the number of bins must be positive");
+}
+
+}  // namespace
+
+Histogram histogram(const Volume& v, int bins) { return histogram(v, value_range(v), bins); }
+
+Histogram histogram(const Volume& v, const ValueRange& r, int bins) {
+  check_bins(bins);
+  Histogram h{r.min, r.max, {}};
+  h.counts = visit_values(v, [&]<class T>(std::span<const T> vals) { return bin_counts(vals, r, bins); });
   return h;
+}
+
+Histogram histogram(std::span<const double> values, const ValueRange& r, int bins) {
+  check_bins(bins);
+  return {r.min, r.max, bin_counts(values, r, bins)};
 }
 
 void check_finite(const Volume& v, const std::string& what) {
@@ -180,8 +230,8 @@ void check_finite(const Volume& v, const std::string& what) {
       }
     if (bad) {
       std::int64_t i = first % v.dims[0], j = (first / v.dims[0]) % v.dims[1], k = first / (v.dims[0] * v.dims[1]);
-      throw InputError(fmt::format("{}: {} voxel(s) are NaN or Inf (first at voxel {},{},{}); adaptiso needs finite values",
-                                   what, bad, i, j, k));
+      throw InputError(
+          fmt::format("{}: {} voxel(s) are NaN or Inf (first at voxel {},{},{}); adaptiso needs finite values", what, bad, i, j, k));
     }
   });
 }

@@ -1,8 +1,8 @@
 // Format dispatch by path (extension, folder, then magic bytes) and the NRRD writer.
 #include <zlib.h>
 
-#include <filesystem>
 #include <fmt/format.h>
+#include <filesystem>
 #include <sstream>
 
 #include "adaptiso/atomic_file.hpp"
@@ -29,7 +29,9 @@ Volume read_volume(const std::string& path, const ReadOptions& options) {
   if (ends(".vtk")) return read_legacy_vtk(path);
   if (ends(".dcm")) return read_dicom_folder(path);
   if (ends(".raw") || ends(".img") || ends(".bin"))
-    throw InputError(fmt::format("{}: raw data needs --dims X,Y,Z and --type T (and --endian, --spacing, --header-bytes as needed)", path));
+    throw OptionError(
+        "dims",
+        fmt::format("{} holds raw samples: give its dimensions and element type (and byte order, spacing, header size as needed)", path));
   // Unknown extension: look at the first bytes.
   std::uint64_t size = detail::file_size_or_throw(path);
   auto head = detail::read_bytes(path, 0, std::min<std::uint64_t>(size, 352));
@@ -40,9 +42,11 @@ Volume read_volume(const std::string& path, const ReadOptions& options) {
   if (h.size() >= 348 && (h.compare(344, 4, std::string("n+1\0", 4)) == 0)) return read_nifti(path);
   if (h.size() >= 8 && (h.compare(4, 4, std::string("n+2\0", 4)) == 0)) return read_nifti(path);
   if (h.size() >= 132 && h.compare(128, 4, "DICM") == 0) return read_dicom_folder(path);
-  if (h.find("ElementDataFile") != std::string::npos || h.starts_with("ObjectType") || h.starts_with("NDims"))
-    return read_metaimage(path);
-  throw InputError(fmt::format("{}: unknown volume format (expected .nrrd .nhdr .nii[.gz] .mha .mhd .vti .vtk, a DICOM folder, or raw with --dims/--type)", path));
+  if (h.find("ElementDataFile") != std::string::npos || h.starts_with("ObjectType") || h.starts_with("NDims")) return read_metaimage(path);
+  throw InputError(
+      fmt::format("{}: unknown volume format (expected .nrrd .nhdr .nii[.gz] .mha .mhd .vti .vtk, a DICOM folder, or raw samples with "
+                  "their dimensions and type)",
+                  path));
 }
 
 void write_nrrd(const Volume& v, const std::string& path, bool gzip) {
@@ -56,7 +60,8 @@ void write_nrrd(const Volume& v, const std::string& path, bool gzip) {
   } else {
     hdr << "space dimension: 3\nspace directions:";
     for (int a = 0; a < 3; ++a)
-      hdr << fmt::format(" ({},{},{})", v.direction[a] * v.spacing[a], v.direction[3 + a] * v.spacing[a], v.direction[6 + a] * v.spacing[a]);
+      hdr << fmt::format(" ({},{},{})", v.direction[a] * v.spacing[a], v.direction[3 + a] * v.spacing[a],
+                         v.direction[6 + a] * v.spacing[a]);
     hdr << fmt::format("\nspace origin: ({},{},{})\n", v.origin[0], v.origin[1], v.origin[2]);
   }
   hdr << "endian: " << (detail::host_is_little_endian() ? "little" : "big") << "\n";

@@ -1,0 +1,52 @@
+#include "options.hpp"
+
+namespace adaptiso::cli {
+
+void ReduceFlags::add(CLI::App* app) {
+  app->add_option("--method", method, "reconstruction | structural | both")->check(CLI::IsMember({"reconstruction", "structural", "both"}));
+  app->add_option("--max-error", o.max_error, "Reconstruction: max-norm error bound (data units; fraction of the range with --relative)");
+  app->add_option("--threshold", o.threshold,
+                  "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)");
+  app->add_option("--gradient", gradient, "Structural: central | canny")->check(CLI::IsMember({"central", "canny"}));
+  app->add_option("--sigma", o.sigma, "Canny: Gaussian sigma in voxels");
+  app->add_option("--kernel", o.kernel, "Canny: kernel size (odd; default 2*ceil(3 sigma)+1)");
+  app->add_flag("--relative", o.relative, "Error and iso-values as fractions of the value range, threshold of the largest gradient");
+}
+
+ReduceOptions ReduceFlags::options() const {
+  ReduceOptions r = o;
+  r.method = method == "structural" ? ReduceMethod::structural : method == "both" ? ReduceMethod::both : ReduceMethod::reconstruction;
+  r.gradient = gradient == "canny" ? GradientOperator::canny : GradientOperator::central;
+  return r;
+}
+
+void PrepareFlags::add(CLI::App* app) {
+  reduce.add(app);
+  app->add_option("--gradients", gradients, "Vertex gradients: auto | lsq (least squares, the paper's) | central (central differences)")
+      ->check(CLI::IsMember({"auto", "lsq", "central"}));
+  app->add_option("--tree-depth", tree_depth, "Depth of the interval tree used for extraction")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 24));
+  app->add_flag("--sequential-delaunay", sequential_delaunay, "Use CGAL's sequential triangulation (the parallel one is the default)");
+}
+
+PrepareOptions PrepareFlags::options(const std::string& source_path) const {
+  const ReduceOptions r = reduce.options();
+  PrepareOptions p;
+  p.max_error = r.max_error;
+  p.relative = r.relative;
+  p.method = r.method;
+  p.threshold = r.threshold;
+  p.structural_gradient = r.gradient;
+  p.sigma = r.sigma;
+  p.kernel = r.kernel;
+  p.gradients = gradients == "lsq"       ? GradientMethod::least_squares
+                : gradients == "central" ? GradientMethod::central
+                                         : GradientMethod::automatic;
+  p.parallel_delaunay = !sequential_delaunay;
+  p.tree_depth = tree_depth;
+  p.source_name = source_path;
+  return p;
+}
+
+}  // namespace adaptiso::cli

@@ -1,0 +1,28 @@
+// Command-line options shared by several commands: the reduction (reduce, prepare, run, view) and
+// the rest of the preparation (prepare, run, view). They fill the library's option structs.
+#pragma once
+#include <CLI/CLI.hpp>
+
+#include "adaptiso/prepare.hpp"
+#include "adaptiso/reduce.hpp"
+
+namespace adaptiso::cli {
+
+struct ReduceFlags {
+  std::string method = "reconstruction";
+  std::string gradient = "central";
+  ReduceOptions o;
+  void add(CLI::App* app);
+  ReduceOptions options() const;
+};
+
+struct PrepareFlags {
+  ReduceFlags reduce;
+  std::string gradients = "auto";
+  bool sequential_delaunay = false;
+  std::uint32_t tree_depth = kDefaultTreeDepth;
+  void add(CLI::App* app);
+  PrepareOptions options(const std::string& source_path) const;
+};
+
+}  // namespace adaptiso::cli

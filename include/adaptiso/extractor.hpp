@@ -1,0 +1,70 @@
+// adaptiso/extractor.hpp — one client's iso-surface browsing over a prepared grid: sweeping
+// simplices (the interval tree, §2.4) to find the tetrahedra the surface cuts, marching
+// tetrahedra (marching_tetrahedra.hpp, same conventions) to cut them, and incremental updates.
+//
+// After a small change of iso-value only the tetrahedra that entered, left or changed case are
+// marched again (found from the entries the sweep walked and a per-tetrahedron interval of
+// iso-values that keep its case); the rest of the mesh stays in place and only the vertex
+// positions are interpolated anew. Every vertex has the same position and normal, bit for bit,
+// and the mesh the same triangles, as a fresh march of the same iso-value. The first extraction is
+// a fresh march of the active tetrahedra sorted by id (triangles in that order, vertices by first
+// use); after incremental steps the order is stable: unchanged triangles and vertices stay where
+// they are, new ones take freed places and entries from the end move into the remaining holes, so
+// triangle order and vertex numbering depend on the history of iso-values (deterministically,
+// whatever the thread count).
+//
+// The Extractor shares ownership of its grid, so the grid outlives every client that uses it.
+// One Extractor is used by one thread at a time; any number of Extractors may share a grid.
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "adaptiso/mesh.hpp"
+#include "adaptiso/prepare.hpp"
+
+namespace adaptiso {
+
+namespace detail {
+struct ExtractorState;
+}
+
+struct ExtractorOptions {
+  double max_changed_fraction = 0.25;           // above this share of re-marched tetrahedra, march afresh
+  std::size_t parallel_min_tetrahedra = 65536;  // below this, one thread numbers the vertices
+  // Up to this many active tetrahedra the mesh vertices' edge ends are kept (64 bytes per vertex)
+  // so a step re-interpolates from one record each; larger surfaces read the grid instead.
+  std::size_t edge_cache_max_tetrahedra = 6'000'000;
+};
+
+struct ExtractStats {
+  double iso = 0;
+  std::size_t active = 0, triangles = 0, vertices = 0;
+  std::uint64_t walked = 0;  // list entries the sweep visited
+  std::size_t marched = 0;   // tetrahedra marched: all active ones afresh, the entered or changed ones in a step
+  double sweep_seconds = 0, march_seconds = 0;
+  bool in_range = true;      // false when iso lies outside [min, max] of the grid (empty mesh)
+  bool incremental = false;  // the mesh was updated from the previous one
+};
+
+class Extractor {
+public:
+  explicit Extractor(std::shared_ptr<const PreparedGrid> grid, const ExtractorOptions& options = {});
+  ~Extractor();
+  Extractor(Extractor&&) noexcept;
+  Extractor& operator=(Extractor&&) noexcept;
+
+  ExtractStats extract(double iso);
+  const Mesh& mesh() const;
+  // The active tetrahedra of the last extract, in slot order (ascending after a fresh march).
+  const std::vector<std::uint32_t>& active() const;
+  // Per mesh vertex, its cut edge as (below vertex << 32 | above vertex), grid vertex ids.
+  const std::vector<std::uint64_t>& vertex_edges() const;
+  bool last_was_incremental() const;
+  const PreparedGrid& grid() const;
+
+private:
+  std::unique_ptr<detail::ExtractorState> state_;
+};
+
+}  // namespace adaptiso

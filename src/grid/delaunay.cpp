@@ -1,0 +1,81 @@
+// Delaunay tetrahedrization — Lürig & Ertl §2.2. The paper's own O(n²) triangulator needed a
+// workaround for coplanar points; CGAL's incremental Delaunay with exact predicates and symbolic
+// perturbation handles the lattice's coplanar and cospherical sets by construction.
+#include <CGAL/Delaunay_triangulation_3.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Triangulation_vertex_base_with_info_3.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
+#include <fmt/format.h>
+
+#include "adaptiso/delaunay.hpp"
+
+namespace adaptiso {
+namespace {
+
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+
+template <class Tag>
+struct DT {
+  using Vb = CGAL::Triangulation_vertex_base_with_info_3<std::uint32_t, K>;
+  using Cb = CGAL::Delaunay_triangulation_cell_base_3<K>;
+  using Tds = CGAL::Triangulation_data_structure_3<Vb, Cb, Tag>;
+  using Type = CGAL::Delaunay_triangulation_3<K, Tds>;
+};
+
+template <class Tri>
+void extract(Tri& dt, TetGrid& grid) {
+  if (dt.dimension() < 3)
+    throw InputError(
+        fmt::format("the {} kept vertices are coplanar (is a dimension 1?): a flat volume has no tetrahedra", grid.ijk.size()));
+  grid.tets.clear();
+  grid.tets.reserve(dt.number_of_finite_cells());
+  for (auto c = dt.finite_cells_begin(); c != dt.finite_cells_end(); ++c)
+    grid.tets.push_back({c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(), c->vertex(3)->info()});
+}
+
+}  // namespace
+
+TetGrid delaunay_grid(const Volume& v, const ValueRange& range, const std::vector<std::int64_t>& kept, const DelaunayOptions& options,
+                      const Progress& progress) {
+  if (kept.size() >= std::numeric_limits<std::uint32_t>::max())
+    throw OptionError("max_error", fmt::format("{} kept vertices exceed the grid's 32-bit vertex indices; raise it", kept.size()));
+  TetGrid grid;
+  grid.source = grid_source(v, range);
+  const std::size_t n = kept.size();
+  grid.ijk.resize(n);
+  grid.values.resize(n);
+  std::vector<std::pair<K::Point_3, std::uint32_t>> pts(n);
+  tbb::parallel_for(std::size_t{0}, n, [&](std::size_t i) {
+    std::int64_t idx = kept[i];
+    std::uint32_t x = static_cast<std::uint32_t>(idx % v.dims[0]), y = static_cast<std::uint32_t>((idx / v.dims[0]) % v.dims[1]),
+                  z = static_cast<std::uint32_t>(idx / (v.dims[0] * v.dims[1]));
+    grid.ijk[i] = {x, y, z};
+    grid.values[i] = v.at(idx);
+    pts[i] = {K::Point_3(v.spacing[0] * x, v.spacing[1] * y, v.spacing[2] * z), static_cast<std::uint32_t>(i)};
+  });
+  report(progress, "tetrahedralize", 0.05);
+  if (options.parallel) {
+    using Tri = typename DT<CGAL::Parallel_tag>::Type;
+    CGAL::Bbox_3 box(0, 0, 0, v.spacing[0] * (v.dims[0] - 1), v.spacing[1] * (v.dims[1] - 1), v.spacing[2] * (v.dims[2] - 1));
+    typename Tri::Lock_data_structure locks(box, 50);
+    Tri dt(pts.begin(), pts.end(), &locks);  // range insertion sorts spatially (Hilbert order)
+    report(progress, "tetrahedralize", 0.9);
+    extract(dt, grid);
+  } else {
+    using Tri = typename DT<CGAL::Sequential_tag>::Type;
+    Tri dt(pts.begin(), pts.end());
+    report(progress, "tetrahedralize", 0.9);
+    extract(dt, grid);
+  }
+  // Deterministic order (CGAL's cell order depends on insertion history): sort by vertex ids.
+  tbb::parallel_sort(grid.tets.begin(), grid.tets.end(), [](const auto& a, const auto& b) {
+    auto ka = std::min({a[0], a[1], a[2], a[3]}), kb = std::min({b[0], b[1], b[2], b[3]});
+    return ka != kb ? ka < kb : a < b;
+  });
+  report(progress, "tetrahedralize", 1.0);
+  return grid;
+}
+
+}  // namespace adaptiso

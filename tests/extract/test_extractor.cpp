@@ -1,0 +1,213 @@
+// The Extractor (§2.4): incremental steps against fresh marches and the brute-force scan, bit for
+// bit, on random grids full of ties, across float roundings and for any thread count.
+#include <gtest/gtest.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cmath>
+#include <iterator>
+#include <map>
+#include <random>
+
+#include "adaptiso/extractor.hpp"
+#include "adaptiso/interval_tree.hpp"
+#include "adaptiso/marching_tetrahedra.hpp"
+#include "adaptiso/synthetic.hpp"
+#include "test_util.hpp"
+
+using namespace adaptiso;
+
+namespace {
+
+TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
+using testutil::all_voxels;
+
+// A random kept set (corners always) of a volume with small integer values: many ties, many
+// constant tetrahedra, many vertices exactly at the iso-values tried.
+TetGrid random_grid(std::mt19937& rng, int levels) {
+  Dims d{2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7)};
+  Volume v = make_volume(d, ScalarType::f32);
+  v.spacing = {1.0 + (rng() % 3) * 0.5, 1.0, 0.5 + (rng() % 2)};
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, double(rng() % levels));
+  std::vector<std::int64_t> kept;
+  auto corners = volume_corners(v);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
+    if (rng() % 3 != 0 || std::find(corners.begin(), corners.end(), i) != corners.end()) kept.push_back(i);
+  return build(v, kept);
+}
+
+std::vector<std::uint32_t> sorted(std::vector<std::uint32_t> a) {
+  std::sort(a.begin(), a.end());
+  return a;
+}
+
+// The Extractor's mesh equals a fresh march up to vertex numbering and triangle order: the same
+// triangles (each as its three cut edges, in the same corner order) the same number of times, bit-identical
+// positions and normals per edge, one vertex per edge and no unused vertex.
+testing::AssertionResult same_surface(const Extractor& ex, const Mesh& ref, const std::vector<std::uint64_t>& ref_edges) {
+  const Mesh& m = ex.mesh();
+  const auto& edges = ex.vertex_edges();
+  if (m.vertex_count() != ref.vertex_count() || edges.size() != m.vertex_count())
+    return testing::AssertionFailure() << "vertices " << m.vertex_count() << " vs " << ref.vertex_count();
+  if (m.triangle_count() != ref.triangle_count())
+    return testing::AssertionFailure() << "triangles " << m.triangle_count() << " vs " << ref.triangle_count();
+  std::map<std::uint64_t, std::uint32_t> ref_vertex;  // edge -> reference vertex
+  for (std::uint32_t r = 0; r < ref_edges.size(); ++r) ref_vertex[ref_edges[r]] = r;
+  if (ref_vertex.size() != ref_edges.size()) return testing::AssertionFailure() << "reference has repeated edges";
+  std::vector<std::uint32_t> to_ref(m.vertex_count(), ~0u);
+  for (std::uint32_t v = 0; v < m.vertex_count(); ++v) {
+    auto it = ref_vertex.find(edges[v]);
+    if (it == ref_vertex.end()) return testing::AssertionFailure() << "vertex " << v << " on an edge the fresh march does not cut";
+    to_ref[v] = it->second;
+  }
+  // Triangles as their corners in reference numbering (corner order too: both come from the same
+  // case table entry of the same tetrahedron).
+  std::vector<std::array<std::uint32_t, 3>> mine, theirs(ref.triangles.begin(), ref.triangles.end());
+  for (const auto& t : m.triangles) mine.push_back({to_ref[t[0]], to_ref[t[1]], to_ref[t[2]]});
+  std::sort(mine.begin(), mine.end());
+  std::sort(theirs.begin(), theirs.end());
+  if (mine != theirs) return testing::AssertionFailure() << "different triangles";
+  std::vector<int> used(m.vertex_count(), 0);
+  for (const auto& t : m.triangles)
+    for (std::uint32_t v : t) used[v] = 1;
+  for (std::size_t v = 0; v < m.vertex_count(); ++v) {
+    if (!used[v]) return testing::AssertionFailure() << "vertex " << v << " unused";
+    if (m.positions[v] != ref.positions[to_ref[v]] || m.normals[v] != ref.normals[to_ref[v]])
+      return testing::AssertionFailure() << "vertex " << v << " differs from the fresh march";
+  }
+  return testing::AssertionSuccess();
+}
+
+}  // namespace
+
+TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 60; ++trial) {
+    const int levels = 2 + static_cast<int>(rng() % 6);
+    TetGrid g = random_grid(rng, levels);
+    const std::uint32_t depth = rng() % 7;
+    IntervalTree tree = build_interval_tree(g, depth);
+    ASSERT_NO_THROW(validate_interval_tree(tree, g, "test"));
+    ExtractorOptions always;
+    always.max_changed_fraction = 1.0;  // always update the previous mesh, never march afresh
+    ExtractorOptions uncached_options = always;
+    uncached_options.edge_cache_max_tetrahedra = 0;  // re-interpolate from the grid
+    Extractor incremental(testutil::prepared(g, tree), always), uncached(testutil::prepared(g, tree), uncached_options);
+    SweepState state;
+    double iso = 0;
+    std::vector<std::uint32_t> before;  // the active set of the previous step
+    for (int step = 0; step < 40; ++step) {
+      switch (rng() % 5) {
+        case 0:
+          iso = double(rng() % levels);
+          break;  // exactly a vertex value
+        case 1:
+          iso += ((rng() % 2) ? 1 : -1) * 0.25;
+          break;  // small steps up or down
+        case 2:
+          iso = -3.0 + (rng() % 1000) * (levels + 6.0) / 1000;
+          break;  // jumps, also outside the range
+        case 3:
+          break;  // repeat
+        default:
+          iso = std::nextafter(double(rng() % levels), (rng() % 2) ? 1e9 : -1e9);  // next to a value
+      }
+      sweep_to(tree, g, state, iso);
+      std::vector<std::uint32_t> inc, fresh, scan;
+      active_tetrahedra(tree, state, inc);
+      query_active(tree, g, iso, fresh);
+      scan_active(g, iso, scan);
+      if (step > 0) {  // the entering entries: no repeats, and the newly active ones are those flagged 3
+        ASSERT_TRUE(state.entering_complete);
+        std::vector<std::uint32_t> entering = sorted(state.entering), entered, expected;
+        ASSERT_EQ(std::adjacent_find(entering.begin(), entering.end()), entering.end());
+        for (std::uint32_t t : entering)
+          if (state.flags[t] == 3) entered.push_back(t);
+        std::set_difference(scan.begin(), scan.end(), before.begin(), before.end(), std::back_inserter(expected));
+        ASSERT_EQ(entered, expected) << "trial " << trial << " step " << step;
+      }
+      ASSERT_EQ(inc, fresh) << "trial " << trial << " step " << step << " iso " << iso;  // same order too
+      ASSERT_EQ(sorted(inc), scan) << "trial " << trial << " step " << step << " iso " << iso;
+      // The same active list gives bit-identical meshes, whichever way it was found.
+      std::vector<std::uint64_t> a_edges;
+      const Mesh a = march_tetrahedra(g, sorted(inc), iso, {}, &a_edges);
+      const Mesh b = march_tetrahedra(g, scan, iso);
+      ASSERT_EQ(a.positions, b.positions);
+      ASSERT_EQ(a.triangles, b.triangles);
+      // The Extractor's incrementally updated mesh is the same surface, bit for bit.
+      incremental.extract(iso);
+      ASSERT_EQ(incremental.last_was_incremental(), step > 0);
+      ASSERT_EQ(sorted(incremental.active()), scan);
+      ASSERT_TRUE(same_surface(incremental, a, a_edges)) << "trial " << trial << " step " << step;
+      uncached.extract(iso);
+      ASSERT_TRUE(same_surface(uncached, a, a_edges)) << "trial " << trial << " step " << step << " (no edge cache)";
+      before = scan;
+    }
+  }
+}
+
+TEST(Extractor, StepsBetweenAValueAndItsFloatRoundingMatchFreshExtraction) {
+  // The case intervals are stored as floats rounded inwards; with double values that no float
+  // represents, iso-values landing between a value and its float neighbours must still re-march
+  // exactly the tetrahedra whose case changed.
+  std::mt19937 rng(11);
+  Volume v = make_volume({7, 6, 5}, ScalarType::f64);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, 0.1 * double(rng() % 7) + 1e-9 * double(rng() % 1000));
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g, 3);
+  ExtractorOptions always;
+  always.max_changed_fraction = 1.0;
+  Extractor ex(testutil::prepared(g, tree), always);
+  std::vector<double> isos;
+  for (int k = 0; k < 12; ++k) {
+    const double value = g.values[rng() % g.values.size()];
+    const float f = static_cast<float>(value);
+    for (double iso : {double(f), value, std::nextafter(value, 1e9), std::nextafter(value, -1e9), double(std::nextafter(f, 1e9f)),
+                       double(std::nextafter(f, -1e9f)), 0.5 * (value + double(f))})
+      isos.push_back(iso);
+  }
+  for (std::size_t step = 0; step < isos.size(); ++step) {
+    ex.extract(isos[step]);
+    std::vector<std::uint32_t> act;
+    scan_active(g, isos[step], act);
+    std::vector<std::uint64_t> ref_edges;
+    const Mesh ref = march_tetrahedra(g, act, isos[step], {}, &ref_edges);
+    ASSERT_EQ(ex.last_was_incremental(), step > 0);
+    ASSERT_TRUE(same_surface(ex, ref, ref_edges)) << step << " iso " << isos[step];
+  }
+}
+
+TEST(Extractor, IncrementalStepsOnALargeGridMatchFreshExtractionForAnyThreadCount) {
+  // Large enough for several blocks and chunks in the incremental update (> 32768 active
+  // tetrahedra), run in arenas of 1 and 4 threads: the same history gives the same mesh, bit for
+  // bit, and it is the fresh march's surface.
+  Volume v = make_synthetic("marschner-lobb", 40, ScalarType::f32);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g);
+  ExtractorOptions chunked;
+  chunked.parallel_min_tetrahedra = 1;
+  const auto shared = testutil::prepared(g, tree);
+  Extractor one(shared, chunked), four(shared, chunked);
+  tbb::task_arena arena1(1), arena4(4);
+  double iso = 0.5 * (g.source.min + g.source.max);
+  const double range = g.source.max - g.source.min;
+  std::size_t incremental = 0, large = 0;
+  for (int step = 0; step < 12; ++step) {
+    iso += (step % 3 == 2 ? -0.004 : 0.003) * range;
+    ExtractStats st;
+    arena1.execute([&] { one.extract(iso); });
+    arena4.execute([&] { st = four.extract(iso); });
+    incremental += four.last_was_incremental();
+    large += four.last_was_incremental() && st.active > 2 * 16384 && st.marched > 1000;
+    ASSERT_EQ(one.mesh().triangles, four.mesh().triangles) << step;
+    ASSERT_EQ(one.mesh().positions, four.mesh().positions) << step;
+    ASSERT_EQ(one.vertex_edges(), four.vertex_edges()) << step;
+    std::vector<std::uint32_t> act;
+    scan_active(g, iso, act);
+    std::vector<std::uint64_t> ref_edges;
+    const Mesh ref = march_tetrahedra(g, act, iso, MarchOptions{1}, &ref_edges);
+    ASSERT_TRUE(same_surface(four, ref, ref_edges)) << step;
+  }
+  EXPECT_GE(incremental, 10u);
+  EXPECT_GE(large, 5u);  // the multi-chunk path ran
+}

@@ -1,0 +1,105 @@
+// The grid file: bit-identical round trips, every truncation and random corruption refused, older
+// files (without the index, version 1) still read.
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <cstring>
+#include <random>
+
+#include "adaptiso/grid_file.hpp"
+#include "adaptiso/reduce.hpp"
+#include "adaptiso/synthetic.hpp"
+#include "test_util.hpp"
+
+using namespace adaptiso;
+
+namespace {
+
+// The int16 sphere reduced at an absolute error bound, tetrahedralized, with its index.
+PreparedGrid reduced_sphere_grid(int size, double max_error, std::uint32_t depth = kDefaultTreeDepth) {
+  Volume s = make_synthetic("sphere", size, ScalarType::i16);
+  ReduceOptions o;
+  o.max_error = max_error;
+  PreparedGrid p;
+  p.grid = testutil::build_grid(s, reduce(s, o).kept);
+  p.index = build_interval_tree(p.grid, depth);
+  return p;
+}
+
+}  // namespace
+
+TEST(GridFile, RoundTripIsBitIdentical) {
+  testutil::TempDir t("grid");
+  const PreparedGrid p = reduced_sphere_grid(20, 30, 5);
+  const TetGrid& grid = p.grid;
+  const IntervalTree& idx = p.index;
+  save_grid(p, t / "a.adg");
+  const PreparedGrid q = load_grid(t / "a.adg");
+  const IntervalTree& loaded = q.index;
+  const TetGrid& h = q.grid;
+  EXPECT_EQ(loaded.depth, idx.depth);
+  EXPECT_EQ(loaded.by_min, idx.by_min);
+  EXPECT_EQ(loaded.by_max, idx.by_max);
+  ASSERT_EQ(loaded.nodes.size(), idx.nodes.size());
+  for (std::size_t i = 0; i < idx.nodes.size(); ++i) {
+    EXPECT_EQ(loaded.nodes[i].split, idx.nodes[i].split);
+    EXPECT_EQ(loaded.nodes[i].begin, idx.nodes[i].begin);
+    EXPECT_EQ(loaded.nodes[i].lo, idx.nodes[i].lo);
+    EXPECT_EQ(loaded.nodes[i].hi, idx.nodes[i].hi);
+  }
+  EXPECT_EQ(h.ijk, grid.ijk);
+  EXPECT_EQ(h.values, grid.values);
+  EXPECT_EQ(h.gradients, grid.gradients);
+  EXPECT_EQ(h.tets, grid.tets);
+  EXPECT_EQ(h.source.dims, grid.source.dims);
+  save_grid(q, t / "b.adg");
+  EXPECT_EQ(testutil::read_bytes(t / "a.adg"), testutil::read_bytes(t / "b.adg"));
+}
+
+TEST(GridFile, EveryTruncationAndRandomCorruptionIsRefused) {
+  testutil::TempDir t("gridbad");
+  save_grid(reduced_sphere_grid(8, 50, 3), t / "a.adg");
+  ASSERT_NO_THROW(load_grid(t / "a.adg"));
+  const std::string full = testutil::read_bytes(t / "a.adg");
+  for (std::size_t len = 0; len < full.size(); ++len) {
+    testutil::write_bytes(t / "t.adg", full.substr(0, len));
+    EXPECT_THROW(load_grid(t / "t.adg"), InputError) << "length " << len;
+  }
+  std::mt19937 rng(9);
+  for (int trial = 0; trial < 300; ++trial) {
+    std::string c = full;
+    int flips = 1 + static_cast<int>(rng() % 4);
+    for (int f = 0; f < flips; ++f) c[rng() % c.size()] ^= static_cast<char>(1 + rng() % 255);
+    testutil::write_bytes(t / "c.adg", c);
+    EXPECT_THROW(load_grid(t / "c.adg"), InputError) << "trial " << trial;
+  }
+  testutil::write_bytes(t / "f.adg", "hello, not a grid at all, but long enough to have a header.............");
+  EXPECT_THROW(load_grid(t / "f.adg"), InputError);
+}
+
+TEST(GridFile, FilesWithoutAnIndexAndVersion1FilesGetOneBuiltOnLoad) {
+  testutil::TempDir t("gridv1");
+  const PreparedGrid p = reduced_sphere_grid(12, 40);
+  const TetGrid& grid = p.grid;
+  save_grid(p, t / "plain.adg", false);  // version 2 without the index
+  const PreparedGrid q = load_grid(t / "plain.adg");
+  const IntervalTree expect = build_interval_tree(q.grid);
+  EXPECT_EQ(q.index.by_min, expect.by_min);
+  EXPECT_EQ(q.index.by_max, expect.by_max);
+  // The same content as a version 1 file: 48-byte header, version 1, flags 0, fresh checksum.
+  const std::string v2 = testutil::read_bytes(t / "plain.adg");
+  std::string v1 = v2.substr(0, 48) + v2.substr(64, v2.size() - 64 - 4);
+  const std::uint32_t one = 1;
+  std::memcpy(v1.data() + 16, &one, 4);
+  const std::uint32_t crc =
+      static_cast<std::uint32_t>(crc32(crc32(0, nullptr, 0), reinterpret_cast<const Bytef*>(v1.data()), static_cast<uInt>(v1.size())));
+  v1.append(reinterpret_cast<const char*>(&crc), 4);
+  testutil::write_bytes(t / "v1.adg", v1);
+  const PreparedGrid q1 = load_grid(t / "v1.adg");
+  EXPECT_EQ(q1.grid.tets, grid.tets);
+  EXPECT_EQ(q1.index.by_min, expect.by_min);
+  std::string bad = v1;
+  bad[20] = 1;  // a version 1 file cannot announce an index
+  testutil::write_bytes(t / "v1bad.adg", bad);
+  EXPECT_THROW(load_grid(t / "v1bad.adg"), InputError);
+}

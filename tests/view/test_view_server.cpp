@@ -1,0 +1,237 @@
+// The viewer's HTTP server, in process, through cpp-httplib's client: the API against direct
+// library calls, bad requests (400/404/405, path traversal), the preparing state, and many
+// concurrent clients. The browser end-to-end test is tests/browser/viewer.test.mjs.
+#include <gtest/gtest.h>
+#include <httplib.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cstring>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "adaptiso/extractor.hpp"
+#include "adaptiso/marching_cubes.hpp"
+#include "adaptiso/reduce.hpp"
+#include "adaptiso/synthetic.hpp"
+#include "adaptiso/view_server.hpp"
+#include "test_util.hpp"
+
+using namespace adaptiso;
+
+namespace {
+
+struct Fixture {
+  std::shared_ptr<Volume> volume;
+  std::shared_ptr<const PreparedGrid> grid;
+};
+
+Fixture sphere_grid() {
+  Fixture f;
+  f.volume = std::make_shared<Volume>(make_synthetic("sphere", 24, ScalarType::i16));
+  ReduceOptions o;
+  o.relative = true;
+  o.max_error = 0.05;
+  f.grid = testutil::prepared(testutil::build_grid(*f.volume, reduce(*f.volume, o).kept));
+  return f;
+}
+
+// A server on a free port in a background thread, stopped at scope exit.
+struct Running {
+  ViewServer server;
+  std::thread thread;
+  int port = 0;
+  explicit Running(ViewOptions o) : server(std::move(o)) {
+    port = server.bind();
+    thread = std::thread([this] { server.listen(); });
+    httplib::Client c("127.0.0.1", port);
+    for (int i = 0; i < 200 && !c.Get("/api/info"); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ~Running() {
+    server.stop();
+    thread.join();
+  }
+  httplib::Client client() const {
+    httplib::Client c("127.0.0.1", port);
+    c.set_read_timeout(30, 0);
+    return c;
+  }
+};
+
+ViewOptions options() {
+  ViewOptions o;
+  o.port = 0;
+  o.web_dir = ADAPTISO_WEB_DIR;
+  return o;
+}
+
+std::uint32_t triangles_in(const std::string& body) {
+  std::uint32_t vt[2];
+  EXPECT_GE(body.size(), 8u);
+  std::memcpy(vt, body.data(), 8);
+  EXPECT_EQ(body.size(), 8 + 24 * std::size_t{vt[0]} + 12 * std::size_t{vt[1]});
+  return vt[1];
+}
+
+// The triangles of an encoded mesh as corner positions and normals, sorted: equal for two
+// encodings of the same surface whatever their vertex numbering and triangle order (an
+// Extractor's depend on its history, and the server may have dropped a client's state in between).
+std::vector<std::array<float, 18>> corners(const std::string& body) {
+  std::uint32_t vt[2];
+  std::memcpy(vt, body.data(), 8);
+  if (body.size() != 8 + 24 * std::size_t{vt[0]} + 12 * std::size_t{vt[1]}) return {};
+  const char* pos = body.data() + 8;
+  const char* nrm = pos + 12 * std::size_t{vt[0]};
+  const char* tri = nrm + 12 * std::size_t{vt[0]};
+  std::vector<std::array<float, 18>> out(vt[1]);
+  for (std::size_t k = 0; k < 3 * std::size_t{vt[1]}; ++k) {
+    std::uint32_t v;
+    std::memcpy(&v, tri + 4 * k, 4);
+    if (v >= vt[0]) return {};
+    std::memcpy(&out[k / 3][6 * (k % 3)], pos + 12 * std::size_t{v}, 12);
+    std::memcpy(&out[k / 3][6 * (k % 3) + 3], nrm + 12 * std::size_t{v}, 12);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+bool same_surface(const std::string& a, const std::string& b) {
+  return a.size() == b.size() && a.compare(0, 8, b, 0, 8) == 0 && corners(a) == corners(b);
+}
+
+}  // namespace
+
+TEST(ViewServer, EncodesTheDocumentedLayout) {
+  Mesh m;
+  m.positions = {{1, 2, 3}, {4, 5, 6}, {7, 8, 9}};
+  m.normals = {{0, 0, 1}, {0, 1, 0}, {1, 0, 0}};
+  m.triangles = {{0, 1, 2}};
+  std::string b = encode_mesh(m);
+  ASSERT_EQ(b.size(), 8u + 72 + 12);
+  float f[3];
+  std::uint32_t idx[3];
+  std::memcpy(f, b.data() + 8 + 12, 12);
+  EXPECT_EQ(f[0], 4);
+  std::memcpy(f, b.data() + 8 + 36 + 12, 12);
+  EXPECT_EQ(f[1], 1);
+  std::memcpy(idx, b.data() + 8 + 72, 12);
+  EXPECT_EQ(idx[2], 2u);
+}
+
+TEST(ViewServer, AnswersLikeTheLibraryAndRefusesBadRequests) {
+  Fixture f = sphere_grid();
+  Running run(options());
+  auto c = run.client();
+  // Before the grid is there: info says preparing, surfaces are 503.
+  auto info = c.Get("/api/info");
+  ASSERT_TRUE(info);
+  EXPECT_NE(info->body.find("\"preparing\""), std::string::npos);
+  auto early = c.Get("/api/surface?iso=700");
+  ASSERT_TRUE(early);
+  EXPECT_EQ(early->status, 503);
+
+  run.server.set_volume(f.volume);
+  run.server.set_grid(f.grid);
+  info = c.Get("/api/info");
+  ASSERT_TRUE(info);
+  auto j = nlohmann::json::parse(info->body);
+  EXPECT_EQ(j["state"], "ready");
+  EXPECT_EQ(j["kept"], f.grid->grid.vertex_count());
+  EXPECT_EQ(j["tetrahedra"], f.grid->grid.tet_count());
+  EXPECT_EQ(j["histogram"]["counts"].size(), 128u);
+  EXPECT_TRUE(j["reference"].get<bool>());
+
+  Extractor ex(f.grid);
+  for (double iso : {700.0, 701.0, 650.0, 5000.0}) {
+    auto r = c.Get(("/api/surface?client=t1&iso=" + std::to_string(iso)).c_str());
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200);
+    ex.extract(iso);
+    EXPECT_EQ(r->body, encode_mesh(ex.mesh())) << iso;
+    EXPECT_EQ(r->get_header_value("X-Triangles"), std::to_string(ex.mesh().triangle_count()));
+  }
+  auto ref = c.Get("/api/reference?iso=700");
+  ASSERT_TRUE(ref);
+  EXPECT_EQ(triangles_in(ref->body), marching_cubes(*f.volume, 700).triangle_count());
+  auto pts = c.Get("/api/points");
+  ASSERT_TRUE(pts);
+  EXPECT_EQ(pts->body.size(), 4 + 16 * f.grid->grid.vertex_count());
+  auto tet = c.Get("/api/tetrahedra?iso=700");
+  ASSERT_TRUE(tet);
+  EXPECT_EQ(tet->status, 200);
+  auto all = c.Get("/api/tetrahedra");
+  ASSERT_TRUE(all);
+  EXPECT_EQ(all->status, 200);
+  EXPECT_EQ(c.Get("/")->status, 200);
+  EXPECT_EQ(c.Get("/viewer.js")->status, 200);
+
+  const std::pair<const char*, int> bad[] = {
+      {"/api/surface", 400},
+      {"/api/surface?iso=", 400},
+      {"/api/surface?iso=abc", 400},
+      {"/api/surface?iso=nan", 400},
+      {"/api/surface?iso=1e999", 400},
+      {"/api/surface?iso=700x", 400},
+      {"/api/surface?iso=700&client=a%20b", 400},
+      {"/api/surface?iso=700&client=aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa", 400},
+      {"/api/reference?iso=-", 400},
+      {"/api/tetrahedra?iso=inf", 400},
+      {"/api/nothing", 404},
+      {"/../../../etc/passwd", 404},
+      {"/%2e%2e/%2e%2e/etc/passwd", 404},
+      {"/node_modules/../../CMakeLists.txt", 404},
+      {"/..%2f..%2fCMakeLists.txt", 404},
+      {"/.gitignore", 404},
+      {"/package.json/", 404},
+      {"/does-not-exist.js", 404},
+      {"/%00", 404},
+  };
+  for (const auto& [path, status] : bad) {
+    auto r = c.Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, status) << path << ": " << r->body;
+    EXPECT_EQ(r->body.find("root:"), std::string::npos) << path;
+  }
+  auto post = c.Post("/api/surface?iso=700", "x", "text/plain");
+  ASSERT_TRUE(post);
+  EXPECT_EQ(post->status, 405);
+  // Still serving after all of that.
+  auto ok = c.Get("/api/surface?iso=700");
+  ASSERT_TRUE(ok);
+  EXPECT_EQ(ok->status, 200);
+}
+
+TEST(ViewServer, ManyConcurrentClientsGetTheirOwnCorrectSurfaces) {
+  Fixture f = sphere_grid();
+  ViewOptions o = options();
+  o.max_clients = 4;  // fewer states than clients: eviction must not break anything
+  Running run(o);
+  run.server.set_grid(f.grid);
+  std::atomic<int> wrong{0}, failed{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 8; ++t)
+    threads.emplace_back([&, t] {
+      auto c = run.client();
+      Extractor ex(f.grid);
+      for (int k = 0; k < 25; ++k) {
+        const double iso = 400 + 20 * t + 7 * k;
+        auto r = c.Get(("/api/surface?client=c" + std::to_string(t) + "&iso=" + std::to_string(iso)).c_str());
+        if (!r || r->status != 200) {
+          ++failed;
+          continue;
+        }
+        ex.extract(iso);
+        if (!same_surface(r->body, encode_mesh(ex.mesh()))) ++wrong;
+      }
+    });
+  for (auto& th : threads) th.join();
+  EXPECT_EQ(failed.load(), 0);
+  EXPECT_EQ(wrong.load(), 0);
+}
+
+TEST(ViewServer, RefusesAMissingPageFolder) {
+  ViewOptions o = options();
+  o.web_dir = "/nonexistent/web";
+  EXPECT_THROW(ViewServer s(o), InputError);
+}
