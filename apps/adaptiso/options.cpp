@@ -1,10 +1,12 @@
 #include "options.hpp"
 
+#include <limits>
+
 namespace adaptiso::cli {
 
 void ReduceFlags::add(CLI::App* app) {
   app->add_option("--method", method, "reconstruction | structural | both")->check(CLI::IsMember({"reconstruction", "structural", "both"}));
-  app->add_option("--max-error", o.max_error, "Reconstruction: max-norm error bound (data units; fraction of the range with --relative)");
+  max_error = app->add_option("--max-error", o.max_error, "Max-norm error bound (data units; fraction of the range with --relative)");
   app->add_option("--threshold", o.threshold,
                   "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)");
   app->add_option("--gradient", gradient, "Structural: central | canny")->check(CLI::IsMember({"central", "canny"}));
@@ -21,7 +23,14 @@ ReduceOptions ReduceFlags::options() const {
 }
 
 void PrepareFlags::add(CLI::App* app) {
+  app->add_option("--grid", grid,
+                  "bisection: longest-edge bisection on the voxel lattice, error guaranteed (default) | delaunay: the paper's "
+                  "reduction + Delaunay")
+      ->check(CLI::IsMember({"bisection", "delaunay"}));
   reduce.add(app);
+  app->add_option("--max-displacement", max_displacement,
+                  "Bisection: also bound how far, to first order, an iso-surface may move (voxels; 0: off)");
+  app->add_flag("--verify", verify, "Bisection: measure the reconstruction error voxel by voxel and check the guarantee");
   app->add_option("--gradients", gradients, "Vertex gradients: auto | lsq (least squares, the paper's) | central (central differences)")
       ->check(CLI::IsMember({"auto", "lsq", "central"}));
   app->add_option("--tree-depth", tree_depth, "Depth of the interval tree used for extraction")
@@ -45,6 +54,11 @@ PrepareOptions PrepareFlags::options(const std::string& source_path) const {
                                          : GradientMethod::automatic;
   p.parallel_delaunay = !sequential_delaunay;
   p.tree_depth = tree_depth;
+  p.grid = grid == "delaunay" ? GridKind::delaunay : GridKind::bisection;
+  p.max_displacement = max_displacement;
+  // The displacement alone, unless an error bound is given too.
+  if (max_displacement > 0 && reduce.max_error->count() == 0) p.max_error = std::numeric_limits<double>::infinity();
+  p.verify = verify;
   p.source_name = source_path;
   return p;
 }

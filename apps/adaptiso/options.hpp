@@ -12,12 +12,16 @@ struct ReduceFlags {
   std::string method = "reconstruction";
   std::string gradient = "central";
   ReduceOptions o;
+  CLI::Option* max_error = nullptr;
   void add(CLI::App* app);
   ReduceOptions options() const;
 };
 
 struct PrepareFlags {
   ReduceFlags reduce;
+  std::string grid = "bisection";
+  double max_displacement = 0;
+  bool verify = false;
   std::string gradients = "auto";
   bool sequential_delaunay = false;
   std::uint32_t tree_depth = kDefaultTreeDepth;

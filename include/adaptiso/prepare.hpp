@@ -1,18 +1,29 @@
-// adaptiso/prepare.hpp — the preprocessing pipeline as one call: volume → grid (reduction and
-// Delaunay, §2.1–2.2) → vertex gradients (§2.3) → reconstruction error → extraction index (§2.4).
-// The command line, the viewer, the Python module, the tests and the benches all prepare grids
-// through prepare().
+// adaptiso/prepare.hpp — the preprocessing pipeline as one call: volume → tetrahedral grid →
+// vertex gradients (§2.3) → reconstruction error → extraction index (§2.4). The command line, the
+// viewer, the Python module, the tests and the benches all prepare grids through prepare().
+//
+// Two grid builders, same output (tet_grid.hpp):
+// - bisection (bisection.hpp): longest-edge bisection on the voxel lattice; the error bound is a
+//   guarantee for the grid's own piecewise-linear reconstruction; linear time; gradients by
+//   central differences by default.
+// - delaunay (delaunay.hpp): the paper's pipeline, reduction (§2.1: the options method, threshold,
+//   structural_gradient, sigma, kernel) then Delaunay tetrahedrization (§2.2); its bound holds for
+//   trilinear interpolation in the octree's cubes, not for the tetrahedra, so the grid's error is
+//   measured (pl_max_error) and may exceed it; least-squares gradients by default.
 //
 // Units: max_error in data units, or a fraction of the value range with `relative`; threshold
-// likewise (a fraction of the largest gradient magnitude with `relative`).
+// likewise (a fraction of the largest gradient magnitude with `relative`); max_displacement in
+// voxels.
 // Throws OptionError for a bad option (named as in PrepareOptions), InputError when the volume
 // cannot be prepared (flat, too many vertices for 32-bit indices, more memory than the machine has).
 #pragma once
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "adaptiso/bisection.hpp"
 #include "adaptiso/interval_tree.hpp"
 #include "adaptiso/progress.hpp"
 #include "adaptiso/reduce.hpp"
@@ -20,16 +31,20 @@
 
 namespace adaptiso {
 
+enum class GridKind { bisection, delaunay };
+
 enum class GradientMethod {
-  automatic,      // least squares
+  automatic,      // central differences on the bisection grid, least squares on the Delaunay grid
   least_squares,  // the paper's fit over each vertex's ring (gradients.hpp)
   central,        // central differences of the volume
 };
 
 struct PrepareOptions {
+  GridKind grid = GridKind::bisection;
   // The error bound of the grid (max norm).
   double max_error = 0;
-  bool relative = false;  // max_error and threshold relative to the value range / largest gradient
+  bool relative = false;        // max_error and threshold relative to the value range / largest gradient
+  double max_displacement = 0;  // bisection: voxels an iso-surface may move, to first order (0: not used)
   // The paper's reduction (§2.1).
   ReduceMethod method = ReduceMethod::reconstruction;
   double threshold = 0;
@@ -39,8 +54,10 @@ struct PrepareOptions {
   bool parallel_delaunay = true;
   GradientMethod gradients = GradientMethod::automatic;
   std::uint32_t tree_depth = kDefaultTreeDepth;
-  bool measure_error = true;  // the piecewise-linear error, voxel by voxel (pl_max_error)
-  std::string source_name;    // informational: the source's file name (folders are dropped)
+  // Measure the piecewise-linear error voxel by voxel (pl_max_error): always for the Delaunay grid,
+  // on request for the bisection grid, whose bound is a guarantee (a violation throws logic_error).
+  bool verify = false;
+  std::string source_name;  // informational: the source's file name (folders are dropped)
 };
 
 // The reduction options that PrepareOptions implies (absolute or relative as given).
@@ -53,10 +70,13 @@ struct StageStats {
 };
 
 struct PrepareStats {
+  std::string grid;  // "bisection" or "delaunay"
   std::int64_t voxels = 0;
   std::uint64_t kept = 0, tetrahedra = 0;
   double max_error = 0;                         // the absolute bound asked for
   double threshold = 0;                         // the absolute structural threshold used
+  double error_bound = -1;                      // bisection: the guaranteed max-norm error (< 0: no guarantee)
+  double max_displacement = 0;                  // bisection: the displacement criterion used (voxels; 0: none)
   double pl_max_error = -1, pl_rms_error = -1;  // measured (< 0: not measured)
   std::uint32_t index_depth = 0;
   double grid_bytes_per_vertex = 0;
@@ -64,8 +84,8 @@ struct PrepareStats {
   double seconds(const std::string& stage) const;  // 0 when the stage did not run
 };
 
-// One JSON object: voxels, kept, ratio, tetrahedra, max_error, pl_max_error, pl_rms_error,
-// index_depth, grid_bytes_per_vertex, seconds{stage}, peak_bytes{stage}; and back (fields that
+// One JSON object: grid, voxels, kept, ratio, tetrahedra, max_error, pl_max_error, pl_rms_error,
+// error_bound, index_depth, grid_bytes_per_vertex, seconds{stage}, peak_bytes{stage}; and back (fields that
 // are missing keep their defaults, so older grid files load).
 std::string to_json(const PrepareStats& stats);
 PrepareStats prepare_stats_from_json(const std::string& json);
@@ -75,6 +95,7 @@ struct PreparedGrid {
   TetGrid grid;
   IntervalTree index;
   PrepareStats stats;
+  std::optional<BisectionHierarchy> hierarchy;  // bisection grids: for queries at a coarser error
 };
 
 PreparedGrid prepare(const Volume& v, const PrepareOptions& options, const Progress& progress = {});

@@ -5,12 +5,19 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/parallel_sort.h>
 
 #include <fmt/format.h>
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <numeric>
+#include <type_traits>
+#include <utility>
 
 #include "adaptiso/error.hpp"
+#include "util/big_array.hpp"
 #include "util/prefetch.hpp"
 
 namespace adaptiso {
@@ -49,80 +56,174 @@ void compute_bounds(IntervalTree& tree, const TetGrid& grid) {
   }
 }
 
-// Sorts each node's range of by_min by (tmin, id) and of by_max by (tmax, id).
-void sort_lists(IntervalTree& tree, const std::vector<double>& tmin, const std::vector<double>& tmax) {
-  tbb::parallel_for(std::size_t{0}, tree.nodes.size(), [&](std::size_t i) {
-    const auto& n = tree.nodes[i];
-    std::sort(tree.by_min.begin() + n.begin, tree.by_min.begin() + n.end,
-              [&](std::uint32_t a, std::uint32_t b) { return tmin[a] < tmin[b] || (tmin[a] == tmin[b] && a < b); });
-    std::sort(tree.by_max.begin() + n.begin, tree.by_max.begin() + n.end,
-              [&](std::uint32_t a, std::uint32_t b) { return tmax[a] < tmax[b] || (tmax[a] == tmax[b] && a < b); });
-  });
-}
+// The tree is built on records of (tmin, tmax, id) laid out contiguously, so partitioning and
+// sorting stream through memory instead of chasing ids into the grid. Keys are floats when every
+// value of the grid is one exactly (integer and float32 volumes: half the bytes), doubles
+// otherwise; either way the order is the exact order of the values.
+template <class K>
+struct Record {
+  K lo, hi;
+  std::uint32_t id;
+  double mid() const { return 0.5 * static_cast<double>(lo) + 0.5 * static_cast<double>(hi); }
+};
 
+template <class K>
 struct Builder {
   IntervalTree& tree;
-  const std::vector<double>& tmin;
-  const std::vector<double>& tmax;
+  Record<K>* recs;
 
-  double mid(std::uint32_t t) const { return 0.5 * tmin[t] + 0.5 * tmax[t]; }
-
-  // ids[b, e) reach node i at level `level`; lays them out in pre-order: own entries first.
-  void build(std::size_t i, std::uint32_t level, std::uint64_t b, std::uint64_t e) {
+  // recs[b, e) reach node i; lays them out in pre-order: own entries first.
+  void build(std::size_t i, std::uint64_t b, std::uint64_t e) {
     auto& n = tree.nodes[i];
-    auto* ids = tree.by_min.data();
     if (tree.is_leaf(i) || b == e) {
       n.begin = b;
       n.end = e;
       if (!tree.is_leaf(i)) {  // empty subtree: give the children empty ranges at e
         n.split = 0;
-        build(2 * i + 1, level + 1, e, e);
-        build(2 * i + 2, level + 1, e, e);
+        build(2 * i + 1, e, e);
+        build(2 * i + 2, e, e);
       }
       return;
     }
-    auto by_mid = [&](std::uint32_t a, std::uint32_t c) { return mid(a) < mid(c) || (mid(a) == mid(c) && a < c); };
-    std::nth_element(ids + b, ids + b + (e - b) / 2, ids + e, by_mid);
-    const double s = mid(ids[b + (e - b) / 2]);
-    auto* here_end = std::partition(ids + b, ids + e, [&](std::uint32_t t) { return tmin[t] < s && tmax[t] > s; });
-    auto* left_end = std::partition(here_end, ids + e, [&](std::uint32_t t) { return tmax[t] <= s; });
+    auto by_mid = [](const Record<K>& a, const Record<K>& c) { return a.mid() < c.mid() || (a.mid() == c.mid() && a.id < c.id); };
+    std::nth_element(recs + b, recs + b + (e - b) / 2, recs + e, by_mid);
+    const double s = recs[b + (e - b) / 2].mid();
+    auto* here_end = std::partition(recs + b, recs + e, [&](const Record<K>& r) { return r.lo < s && r.hi > s; });
+    auto* left_end = std::partition(here_end, recs + e, [&](const Record<K>& r) { return r.hi <= s; });
     n.split = s;
     n.begin = b;
-    n.end = static_cast<std::uint64_t>(here_end - ids);
-    const std::uint64_t m = static_cast<std::uint64_t>(left_end - ids);
+    n.end = static_cast<std::uint64_t>(here_end - recs);
+    const std::uint64_t m = static_cast<std::uint64_t>(left_end - recs);
     if (e - b > (1u << 16))
-      tbb::parallel_invoke([&] { build(2 * i + 1, level + 1, n.end, m); }, [&] { build(2 * i + 2, level + 1, m, e); });
+      tbb::parallel_invoke([&] { build(2 * i + 1, n.end, m); }, [&] { build(2 * i + 2, m, e); });
     else {
-      build(2 * i + 1, level + 1, n.end, m);
-      build(2 * i + 2, level + 1, m, e);
+      build(2 * i + 1, n.end, m);
+      build(2 * i + 2, m, e);
     }
   }
 };
 
+// A float as an unsigned integer with the same order (−0 as +0, which compare equal), so a
+// (key, id) pair sorts as one 64-bit integer.
+inline std::uint64_t ordered(float f, std::uint32_t id) {
+  if (f == 0) f = 0;
+  const auto bits = std::bit_cast<std::uint32_t>(f);
+  const std::uint32_t key = (bits & 0x80000000u) ? ~bits : bits | 0x80000000u;
+  return (std::uint64_t{key} << 32) | id;
+}
+
+// LSD radix sort of 64-bit keys, 16 bits a pass (for the nodes too large to sort in cache).
+void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint64_t>& scratch) {
+  scratch.resize(keys.size());
+  std::vector<std::uint64_t> count(1 << 16);
+  for (int shift = 0; shift < 64; shift += 16) {
+    std::fill(count.begin(), count.end(), 0);
+    for (std::uint64_t k : keys) ++count[(k >> shift) & 0xffff];
+    if (std::find(count.begin(), count.end(), keys.size()) != count.end()) continue;  // one digit value: nothing moves
+    std::uint64_t sum = 0;
+    for (auto& c : count) sum += std::exchange(c, sum);
+    for (std::uint64_t k : keys) scratch[count[(k >> shift) & 0xffff]++] = k;
+    keys.swap(scratch);
+  }
+}
+
+// Sorts one node's ids into list[b, e) by (key of record, id).
+template <class K, class Key>
+void sort_node(const Record<K>* recs, std::uint64_t b, std::uint64_t e, Key key, std::uint32_t* list, bool large) {
+  if constexpr (std::is_same_v<K, float>) {
+    thread_local std::vector<std::uint64_t> keys, scratch;
+    keys.resize(e - b);
+    for (std::uint64_t i = b; i < e; ++i) keys[i - b] = ordered(key(recs[i]), recs[i].id);
+    if (large)
+      radix_sort(keys, scratch);
+    else
+      std::sort(keys.begin(), keys.end());
+    for (std::uint64_t i = b; i < e; ++i) list[i] = static_cast<std::uint32_t>(keys[i - b]);
+    if (large) {  // do not keep tens of megabytes per thread
+      std::vector<std::uint64_t>().swap(keys);
+      std::vector<std::uint64_t>().swap(scratch);
+    }
+  } else {
+    std::vector<std::pair<K, std::uint32_t>> keys(e - b);
+    for (std::uint64_t i = b; i < e; ++i) keys[i - b] = {key(recs[i]), recs[i].id};
+    if (large)
+      tbb::parallel_sort(keys.begin(), keys.end());
+    else
+      std::sort(keys.begin(), keys.end());
+    for (std::uint64_t i = b; i < e; ++i) list[i] = keys[i - b].second;
+  }
+}
+
+// Each node's entries by (tmin, id) into by_min and by (tmax, id) into by_max.
+template <class K>
+void sort_lists(IntervalTree& tree, const std::vector<Record<K>>& recs) {
+  detail::resize_big(tree.by_min, recs.size());
+  detail::resize_big(tree.by_max, recs.size());
+  auto lo = [](const Record<K>& r) { return r.lo; };
+  auto hi = [](const Record<K>& r) { return r.hi; };
+  constexpr std::uint64_t kLarge = 1 << 16;
+  // Largest nodes first, so the threads finish together; both lists of a node side by side.
+  std::vector<std::size_t> order(tree.nodes.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  auto size = [&](std::size_t i) { return tree.nodes[i].end - tree.nodes[i].begin; };
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return size(a) > size(b); });
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, 2 * order.size(), 1), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k < r.end(); ++k) {
+      const auto& n = tree.nodes[order[k / 2]];
+      if (k % 2 == 0)
+        sort_node(recs.data(), n.begin, n.end, lo, tree.by_min.data(), n.end - n.begin > kLarge);
+      else
+        sort_node(recs.data(), n.begin, n.end, hi, tree.by_max.data(), n.end - n.begin > kLarge);
+    }
+  });
+}
+
+template <class K>
+IntervalTree build_with(const TetGrid& grid, std::uint32_t depth) {
+  const std::size_t T = grid.tet_count();
+  // Non-constant tetrahedra only: a constant one is never active. Blocks fill in parallel and
+  // are then moved together in block order, so the records come in id order.
+  const std::size_t block = 1 << 16, blocks = (T + block - 1) / block;
+  std::vector<Record<K>> recs;
+  detail::resize_big(recs, T);
+  std::vector<std::size_t> kept(blocks + 1, 0);
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    std::size_t k = b * block;
+    for (std::size_t t = b * block; t < std::min(T, (b + 1) * block); ++t) {
+      const Range q = tet_range(grid, static_cast<std::uint32_t>(t));
+      if (q.lo < q.hi) recs[k++] = {static_cast<K>(q.lo), static_cast<K>(q.hi), static_cast<std::uint32_t>(t)};
+    }
+    kept[b + 1] = k - b * block;
+  });
+  for (std::size_t b = 0; b < blocks; ++b) {
+    std::copy(recs.begin() + static_cast<std::ptrdiff_t>(b * block), recs.begin() + static_cast<std::ptrdiff_t>(b * block + kept[b + 1]),
+              recs.begin() + static_cast<std::ptrdiff_t>(kept[b]));
+    kept[b + 1] += kept[b];
+  }
+  recs.resize(kept[blocks]);
+  IntervalTree tree;
+  depth = std::min<std::uint32_t>(depth, 30);
+  while (depth > 0 && (std::uint64_t{1} << depth) > recs.size()) --depth;
+  tree.depth = depth;
+  tree.nodes.resize((std::size_t{2} << depth) - 1);
+  Builder<K>{tree, recs.data()}.build(0, 0, recs.size());
+  sort_lists(tree, recs);
+  return tree;
+}
+
 }  // namespace
 
 IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth) {
-  const std::size_t T = grid.tet_count();
-  if (T > std::numeric_limits<std::uint32_t>::max()) throw InputError("too many tetrahedra for the interval tree");
-  std::vector<double> tmin(T), tmax(T);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T), [&](const auto& r) {
-    for (std::size_t t = r.begin(); t < r.end(); ++t) {
-      Range q = tet_range(grid, static_cast<std::uint32_t>(t));
-      tmin[t] = q.lo;
-      tmax[t] = q.hi;
-    }
-  });
-  IntervalTree tree;
-  tree.by_min.reserve(T);
-  for (std::size_t t = 0; t < T; ++t)
-    if (tmin[t] < tmax[t]) tree.by_min.push_back(static_cast<std::uint32_t>(t));
-  depth = std::min<std::uint32_t>(depth, 30);
-  while (depth > 0 && (std::uint64_t{1} << depth) > tree.by_min.size()) --depth;
-  tree.depth = depth;
-  tree.nodes.resize((std::size_t{2} << depth) - 1);
-  Builder{tree, tmin, tmax}.build(0, 0, 0, tree.by_min.size());
-  tree.by_max = tree.by_min;
-  sort_lists(tree, tmin, tmax);
+  if (grid.tet_count() > std::numeric_limits<std::uint32_t>::max()) throw InputError("too many tetrahedra for the interval tree");
+  const bool floats = tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, grid.values.size(), 1 << 16), true,
+      [&](const auto& r, bool ok) {
+        for (std::size_t v = r.begin(); ok && v < r.end(); ++v)
+          ok = static_cast<double>(static_cast<float>(grid.values[v])) == grid.values[v];
+        return ok;
+      },
+      [](bool a, bool b) { return a && b; });
+  IntervalTree tree = floats ? build_with<float>(grid, depth) : build_with<double>(grid, depth);
   compute_bounds(tree, grid);
   return tree;
 }

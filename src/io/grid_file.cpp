@@ -177,7 +177,8 @@ PreparedGrid load_grid(const std::string& path) {
     grid.source.min = s.at("min").get<double>();
     grid.source.max = s.at("max").get<double>();
     grid.source.method = s.at("method").get<std::string>();
-    grid.source.max_error = s.at("max_error").get<double>();
+    // No error criterion (+∞) is written as null, JSON having no infinity.
+    grid.source.max_error = s.at("max_error").is_null() ? std::numeric_limits<double>::infinity() : s.at("max_error").get<double>();
     grid.source.threshold = s.at("threshold").get<double>();
     grid.source.file = s.at("file").get<std::string>();
   } catch (const nlohmann::json::exception& e) {

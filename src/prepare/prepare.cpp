@@ -10,6 +10,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "adaptiso/bisection.hpp"
 #include "adaptiso/delaunay.hpp"
 #include "adaptiso/error.hpp"
 #include "adaptiso/gradients.hpp"
@@ -52,9 +53,13 @@ private:
 };
 
 void check_options(const PrepareOptions& o) {
-  if (!(o.max_error >= 0) || !std::isfinite(o.max_error))
+  if (!(o.max_error >= 0) || (!std::isfinite(o.max_error) && o.grid == GridKind::delaunay))
     throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
   if (o.tree_depth > 24) throw OptionError("tree_depth", fmt::format("must be between 0 and 24, got {}", o.tree_depth));
+  if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
+    throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", o.max_displacement));
+  if (o.max_displacement > 0 && o.grid != GridKind::bisection)
+    throw OptionError("max_displacement", "is a criterion of the bisection grid (use the bisection grid or leave it out)");
 }
 
 }  // namespace
@@ -83,7 +88,8 @@ std::string to_json(const PrepareStats& s) {
     seconds[st.name] = st.seconds;
     peak[st.name] = st.peak_bytes;
   }
-  nlohmann::json j = {{"voxels", s.voxels},
+  nlohmann::json j = {{"grid", s.grid},
+                      {"voxels", s.voxels},
                       {"kept", s.kept},
                       {"ratio", s.voxels ? static_cast<double>(s.kept) / static_cast<double>(s.voxels) : 0.0},
                       {"tetrahedra", s.tetrahedra},
@@ -93,6 +99,8 @@ std::string to_json(const PrepareStats& s) {
                       {"grid_bytes_per_vertex", s.grid_bytes_per_vertex},
                       {"seconds", seconds},
                       {"peak_bytes", peak}};
+  if (s.error_bound >= 0) j["error_bound"] = s.error_bound;
+  if (s.max_displacement > 0) j["max_displacement"] = s.max_displacement;
   if (s.pl_max_error >= 0) {
     j["pl_max_error"] = s.pl_max_error;
     j["pl_rms_error"] = s.pl_rms_error;
@@ -107,11 +115,16 @@ PrepareStats prepare_stats_from_json(const std::string& text) {
   auto get = [&](const char* key, auto& out) {
     if (auto it = j.find(key); it != j.end() && (it->is_number() || it->is_boolean())) out = it->get<std::decay_t<decltype(out)>>();
   };
+  if (auto it = j.find("grid"); it != j.end() && it->is_string()) s.grid = it->get<std::string>();
   get("voxels", s.voxels);
   get("kept", s.kept);
   get("tetrahedra", s.tetrahedra);
   get("max_error", s.max_error);
+  if (auto it = j.find("max_error"); it != j.end() && it->is_null())
+    s.max_error = std::numeric_limits<double>::infinity();  // no error criterion
   get("threshold", s.threshold);
+  get("error_bound", s.error_bound);
+  get("max_displacement", s.max_displacement);
   get("pl_max_error", s.pl_max_error);
   get("pl_rms_error", s.pl_rms_error);
   get("index_depth", s.index_depth);
@@ -131,29 +144,62 @@ PreparedGrid prepare(const Volume& v, const PrepareOptions& options, const Progr
   return prepare(v, value_range(v), options, progress);
 }
 
+namespace {
+
+// The paper's grid: reduction (§2.1), then Delaunay (§2.2).
+TetGrid delaunay_pipeline(const Volume& v, const ValueRange& range, const PrepareOptions& o, StageClock& clock, PrepareStats& stats,
+                          const Progress& progress) {
+  const ReduceResult r = clock.run("reduce", [&] { return reduce(v, range, reduce_options(o), progress); });
+  stats.max_error = r.max_error;
+  stats.threshold = r.threshold;
+  DelaunayOptions delaunay;
+  delaunay.parallel = o.parallel_delaunay;
+  TetGrid grid = clock.run("tetrahedralize", [&] { return delaunay_grid(v, range, r.kept, delaunay, progress); });
+  grid.source.method = o.method == ReduceMethod::structural ? "structural" : o.method == ReduceMethod::both ? "both" : "reconstruction";
+  grid.source.max_error = r.max_error;
+  grid.source.threshold = r.threshold;
+  return grid;
+}
+
+// The bisection grid, with its hierarchy for coarser queries.
+TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const PrepareOptions& o, StageClock& clock, PreparedGrid& p,
+                           const Progress& progress) {
+  BisectionOptions b;
+  b.max_error = o.relative ? o.max_error * (range.max - range.min) : o.max_error;
+  b.max_displacement = o.max_displacement;
+  const BisectionErrors errors = clock.run("error_hierarchy", [&] { return bisection_errors(v, range, b.max_displacement > 0, progress); });
+  BisectionGrid grid = clock.run("select", [&] { return bisection_select(v, range, errors, b, progress); });
+  p.stats.max_error = b.max_error;
+  p.stats.error_bound = grid.error_bound;
+  p.stats.max_displacement = b.max_displacement;
+  p.hierarchy = std::move(grid.hierarchy);
+  return std::move(grid.grid);
+}
+
+}  // namespace
+
 PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress) {
   check_options(o);
   PreparedGrid p;
   PrepareStats& stats = p.stats;
   StageClock clock(stats);
-  const ReduceResult r = clock.run("reduce", [&] { return reduce(v, range, reduce_options(o), progress); });
-  DelaunayOptions delaunay;
-  delaunay.parallel = o.parallel_delaunay;
-  p.grid = clock.run("tetrahedralize", [&] { return delaunay_grid(v, range, r.kept, delaunay, progress); });
-  p.grid.source.method = o.method == ReduceMethod::structural ? "structural" : o.method == ReduceMethod::both ? "both" : "reconstruction";
-  p.grid.source.max_error = r.max_error;
-  p.grid.source.threshold = r.threshold;
+  const bool bisection = o.grid == GridKind::bisection;
+  stats.grid = bisection ? "bisection" : "delaunay";
+  p.grid = bisection ? bisection_pipeline(v, range, o, clock, p, progress) : delaunay_pipeline(v, range, o, clock, stats, progress);
   p.grid.source.file = std::filesystem::path(o.source_name).filename().string();
+  const bool central = o.gradients == GradientMethod::central || (o.gradients == GradientMethod::automatic && bisection);
   clock.run("gradients", [&] {
-    if (o.gradients == GradientMethod::central)
+    if (central)
       central_difference_gradients(p.grid, v, progress);
     else
       least_squares_gradients(p.grid, progress);
   });
-  if (o.measure_error) {
+  if (!bisection || o.verify) {
     const ReconstructionError pl = clock.run("pl_error", [&] { return piecewise_linear_error(v, p.grid, progress); });
     stats.pl_max_error = pl.max;
     stats.pl_rms_error = pl.rms;
+    if (bisection && pl.max > stats.error_bound + error_tolerance(range, stats.error_bound))
+      throw std::logic_error(fmt::format("bisection grid: error {} exceeds its guaranteed bound {}", pl.max, stats.error_bound));
   }
   p.index = clock.run("index", [&] {
     report(progress, "index", 0);
@@ -162,8 +208,6 @@ PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOpti
   stats.voxels = v.voxel_count();
   stats.kept = p.grid.vertex_count();
   stats.tetrahedra = p.grid.tet_count();
-  stats.max_error = r.max_error;
-  stats.threshold = r.threshold;
   stats.index_depth = p.index.depth;
   stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
   return p;

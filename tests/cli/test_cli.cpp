@@ -266,11 +266,22 @@ TEST(Cli, GenerateThenInfoJson) {
 TEST(PrepareCli, JsonFieldsAndExport) {
   testutil::TempDir t("prep");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 30 -o " + (t / "s.nrrd")).code, 0);
-  auto r = testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error 0.15 --relative --json -o " + (t / "s.adg"));
+  auto r = testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid delaunay --max-error 0.15 --relative --json -o " + (t / "d.adg"));
   ASSERT_EQ(r.code, 0) << r.err;
   auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["grid"], "delaunay");
   for (const char* k : {"voxels", "kept", "tetrahedra", "pl_max_error", "pl_rms_error", "seconds"}) EXPECT_TRUE(j.contains(k)) << k;
-  for (const char* k : {"reduce", "tetrahedralize", "gradients"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  for (const char* k : {"reduce", "tetrahedralize", "gradients", "index"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  // The bisection grid (the default): a guaranteed bound, checked voxel by voxel with --verify.
+  r = testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error 0.15 --relative --verify --json -o " + (t / "s.adg"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["grid"], "bisection");
+  for (const char* k : {"error_hierarchy", "select", "gradients", "pl_error", "index"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  EXPECT_LE(j["pl_max_error"].get<double>(), j["error_bound"].get<double>());
+  EXPECT_LE(j["error_bound"].get<double>(), j["max_error"].get<double>());
+  EXPECT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid delaunay --max-displacement 0.5 -o " + (t / "x.adg")).code, 2);
+  EXPECT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid voronoi -o " + (t / "x.adg")).code, 2);
   EXPECT_EQ(testutil::run_cli("export " + (t / "s.adg") + " -o " + (t / "s.vtu")).code, 0);
   EXPECT_EQ(testutil::run_cli("export " + (t / "s.adg") + " -o " + (t / "s.ply")).code, 0);
   testutil::write_bytes(t / "bad.adg", "garbage");
