@@ -120,7 +120,7 @@ int main(int argc, char** argv) {
         step(0.01, step_large, sweep_large, walked_large, marched_large);
       }
       std::printf(
-          "{\"grid\":\"%s\",\"tetrahedra\":%zu,\"depth\":%u,\"build_seconds\":%.3f,\"iso\":%grid,\"active\":%zu,\"active_fraction\":%.5f,"
+          "{\"grid\":\"%s\",\"tetrahedra\":%zu,\"depth\":%u,\"build_seconds\":%.3f,\"iso\":%g,\"active\":%zu,\"active_fraction\":%.5f,"
           "\"triangles\":%zu,\"query_tree\":%.6f,\"query_scan\":%.6f,\"extract_fresh\":%.6f,\"extract_scan\":%.6f,"
           "\"tree_vs_scan\":%.2f,\"first_extract_with_state\":%.6f,\"step_0.1%%\":%.6f,\"sweep_0.1%%\":%.6f,\"walked_0.1%%\":%llu,"
           "\"marched_0.1%%\":%zu,"
