@@ -6,6 +6,7 @@
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
@@ -88,6 +89,39 @@ nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const M
   return results;
 }
 
+// Every iso-value from the bisection hierarchy at a coarser error (query-time error).
+nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
+                         double max_error, double max_displacement, const OutputFlags& out) {
+  const HierarchyQuery query(prepared);
+  const TetGrid& grid = prepared->grid;
+  nlohmann::json results = nlohmann::json::array();
+  for (std::size_t i = 0; i < isos.size(); ++i) {
+    HierarchyQueryStats st;
+    const Mesh mesh = query.extract(isos[i], max_error, max_displacement, &st);
+    const std::string path = mesh_out.path(i);
+    auto t0 = Clock::now();
+    write_mesh(mesh, path);
+    results.push_back({{"iso", st.iso},
+                       {"in_range", st.in_range},
+                       {"triangles", st.triangles},
+                       {"vertices", st.vertices},
+                       {"max_error", st.max_error},
+                       {"error_bound", st.error_bound},
+                       {"marched_tetrahedra", st.tetrahedra},
+                       {"visited_tetrahedra", st.visited},
+                       {"seconds", st.walk_seconds + st.march_seconds},
+                       {"walk_seconds", st.walk_seconds},
+                       {"march_seconds", st.march_seconds},
+                       {"write_seconds", seconds_since(t0)},
+                       {"output", path}});
+    if (!out.json && !out.quiet)
+      print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
+                    fmt::format("at error {:.4g} (guaranteed {:.4g})", st.max_error, st.error_bound), st.walk_seconds + st.march_seconds,
+                    path);
+  }
+  return results;
+}
+
 }  // namespace
 
 void add_extract(CLI::App& app) {
@@ -95,10 +129,16 @@ void add_extract(CLI::App& app) {
   auto input = std::make_shared<std::string>();
   auto mesh_out = std::make_shared<MeshOutputFlags>();
   auto relative = std::make_shared<bool>(false);
+  auto max_error = std::make_shared<double>(-1);
+  auto max_displacement = std::make_shared<double>(0);
   auto out = std::make_shared<OutputFlags>();
   cmd->add_option("GRID", *input, "Grid file (.adg) written by prepare")->required();
   mesh_out->add(cmd);
-  cmd->add_flag("--relative", *relative, "Iso-values as fractions of the value range [min, max]");
+  cmd->add_flag("--relative", *relative, "Iso-values (and --max-error) as fractions of the value range [min, max]");
+  cmd->add_option("--max-error", *max_error,
+                  "Bisection grids: extract at this coarser error (at least the prepared one) from the grid's hierarchy, without "
+                  "preparing again");
+  cmd->add_option("--max-displacement", *max_displacement, "Bisection grids prepared with it: a coarser displacement bound (voxels)");
   out->add(cmd);
   cmd->callback([=] {
     mesh_out->check();
@@ -108,7 +148,12 @@ void add_extract(CLI::App& app) {
     const double t_load = seconds_since(t0);
     auto values = mesh_out->values(*relative, grid.source.min, grid.source.max);
     nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
-    j["surfaces"] = extract_all(p, *mesh_out, values, *out);
+    if (*max_error >= 0 || *max_displacement > 0) {
+      const double e = *max_error < 0 ? 0 : *relative ? *max_error * (grid.source.max - grid.source.min) : *max_error;
+      j["surfaces"] = query_all(p, *mesh_out, values, e, *max_displacement, *out);
+    } else {
+      j["surfaces"] = extract_all(p, *mesh_out, values, *out);
+    }
     if (out->json) print_json(j);
   });
 }

@@ -40,6 +40,7 @@
 // "max_displacement") for a negative or non-finite bound, InputError when the grid would exceed
 // 32-bit vertex indices.
 #pragma once
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -58,21 +59,24 @@ struct BisectionOptions {
 // an error of 0 (up to rounding), 255 "always split" (across the volume's boundary), 1…254 are
 // scale·2^((code − 254)/16), rounded up.
 struct ErrorCodes {
-  double scale = 1;    // the value range (1 for a constant volume)
-  double zero = 0;     // errors up to this count as 0 (rounding of the data's magnitude)
+  double scale = 1;  // the value range (1 for a constant volume)
+  double zero = 0;   // errors up to this count as 0 (rounding of the data's magnitude)
   static constexpr std::uint8_t kForced = 255;
-  std::uint8_t code(double error) const;          // the smallest code whose error is ≥ error
-  double error(std::uint8_t code) const;          // the error a code stands for
-  std::uint8_t threshold(double bound) const;     // the largest code whose error is ≤ bound
+  std::uint8_t code(double error) const;       // the smallest code whose error is ≥ error
+  double error(std::uint8_t code) const;       // the error a code stands for
+  std::uint8_t threshold(double bound) const;  // the largest code whose error is ≤ bound
 };
 
 // What a coarser query needs of the hierarchy: the selection of the grid is every diamond whose
 // code exceeds the threshold; a coarser error raises the threshold (query.hpp).
 struct BisectionHierarchy {
-  std::int32_t root_size = 0;            // S
+  std::int32_t root_size = 0;  // S
   ErrorCodes codes;
   std::uint8_t error_threshold = 0;      // of the grid's max_error
   std::vector<std::uint8_t> error_code;  // per grid vertex: the saturated code of its diamond
+  // Per grid vertex whose diamond the grid splits: the smallest and largest value of the grid's
+  // vertices beneath it (floats rounded outwards; an empty span, +∞ … −∞, for the others).
+  std::vector<std::array<float, 2>> value_span;
   // With the displacement criterion (voxels; empty otherwise).
   ErrorCodes displacement_codes;
   std::uint8_t displacement_threshold = 0;

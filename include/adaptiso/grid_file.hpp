@@ -2,8 +2,9 @@
 //
 // Layout (little-endian):
 //   0   char[16]  magic "ADAPTISO-GRID\0\0\0"
-//   16  u32       version (2; version 1 files, without the index, are still read)
-//   20  u32       flags (bit 0: the extraction index follows the tetrahedra)
+//   16  u32       version (3; versions 1 and 2 are still read)
+//   20  u32       flags (bit 0: the extraction index follows the tetrahedra; bit 1: the bisection
+//                 hierarchy follows [version 3]; bit 2: with the displacement criterion)
 //   24  u64       M, bytes of metadata
 //   32  u64       N, vertices
 //   40  u64       T, tetrahedra
@@ -13,6 +14,9 @@
 //                 value range, reduction settings) and "prepare" (PrepareStats, prepare.hpp)
 //       u32[N][3] ijk;  f64[N] values;  f32[N][3] gradients;  u32[T][4] tets
 //       index: (f64 split, u64 begin, u64 end)[2^(D+1) - 1];  u32[E] by_min;  u32[E] by_max
+//       hierarchy: i32 root size; u8 error threshold; u8 displacement threshold; u16 0;
+//                  f64 error scale, zero; f64 displacement scale, zero; u8[N] error codes;
+//                  [u8[N] displacement codes]; f32[N][2] value spans     (bisection.hpp)
 //       u32       CRC-32 (zlib) of every preceding byte
 // Loading checks the magic, version, that the file size is exactly what the counts imply (so no
 // allocation exceeds the file), the checksum, tetrahedron indices and finite values, and refuses

@@ -14,6 +14,7 @@
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/tet_grid.hpp"
 #include "extract/edge_point.hpp"
+#include "util/big_array.hpp"
 #include "util/prefetch.hpp"
 
 namespace adaptiso::detail {
@@ -28,8 +29,9 @@ struct Case {
 };
 extern const std::array<Case, 16> kCases;  // by code: bit k set = vertex k at or above the iso-value
 
-inline std::uint8_t tet_code(const TetGrid& grid, std::uint32_t t, double iso) {
-  const auto& q = grid.tets[t];
+using Quad = std::array<std::uint32_t, 4>;  // a tetrahedron's vertices
+
+inline std::uint8_t tet_code(const TetGrid& grid, const Quad& q, double iso) {
   const double* v = grid.values.data();
   return static_cast<std::uint8_t>((v[q[0]] >= iso) | ((v[q[1]] >= iso) << 1) | ((v[q[2]] >= iso) << 2) | ((v[q[3]] >= iso) << 3));
 }
@@ -121,6 +123,7 @@ void resize_for_overwrite(Vec& v, std::size_t n) {
   if (n > v.capacity()) {
     v.clear();
     v.reserve(n + n / 4);
+    populate(v.data(), (n + n / 4) * sizeof(v[0]));  // big_array.hpp: faulted in at once, on huge pages
   }
   v.resize(n);
 }
@@ -183,8 +186,7 @@ void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& m
 // above iff value >= iso, so the case holds while the largest value below iso stays below and the
 // smallest value at or above iso stays at or above. Stored as floats rounded inwards (half the
 // bytes to stream per step): the float interval lies inside the exact one.
-inline std::uint8_t code_and_gap(const TetGrid& grid, std::uint32_t t, double iso, Gap& gap) {
-  const auto& q = grid.tets[t];
+inline std::uint8_t code_and_gap(const TetGrid& grid, const Quad& q, double iso, Gap& gap) {
   std::uint8_t code = 0;
   double below = -std::numeric_limits<double>::infinity(), above = std::numeric_limits<double>::infinity();
   for (int k = 0; k < 4; ++k) {
@@ -202,6 +204,9 @@ inline std::uint8_t code_and_gap(const TetGrid& grid, std::uint32_t t, double is
   if (gap.above > above) gap.above = std::nextafter(gap.above, -std::numeric_limits<float>::infinity());
   return code;
 }
+inline std::uint8_t code_and_gap(const TetGrid& grid, std::uint32_t t, double iso, Gap& gap) {
+  return code_and_gap(grid, grid.tets[t], iso, gap);
+}
 
 // Chunk-parallel first-use numbering: each chunk numbered its edges locally by first use (ch.map,
 // ch.order); an edge belongs to the first chunk using it, and owned edges are numbered chunk by
@@ -213,9 +218,33 @@ void number_chunk_edges(std::vector<MarchChunk>& chunks, std::vector<std::uint64
 // dropping repeats (O(bound/64 + n), parallel): much cheaper than a comparison sort.
 void sort_ids(std::vector<std::uint32_t>& ids, std::size_t bound, std::vector<std::uint64_t>& bitmap);
 
+// The tetrahedra a march visits, in order: the grid's own by id, or ad hoc ones over the grid's
+// vertices (a bisection grid's query at a coarser error, query.hpp).
+struct GridTets {
+  const TetGrid& grid;
+  std::span<const std::uint32_t> ids;
+  std::size_t size() const { return ids.size(); }
+  const Quad& operator[](std::size_t i) const { return grid.tets[ids[i]]; }
+  void prefetch(std::size_t i) const { prefetch_values(grid, ids[i]); }
+};
+struct QuadTets {
+  const TetGrid& grid;
+  std::span<const Quad> quads;
+  std::size_t size() const { return quads.size(); }
+  const Quad& operator[](std::size_t i) const { return quads[i]; }
+  void prefetch(std::size_t i) const {
+    for (std::uint32_t v : quads[i]) __builtin_prefetch(&grid.values[v]);
+  }
+};
+
 // march_tetrahedra that also keeps, when asked, each active tetrahedron's case interval and each
 // vertex's edge ends (what the Extractor's incremental steps need), without reading them twice.
-void march_tetrahedra_into(const TetGrid& grid, std::span<const std::uint32_t> active, double iso, Mesh& mesh, MarchScratch& sc,
-                           std::vector<Gap>* gaps, std::vector<EdgeEnds>* ends);
+template <class Tets>
+void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, MarchScratch& sc, std::vector<Gap>* gaps,
+                std::vector<EdgeEnds>* ends);
+inline void march_tetrahedra_into(const TetGrid& grid, std::span<const std::uint32_t> active, double iso, Mesh& mesh, MarchScratch& sc,
+                                  std::vector<Gap>* gaps, std::vector<EdgeEnds>* ends) {
+  march_into(grid, GridTets{grid, active}, iso, mesh, sc, gaps, ends);
+}
 
 }  // namespace adaptiso::detail

@@ -130,9 +130,10 @@ void number_chunk_edges(std::vector<MarchChunk>& chunks, std::vector<std::uint64
   });
 }
 
-void march_tetrahedra_into(const TetGrid& grid, std::span<const std::uint32_t> active, double iso, Mesh& mesh, MarchScratch& sc,
-                           std::vector<Gap>* gaps, std::vector<EdgeEnds>* ends) {
-  const std::size_t n = active.size();
+template <class Tets>
+void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, MarchScratch& sc, std::vector<Gap>* gaps,
+                std::vector<EdgeEnds>* ends) {
+  const std::size_t n = tets.size();
   auto& codes = sc.codes;
   auto& first_tri = sc.first_triangle;
   resize_for_overwrite(codes, n);
@@ -158,9 +159,9 @@ void march_tetrahedra_into(const TetGrid& grid, std::span<const std::uint32_t> a
       const std::size_t i1 = std::min(e, i0 + kBatch);
       keys.clear();
       for (std::size_t i = i0; i < i1; ++i) {
-        if (i + 8 < e) prefetch_values(grid, active[i + 8]);
-        const auto& t = grid.tets[active[i]];
-        codes[i] = gaps ? code_and_gap(grid, active[i], iso, (*gaps)[i]) : tet_code(grid, active[i], iso);
+        if (i + 8 < e) tets.prefetch(i + 8);
+        const Quad& t = tets[i];
+        codes[i] = gaps ? code_and_gap(grid, t, iso, (*gaps)[i]) : tet_code(grid, t, iso);
         const Case& cs = kCases[codes[i]];
         for (int q = 0; q < cs.triangles; ++q)
           for (int k = 0; k < 3; ++k) keys.push_back(edge_key(t[cs.tri[q][k].below], t[cs.tri[q][k].above]));
@@ -203,6 +204,9 @@ void march_tetrahedra_into(const TetGrid& grid, std::span<const std::uint32_t> a
     }
   });
 }
+
+template void march_into(const TetGrid&, const GridTets&, double, Mesh&, MarchScratch&, std::vector<Gap>*, std::vector<EdgeEnds>*);
+template void march_into(const TetGrid&, const QuadTets&, double, Mesh&, MarchScratch&, std::vector<Gap>*, std::vector<EdgeEnds>*);
 
 void sort_ids(std::vector<std::uint32_t>& ids, std::size_t bound, std::vector<std::uint64_t>& bitmap) {
   const std::size_t words = (bound + 63) / 64;

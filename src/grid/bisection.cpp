@@ -26,7 +26,9 @@
 #include "adaptiso/error.hpp"
 #include "adaptiso/reduce.hpp"
 #include "grid/diamond.hpp"
+#include "grid/traversal.hpp"
 #include "util/big_array.hpp"
+#include "util/memory.hpp"
 
 namespace adaptiso {
 
@@ -98,7 +100,8 @@ struct Sublattice {
   int shift = 1;  // log2(step)
   std::array<std::int64_t, 3> n{};
   std::size_t size() const { return static_cast<std::size_t>(n[0] * n[1] * n[2]); }
-  Sublattice(const Lattice& lat, DiamondKind kind, int axis, std::int32_t h) : step(2 * h), shift(std::countr_zero(static_cast<std::uint32_t>(2 * h))) {
+  Sublattice(const Lattice& lat, DiamondKind kind, int axis, std::int32_t h)
+      : step(2 * h), shift(std::countr_zero(static_cast<std::uint32_t>(2 * h))) {
     for (int a = 0; a < 3; ++a) {
       bool odd = kind == DiamondKind::cube || (kind == DiamondKind::face && a != axis) || (kind == DiamondKind::edge && a == axis);
       base[a] = odd ? h : 0;
@@ -106,7 +109,8 @@ struct Sublattice {
     }
   }
   std::size_t index(const Coord& c) const {
-    return static_cast<std::size_t>((((c[2] - base[2]) >> shift) * n[1] + ((c[1] - base[1]) >> shift)) * n[0] + ((c[0] - base[0]) >> shift));
+    return static_cast<std::size_t>((((c[2] - base[2]) >> shift) * n[1] + ((c[1] - base[1]) >> shift)) * n[0] +
+                                    ((c[0] - base[0]) >> shift));
   }
   Coord at(std::int64_t i, std::int64_t j, std::int64_t k) const {
     return {static_cast<std::int32_t>(base[0] + i * step), static_cast<std::int32_t>(base[1] + j * step),
@@ -262,10 +266,14 @@ private:
     for (int a = 0; a < 3; ++a) {
       const std::int64_t st = stride(a);
       double d = 0;
-      if (lat_.X[a] == 0) d = 0;
-      else if (c[a] == 0) d = at(i + st) - at(i);
-      else if (c[a] == lat_.X[a]) d = at(i) - at(i - st);
-      else d = 0.5 * (at(i + st) - at(i - st));
+      if (lat_.X[a] == 0)
+        d = 0;
+      else if (c[a] == 0)
+        d = at(i + st) - at(i);
+      else if (c[a] == lat_.X[a])
+        d = at(i) - at(i - st);
+      else
+        d = 0.5 * (at(i + st) - at(i - st));
       sq += d * d;
     }
     return std::sqrt(sq);
@@ -388,9 +396,12 @@ private:
     if (d.h == 1 && d.kind != DiamondKind::cube) return bound(d);
     const Sublattice sub(lat_, d.kind, d.axis, d.h);
     switch (d.kind) {
-      case DiamondKind::edge: return edges_[d.axis][sub.index(c)].get();
-      case DiamondKind::face: return faces_[d.axis][sub.index(c)].get();
-      case DiamondKind::cube: break;
+      case DiamondKind::edge:
+        return edges_[d.axis][sub.index(c)].get();
+      case DiamondKind::face:
+        return faces_[d.axis][sub.index(c)].get();
+      case DiamondKind::cube:
+        break;
     }
     return cubes_below_[sub.index(c)].get();  // an edge's children: the finer cube centres
   }
@@ -510,171 +521,38 @@ private:
   }
 };
 
-// The 6 root tetrahedra around the root cube's diagonal, positively oriented.
-std::array<std::array<Coord, 4>, 6> root_tetrahedra(std::int32_t S) {
-  std::array<std::array<Coord, 4>, 6> out;
-  const int perms[6][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}, {0, 2, 1}, {2, 1, 0}, {1, 0, 2}};
-  for (int t = 0; t < 6; ++t) {
-    Coord v1{0, 0, 0}, v2{0, 0, 0};
-    v1[perms[t][0]] = S;
-    v2 = v1;
-    v2[perms[t][1]] = S;
-    out[t] = {Coord{0, 0, 0}, v1, v2, Coord{S, S, S}};
-    if (t >= 3) std::swap(out[t][1], out[t][2]);  // odd permutations
+// Float bounds of doubles, rounded outwards, and their atomic updates (several tetrahedra of one
+// diamond lie in different subtrees).
+float down(double x) {
+  const auto f = static_cast<float>(x);
+  return f > x ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
+}
+float up(double x) {
+  const auto f = static_cast<float>(x);
+  return f < x ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
+}
+void atomic_min(float& target, float v) {
+  std::atomic_ref<float> a(target);
+  for (float cur = a.load(std::memory_order_relaxed); v < cur && !a.compare_exchange_weak(cur, v, std::memory_order_relaxed);) {
   }
-  return out;
+}
+void atomic_max(float& target, float v) {
+  std::atomic_ref<float> a(target);
+  for (float cur = a.load(std::memory_order_relaxed); v > cur && !a.compare_exchange_weak(cur, v, std::memory_order_relaxed);) {
+  }
 }
 
-using Tet = std::array<Coord, 4>;
-
-// The selection: split a tetrahedron when its diamond crosses the box or its code exceeds the
-// threshold. Calls leaf(tet) for every leaf inside the box, depth first.
-class Selection {
-public:
-  Selection(const Lattice& lat, const std::vector<std::uint8_t>& code, std::uint8_t threshold, const std::vector<std::uint8_t>* displacement,
-            std::uint8_t displacement_threshold)
-      : lat_(lat), code_(code), t_(threshold), moves_(displacement), tm_(displacement_threshold) {}
-
-  // Depth-first subtrees cut `depth` splits below the roots (leaves above that depth included):
-  // the units of parallel work, in the order the whole traversal would meet them.
-  std::vector<Tet> frontier(int depth) const {
-    std::vector<Tet> out;
-    for (const Tet& t : root_tetrahedra(lat_.S)) collect(t, depth, out);
-    return out;
+// The selection at a bound: split where a diamond's codes exceed the thresholds.
+struct CodedSplits {
+  const std::vector<std::uint8_t>& code;
+  std::uint8_t threshold;
+  const std::vector<std::uint8_t>* displacement;  // displacement codes, when that criterion is used
+  std::uint8_t displacement_threshold;
+  bool split(std::int64_t voxel) const {
+    const auto i = static_cast<std::size_t>(voxel);
+    return code[i] > threshold || (displacement && (*displacement)[i] > displacement_threshold);
   }
-
-  template <class Leaf>
-  void visit(const Tet& t, Leaf&& leaf) const {
-    if (inside(t)) return visit_inside(t, leaf);
-    if (outside(t)) return;
-    Coord m;
-    int i, j;
-    if (!split_point(t, m, i, j) || !split(m)) return;  // a leaf across the box's faces is beyond one
-    Tet a = t, b = t;
-    a[j] = m;  // replacing an end by the midpoint keeps the orientation
-    b[i] = m;
-    visit(a, leaf);
-    visit(b, leaf);
-  }
-
-  // Inside the box, so are the halves: no more checks against it.
-  template <class Leaf>
-  void visit_inside(const Tet& t, Leaf&& leaf) const {
-    Coord m;
-    int i, j;
-    if (!split_point(t, m, i, j) || !coded_split(static_cast<std::size_t>(lat_.index(m)))) return leaf(t);
-    Tet a = t, b = t;
-    a[j] = m;
-    b[i] = m;
-    visit_inside(a, leaf);
-    visit_inside(b, leaf);
-  }
-
-private:
-  const Lattice& lat_;
-  const std::vector<std::uint8_t>& code_;
-  std::uint8_t t_;
-  const std::vector<std::uint8_t>* moves_;  // displacement codes, when that criterion is used
-  std::uint8_t tm_;
-
-  bool coded_split(std::size_t i) const { return code_[i] > t_ || (moves_ && (*moves_)[i] > tm_); }
-
-  void collect(const Tet& t, int depth, std::vector<Tet>& out) const {
-    if (outside(t)) return;
-    Coord m;
-    int i, j;
-    if (depth == 0 || !split_point(t, m, i, j) || !split(m)) {
-      out.push_back(t);
-      return;
-    }
-    Tet a = t, b = t;
-    a[j] = m;
-    b[i] = m;
-    collect(a, depth - 1, out);
-    collect(b, depth - 1, out);
-  }
-
-  // Wholly beyond a far face of the box (a leaf is inside or beyond one: see bisection.hpp); a
-  // leaf's diamond does not cross the box, so a leaf that is not inside lies in a cube beyond it.
-  bool outside(const Tet& t) const {
-    for (int a = 0; a < 3; ++a)
-      if (std::min({t[0][a], t[1][a], t[2][a], t[3][a]}) >= lat_.X[a]) return true;
-    return false;
-  }
-  bool inside(const Tet& t) const {
-    for (const Coord& v : t)
-      if (!lat_.in_box(v)) return false;
-    return true;
-  }
-
-  // The midpoint of the longest edge (unique in this hierarchy), or false when it is not a
-  // lattice point (a unit Kuhn tetrahedron).
-  static bool split_point(const Tet& t, Coord& m, int& ei, int& ej) {
-    std::int64_t best = -1;
-    for (int i = 0; i < 4; ++i)
-      for (int j = i + 1; j < 4; ++j) {
-        std::int64_t len = 0;
-        for (int a = 0; a < 3; ++a) {
-          const std::int64_t d = t[i][a] - t[j][a];
-          len += d * d;
-        }
-        if (len > best) {
-          best = len;
-          ei = i;
-          ej = j;
-        }
-      }
-    for (int a = 0; a < 3; ++a) {
-      const std::int32_t sum = t[ei][a] + t[ej][a];
-      if (sum & 1) return false;
-      m[a] = sum / 2;
-    }
-    return true;
-  }
-
-  bool split(const Coord& m) const {
-    if (lat_.in_box(m)) return coded_split(static_cast<std::size_t>(lat_.index(m)));
-    return placement(classify(m, lat_.k), lat_).forced;
-  }
-};
-
-Lattice make_lattice(const Volume& v) {
-  Lattice lat;
-  std::int64_t extent = 1;
-  for (int a = 0; a < 3; ++a) {
-    if (v.dims[a] < 2)
-      throw InputError(fmt::format("a volume of {} x {} x {} voxels is flat: a grid of tetrahedra needs at least 2 voxels along every axis",
-                                   v.dims[0], v.dims[1], v.dims[2]));
-    if (v.dims[a] - 1 > (std::int64_t{1} << 30)) throw InputError(fmt::format("dimension {} is too large for the bisection grid", v.dims[a]));
-    lat.X[a] = static_cast<std::int32_t>(v.dims[a] - 1);
-    extent = std::max(extent, v.dims[a] - 1);
-  }
-  lat.S = static_cast<std::int32_t>(std::bit_ceil(static_cast<std::uint64_t>(extent)));
-  lat.k = std::countr_zero(static_cast<std::uint32_t>(lat.S));
-  lat.nx = v.dims[0];
-  lat.nxy = v.dims[0] * v.dims[1];
-  return lat;
-}
-
-// Without a popcount instruction in the baseline instruction set, std::popcount is a library
-// call; the traversal asks it 4 times per tetrahedron.
-inline int bit_count(std::uint64_t x) {
-  x = x - ((x >> 1) & 0x5555555555555555ull);
-  x = (x & 0x3333333333333333ull) + ((x >> 2) & 0x3333333333333333ull);
-  x = (x + (x >> 4)) & 0x0f0f0f0f0f0f0f0full;
-  return static_cast<int>((x * 0x0101010101010101ull) >> 56);
-}
-
-// Vertex numbers from a bitmap of used voxels: the rank of a voxel among the used ones (ascending
-// linear index).
-struct VertexNumbers {
-  std::vector<std::uint64_t> bits;
-  std::vector<std::uint64_t> before;  // used voxels in the words before each word
-  std::uint32_t id(std::int64_t voxel) const {
-    const std::size_t w = static_cast<std::size_t>(voxel) >> 6;
-    const std::uint64_t below = bits[w] & ((std::uint64_t{1} << (voxel & 63)) - 1);
-    return static_cast<std::uint32_t>(before[w] + static_cast<std::uint64_t>(bit_count(below)));
-  }
+  Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
 };
 
 }  // namespace
@@ -682,7 +560,11 @@ struct VertexNumbers {
 
 BisectionErrors bisection_errors(const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
   using namespace detail;
-  const Lattice lat = make_lattice(v);
+  const Lattice lat = make_lattice(v.dims);
+  // A code byte per voxel (two with the displacement), 12 bytes per cube centre of the finest scale.
+  const auto voxels = static_cast<std::uint64_t>(v.voxel_count());
+  check_memory(voxels * (displacement ? 2 : 1) + voxels / 8 * 14, fmt::format("the error hierarchy of {} voxels", voxels), "",
+               "crop or subsample the volume");
   BisectionErrors e;
   e.root_size = lat.S;
   const double spread = range.max > range.min ? range.max - range.min : 1.0;
@@ -699,8 +581,10 @@ BisectionErrors bisection_errors(const Volume& v, const ValueRange& range, bool 
     disp.g0 = kGradientFloor * spread;
   }
   visit_values(v, [&]<class T>(std::span<const T> values) {
-    if (displacement) ErrorHierarchy<T, true>(lat, values.data(), e.codes, e.code, disp, progress).run();
-    else ErrorHierarchy<T, false>(lat, values.data(), e.codes, e.code, disp, progress).run();
+    if (displacement)
+      ErrorHierarchy<T, true>(lat, values.data(), e.codes, e.code, disp, progress).run();
+    else
+      ErrorHierarchy<T, false>(lat, values.data(), e.codes, e.code, disp, progress).run();
   });
   return e;
 }
@@ -710,7 +594,7 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   using namespace detail;
   if (!(o.max_error >= 0))  // +∞: no error criterion (the displacement alone, or the coarsest grid)
     throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
-  const Lattice lat = make_lattice(v);
+  const Lattice lat = make_lattice(v.dims);
   if (errors.code.size() != static_cast<std::size_t>(v.voxel_count()) || errors.root_size != lat.S)
     throw std::invalid_argument("bisection_select: the errors belong to another volume");
   if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
@@ -723,9 +607,12 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   out.hierarchy.codes = errors.codes;
   const std::uint8_t threshold = errors.codes.threshold(o.max_error);
   const std::uint8_t displacement_threshold = displacement ? errors.displacement_codes.threshold(o.max_displacement) : 0;
-  const Selection selection(lat, code, threshold, displacement ? &errors.displacement_code : nullptr, displacement_threshold);
+  const CodedSplits rule{code, threshold, displacement ? &errors.displacement_code : nullptr, displacement_threshold};
+  const Traversal<CodedSplits> selection(lat, rule);
   // Subtrees 12 splits below the roots: up to 24576 units of work, enough to balance the threads.
-  const std::vector<Tet> frontier = selection.frontier(12);
+  const Frontier top = selection.frontier(12);
+  const std::vector<Tet>& frontier = top.roots;
+  auto no_split = [](std::int64_t, const Tet&, const ValueSpan&) {};
   // The leaves' vertices are marked a byte per voxel (a relaxed atomic byte store is a plain
   // store; a bit would need a locked read-modify-write), then packed into bits.
   std::vector<std::uint8_t> used;
@@ -734,10 +621,15 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   report(progress, "select", 0);
   tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t f) {
     std::uint64_t count = 0;
-    selection.visit(frontier[f], [&](const Tet& t) {
-      ++count;
-      for (const Coord& c : t) std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
-    });
+    selection.visit(
+        frontier[f],
+        [&](const Tet& t, std::int64_t) {
+          ++count;
+          for (const Coord& c : t)
+            std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
+          return ValueSpan{};
+        },
+        no_split);
     leaves[f + 1] = count;
   });
   for (std::size_t f = 0; f < frontier.size(); ++f) leaves[f + 1] += leaves[f];
@@ -751,9 +643,11 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
     }
   });
   std::vector<std::uint8_t>().swap(used);
-  numbers.before.resize(numbers.bits.size() + 1, 0);
-  for (std::size_t w = 0; w < numbers.bits.size(); ++w) numbers.before[w + 1] = numbers.before[w] + bit_count(numbers.bits[w]);
+  numbers.count();
   const std::uint64_t vertices = numbers.before.back(), tets = leaves.back();
+  // The grid and the rest of the preparation: tetrahedra (16 bytes), their index (about 20 bytes
+  // while built), vertices with values, gradients and codes (33 bytes).
+  check_memory(tets * 36 + vertices * 33, fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
   if (vertices >= std::numeric_limits<std::uint32_t>::max() || tets >= std::numeric_limits<std::uint32_t>::max())
     throw OptionError("max_error", fmt::format("{} vertices and {} tetrahedra exceed the grid's 32-bit indices; raise it", vertices, tets));
   report(progress, "select", 0.5);
@@ -782,13 +676,38 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
       }
     });
   });
+  // The tetrahedra, with the values beneath each split diamond (for queries at a coarser error:
+  // a subtree whose values do not straddle the iso-value holds no surface).
   resize_big(g.tets, tets);
+  auto& spans = out.hierarchy.value_span;
+  spans.assign(vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
+  auto merge = [&](std::int64_t voxel, const ValueSpan& s) {
+    auto& span = spans[numbers.id(voxel)];
+    atomic_min(span[0], down(s.lo));
+    atomic_max(span[1], up(s.hi));
+  };
+  std::vector<ValueSpan> root_spans(frontier.size());
   tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t f) {
     std::uint64_t at = leaves[f];
-    selection.visit(frontier[f], [&](const Tet& t) {
-      g.tets[at++] = {numbers.id(lat.index(t[0])), numbers.id(lat.index(t[1])), numbers.id(lat.index(t[2])), numbers.id(lat.index(t[3]))};
-    });
+    root_spans[f] = selection.visit(
+        frontier[f],
+        [&](const Tet& t, std::int64_t) {
+          auto& q = g.tets[at++];
+          ValueSpan s;
+          for (int k = 0; k < 4; ++k) {
+            q[k] = numbers.id(lat.index(t[k]));
+            s.lo = std::min(s.lo, g.values[q[k]]);
+            s.hi = std::max(s.hi, g.values[q[k]]);
+          }
+          return s;
+        },
+        [&](std::int64_t voxel, const Tet&, const ValueSpan& s) { merge(voxel, s); });
   });
+  for (const auto& split : top.splits) {  // children first: the spans of the subtrees below
+    ValueSpan s;
+    for (std::size_t r = split.first; r < split.last; ++r) s.add(root_spans[r]);
+    merge(split.voxel, s);
+  }
   report(progress, "select", 1);
   out.hierarchy.root_size = lat.S;
   out.hierarchy.error_threshold = threshold;

@@ -32,19 +32,19 @@ using Coord = std::array<std::int32_t, 3>;
 enum class DiamondKind : std::uint8_t { cube = 0, face = 1, edge = 2 };
 
 struct Diamond {
-  Coord c{};                    // centre
-  std::int32_t h = 0;           // scale: cubes of side 2h
-  int s = 0;                    // log2(h)
+  Coord c{};           // centre
+  std::int32_t h = 0;  // scale: cubes of side 2h
+  int s = 0;           // log2(h)
   DiamondKind kind = DiamondKind::cube;
-  int axis = 0;                 // face: its normal; edge: its direction; cube: unused
-  bool valid = false;           // false for the corners of the root cube (no diamond)
+  int axis = 0;        // face: its normal; edge: its direction; cube: unused
+  bool valid = false;  // false for the corners of the root cube (no diamond)
 };
 
 // The lattice of one volume: the root cube of side S = 2^k and the volume's box [0, X_a] per axis.
 struct Lattice {
   int k = 0;
   std::int32_t S = 1;
-  Coord X{};                // dims - 1 per axis
+  Coord X{};                     // dims - 1 per axis
   std::int64_t nx = 0, nxy = 0;  // strides of the voxel index
 
   bool in_box(const Coord& c) const { return c[0] <= X[0] && c[1] <= X[1] && c[2] <= X[2] && c[0] >= 0 && c[1] >= 0 && c[2] >= 0; }

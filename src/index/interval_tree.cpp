@@ -12,6 +12,8 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <functional>
+#include <mutex>
 #include <numeric>
 #include <type_traits>
 #include <utility>
@@ -235,61 +237,89 @@ void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const
   const std::size_t T = grid.tet_count();
   if (tree.depth > 30 || tree.nodes.size() != (std::size_t{2} << tree.depth) - 1) fail("node count");
   if (tree.by_min.size() != tree.by_max.size() || tree.by_min.size() > T) fail("list sizes");
-  // Ranges: pre-order, own entries first, children follow; keys inside the interval inherited from
-  // the ancestors' splits; interior entries straddle their split.
-  std::vector<std::uint32_t> node_of(T, std::numeric_limits<std::uint32_t>::max());
-  struct Item {
-    std::size_t i;
+  // 1. The nodes, in pre-order: own entries first, children follow; each with the key interval its
+  // ancestors' splits allow.
+  struct Allowed {
     double lo, hi;
-  };  // node, and the key interval its ancestors allow
+  };
+  std::vector<Allowed> allowed(tree.nodes.size());
   std::uint64_t cursor = 0;
-  std::vector<Item> stack{{0, -std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()}};
+  std::vector<std::size_t> stack{0};
+  allowed[0] = {-std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
   while (!stack.empty()) {
-    Item it = stack.back();
+    const std::size_t i = stack.back();
     stack.pop_back();
-    const auto& n = tree.nodes[it.i];
+    const auto& n = tree.nodes[i];
     if (n.begin != cursor || n.end < n.begin || n.end > tree.by_min.size()) fail("node ranges");
     cursor = n.end;
-    const bool leaf = tree.is_leaf(it.i);
-    if (!leaf && !std::isfinite(n.split) && n.end > n.begin) fail("split value");
-    for (std::uint64_t k = n.begin; k < n.end; ++k) {
-      std::uint32_t t = tree.by_min[k];
-      if (t >= T || node_of[t] != std::numeric_limits<std::uint32_t>::max()) fail("entry out of range or repeated");
-      node_of[t] = static_cast<std::uint32_t>(it.i);
-      Range q = tet_range(grid, t);
-      if (!(q.lo < q.hi) || q.lo < it.lo || q.hi > it.hi) fail("entry outside its node");
-      if (!leaf && !(q.lo < n.split && q.hi > n.split)) fail("entry does not straddle its split");
-      if (k > n.begin) {
-        std::uint32_t p = tree.by_min[k - 1];
-        double pk = tet_min(grid, p);
-        if (pk > q.lo || (pk == q.lo && p >= t)) fail("list by minimum not sorted");
-      }
-    }
-    if (!leaf) {  // push right first so the left subtree is visited next (pre-order)
-      stack.push_back({2 * it.i + 2, std::max(it.lo, n.split), it.hi});
-      stack.push_back({2 * it.i + 1, it.lo, std::min(it.hi, n.split)});
+    if (!tree.is_leaf(i)) {
+      if (!std::isfinite(n.split) && n.end > n.begin) fail("split value");
+      allowed[2 * i + 2] = {std::max(allowed[i].lo, n.split), allowed[i].hi};
+      allowed[2 * i + 1] = {allowed[i].lo, std::min(allowed[i].hi, n.split)};
+      stack.push_back(2 * i + 2);  // right first, so the left subtree is visited next
+      stack.push_back(2 * i + 1);
     }
   }
   if (cursor != tree.by_min.size()) fail("node ranges do not cover the lists");
-  std::size_t nonconstant = 0;
-  for (std::size_t t = 0; t < T; ++t) {
-    Range q = tet_range(grid, static_cast<std::uint32_t>(t));
-    nonconstant += q.lo < q.hi;
-  }
-  if (nonconstant != tree.by_min.size()) fail("tetrahedra missing");
-  for (std::size_t i = 0; i < tree.nodes.size(); ++i) {
+  // 2. Every node's entries, in parallel: in range, once each, inside their node's interval,
+  // straddling its split, both lists sorted and holding the same tetrahedra.
+  constexpr std::uint32_t kUnseen = std::numeric_limits<std::uint32_t>::max();
+  std::vector<std::uint32_t> node_of;
+  detail::assign_big(node_of, T, kUnseen);
+  std::atomic<bool> bad{false};
+  std::string why;
+  std::mutex why_mutex;
+  auto report = [&](const char* reason) {
+    std::lock_guard lock(why_mutex);
+    if (!bad.exchange(true)) why = reason;
+  };
+  tbb::parallel_for(std::size_t{0}, tree.nodes.size(), [&](std::size_t i) {
+    if (bad.load(std::memory_order_relaxed)) return;
     const auto& n = tree.nodes[i];
+    const bool leaf = tree.is_leaf(i);
     for (std::uint64_t k = n.begin; k < n.end; ++k) {
-      std::uint32_t t = tree.by_max[k];
-      if (t >= T || node_of[t] != i) fail("lists disagree");
-      node_of[t] = std::numeric_limits<std::uint32_t>::max() - 1;  // seen in by_max
+      const std::uint32_t t = tree.by_min[k];
+      std::uint32_t unseen = kUnseen;
+      if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(unseen, static_cast<std::uint32_t>(i)))
+        return report("entry out of range or repeated");
+      const Range q = tet_range(grid, t);
+      if (!(q.lo < q.hi) || q.lo < allowed[i].lo || q.hi > allowed[i].hi) return report("entry outside its node");
+      if (!leaf && !(q.lo < n.split && q.hi > n.split)) return report("entry does not straddle its split");
       if (k > n.begin) {
-        std::uint32_t p = tree.by_max[k - 1];
-        double pk = tet_max(grid, p), qk = tet_max(grid, t);
-        if (pk > qk || (pk == qk && p >= t)) fail("list by maximum not sorted");
+        const std::uint32_t p = tree.by_min[k - 1];
+        const double pk = tet_min(grid, p);
+        if (pk > q.lo || (pk == q.lo && p >= t)) return report("list by minimum not sorted");
       }
     }
-  }
+  });
+  if (bad) fail(why);
+  tbb::parallel_for(std::size_t{0}, tree.nodes.size(), [&](std::size_t i) {
+    if (bad.load(std::memory_order_relaxed)) return;
+    const auto& n = tree.nodes[i];
+    for (std::uint64_t k = n.begin; k < n.end; ++k) {
+      const std::uint32_t t = tree.by_max[k];
+      std::uint32_t mine = static_cast<std::uint32_t>(i);
+      if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(mine, kUnseen - 1)) return report("lists disagree");
+      if (k > n.begin) {
+        const std::uint32_t p = tree.by_max[k - 1];
+        const double pk = tet_max(grid, p), qk = tet_max(grid, t);
+        if (pk > qk || (pk == qk && p >= t)) return report("list by maximum not sorted");
+      }
+    }
+  });
+  if (bad) fail(why);
+  // 3. Every tetrahedron that is not constant is in the lists.
+  const std::size_t nonconstant = tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, T, 1 << 16), std::size_t{0},
+      [&](const auto& r, std::size_t c) {
+        for (std::size_t t = r.begin(); t < r.end(); ++t) {
+          const Range q = tet_range(grid, static_cast<std::uint32_t>(t));
+          c += q.lo < q.hi;
+        }
+        return c;
+      },
+      std::plus<>());
+  if (nonconstant != tree.by_min.size()) fail("tetrahedra missing");
 }
 
 namespace {
@@ -337,7 +367,7 @@ void sweep_to(const IntervalTree& tree, const TetGrid& grid, SweepState& s, doub
   if (!s.valid || s.flags.size() != grid.tet_count() || s.pmin.size() != tree.nodes.size()) {
     s.pmin.assign(tree.nodes.size(), 0);
     s.pmax.assign(tree.nodes.size(), 0);
-    s.flags.assign(grid.tet_count(), 0);
+    detail::assign_big(s.flags, grid.tet_count(), std::uint8_t{0});
     tbb::parallel_for(std::size_t{0}, tree.nodes.size(), [&](std::size_t i) { init_node(tree, grid, s, i, iso); });
     // Flags in tetrahedron order (coherent memory access), not list order; constant ones stay 0.
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, grid.tet_count(), 16384), [&](const auto& r) {

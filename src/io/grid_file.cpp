@@ -4,21 +4,25 @@
 #include <zlib.h>
 
 #include <fmt/format.h>
+#include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "adaptiso/atomic_file.hpp"
+#include "util/big_array.hpp"
 
 namespace adaptiso {
 namespace {
 
 constexpr char kMagic[16] = {'A', 'D', 'A', 'P', 'T', 'I', 'S', 'O', '-', 'G', 'R', 'I', 'D', 0, 0, 0};
-constexpr std::uint32_t kVersion = 2;
+constexpr std::uint32_t kVersion = 3;
 constexpr std::uint64_t kHeaderV1 = 48, kHeader = 64;
-constexpr std::uint32_t kHasIndex = 1;
-constexpr std::uint64_t kNodeBytes = 24;  // f64 split, u64 begin, u64 end
+constexpr std::uint32_t kHasIndex = 1, kHasHierarchy = 2, kHasDisplacement = 4;
+constexpr std::uint64_t kHierarchyHeader = 40;  // i32 root size, u8 thresholds ×2, u16 reserved, f64 ×4
+constexpr std::uint64_t kNodeBytes = 24;        // f64 split, u64 begin, u64 end
 
 nlohmann::json source_json(const GridSource& s) {
   return {{"dims", s.dims}, {"spacing", s.spacing}, {"origin", s.origin}, {"direction", s.direction}, {"type", s.type},
@@ -49,18 +53,40 @@ private:
   uLong crc_ = crc32(0, nullptr, 0);
 };
 
+// A hierarchy read from a file: scales and thresholds that codes can have, a root cube that is the
+// volume's, spans that are ordered (or empty).
+void validate_hierarchy(const BisectionHierarchy& h, const TetGrid& grid, const std::string& path) {
+  auto fail = [&](const char* why) { throw InputError(fmt::format("{}: grid hierarchy is corrupt ({})", path, why)); };
+  std::int64_t extent = 1;
+  for (int a = 0; a < 3; ++a) extent = std::max<std::int64_t>(extent, grid.source.dims[a] - 1);
+  if (static_cast<std::uint64_t>(h.root_size) != std::bit_ceil(static_cast<std::uint64_t>(extent))) fail("root cube");
+  for (const ErrorCodes* c : {&h.codes, &h.displacement_codes})
+    if (!(c->scale > 0) || !std::isfinite(c->scale) || !(c->zero >= 0) || !std::isfinite(c->zero)) fail("code scale");
+  if (h.error_threshold > 254 || h.displacement_threshold > 254) fail("threshold");
+  for (const auto& s : h.value_span)
+    if (std::isnan(s[0]) || std::isnan(s[1]) || (s[0] > s[1] && !(s[0] == std::numeric_limits<float>::infinity() && s[1] == -s[0])))
+      fail("value span");
+}
+
 }  // namespace
 
 void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) {
   const TetGrid& grid = p.grid;
   const IntervalTree* index = with_index ? &p.index : nullptr;
-  const nlohmann::json meta = {{"source", source_json(grid.source)}, {"prepare", nlohmann::json::parse(to_json(p.stats))}};
+  // Timings and memory peaks vary from run to run: the file keeps the rest, so the same input and
+  // options give the same bytes.
+  nlohmann::json stats = nlohmann::json::parse(to_json(p.stats));
+  stats.erase("seconds");
+  stats.erase("peak_bytes");
+  const nlohmann::json meta = {{"source", source_json(grid.source)}, {"prepare", stats}};
   const std::string m = meta.dump();
   write_file_atomically(path, [&](std::ostream& out) {
     CrcWriter w(out);
     w.write(kMagic, 16);
+    const BisectionHierarchy* h = p.hierarchy ? &*p.hierarchy : nullptr;
+    const bool moves = h && !h->displacement_code.empty();
     w.put(kVersion);
-    w.put(index ? kHasIndex : std::uint32_t{0});
+    w.put((index ? kHasIndex : 0) | (h ? kHasHierarchy : 0) | (moves ? kHasDisplacement : 0));
     w.put(static_cast<std::uint64_t>(m.size()));
     w.put(static_cast<std::uint64_t>(grid.vertex_count()));
     w.put(static_cast<std::uint64_t>(grid.tet_count()));
@@ -80,6 +106,19 @@ void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) 
       }
       w.write(index->by_min.data(), index->by_min.size() * 4);
       w.write(index->by_max.data(), index->by_max.size() * 4);
+    }
+    if (h) {
+      w.put(h->root_size);
+      w.put(h->error_threshold);
+      w.put(h->displacement_threshold);
+      w.put(std::uint16_t{0});
+      w.put(h->codes.scale);
+      w.put(h->codes.zero);
+      w.put(h->displacement_codes.scale);
+      w.put(h->displacement_codes.zero);
+      w.write(h->error_code.data(), h->error_code.size());
+      if (moves) w.write(h->displacement_code.data(), h->displacement_code.size());
+      w.write(h->value_span.data(), h->value_span.size() * 8);
     }
     std::uint32_t c = w.crc();
     out.write(reinterpret_cast<const char*>(&c), 4);
@@ -102,8 +141,8 @@ PreparedGrid load_grid(const std::string& path) {
   std::memcpy(&M, h + 24, 8);
   std::memcpy(&N, h + 32, 8);
   std::memcpy(&T, h + 40, 8);
-  if (version != 1 && version != kVersion)
-    throw InputError(fmt::format("{}: grid file version {} is not supported (this build reads 1 and {})", path, version, kVersion));
+  if (version < 1 || version > kVersion)
+    throw InputError(fmt::format("{}: grid file version {} is not supported (this build reads 1 to {})", path, version, kVersion));
   std::uint64_t header = kHeaderV1;
   if (version >= 2) {
     header = kHeader;
@@ -113,13 +152,16 @@ PreparedGrid load_grid(const std::string& path) {
     std::memcpy(&depth, h + 56, 4);
   }
   const bool has_index = version >= 2 && (flags & kHasIndex);
-  if ((version == 1 && flags != 0) || (version >= 2 && (flags & ~kHasIndex)) || depth > 30 || (!has_index && (E || depth)))
+  const bool has_hierarchy = version >= 3 && (flags & kHasHierarchy), has_moves = version >= 3 && (flags & kHasDisplacement);
+  const std::uint32_t known = version >= 3 ? (kHasIndex | kHasHierarchy | kHasDisplacement) : kHasIndex;
+  if ((version == 1 && flags != 0) || (version >= 2 && (flags & ~known)) || depth > 30 || (!has_index && (E || depth)) ||
+      (has_moves && !has_hierarchy))
     throw InputError(fmt::format("{}: grid file is corrupt (bad header flags)", path));
   const std::uint64_t nodes = has_index ? (std::uint64_t{2} << depth) - 1 : 0;
   // The size the counts imply must be the file's size; checked without overflow before allocating.
-  const std::uint64_t per_vertex = 12 + 8 + 12, per_tet = 16;
+  const std::uint64_t per_vertex = 12 + 8 + 12 + (has_hierarchy ? 1 + 8 : 0) + (has_moves ? 1 : 0), per_tet = 16;
   if (M > size || N > size / per_vertex || T > size / per_tet || E > T || nodes > size / kNodeBytes ||
-      header + 4 + M + N * per_vertex + T * per_tet + nodes * kNodeBytes + E * 8 != size)
+      header + 4 + M + N * per_vertex + T * per_tet + nodes * kNodeBytes + E * 8 + (has_hierarchy ? kHierarchyHeader : 0) != size)
     throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
   if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
     throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));
@@ -138,10 +180,10 @@ PreparedGrid load_grid(const std::string& path) {
   read(meta.data(), M);
   PreparedGrid p;
   TetGrid& grid = p.grid;
-  grid.ijk.resize(N);
-  grid.values.resize(N);
-  grid.gradients.resize(N);
-  grid.tets.resize(T);
+  detail::resize_big(grid.ijk, N);
+  detail::resize_big(grid.values, N);
+  detail::resize_big(grid.gradients, N);
+  detail::resize_big(grid.tets, T);
   read(grid.ijk.data(), N * 12);
   read(grid.values.data(), N * 8);
   read(grid.gradients.data(), N * 12);
@@ -157,10 +199,30 @@ PreparedGrid load_grid(const std::string& path) {
       std::memcpy(&tree.nodes[i].begin, &raw[i * kNodeBytes + 8], 8);
       std::memcpy(&tree.nodes[i].end, &raw[i * kNodeBytes + 16], 8);
     }
-    tree.by_min.resize(E);
-    tree.by_max.resize(E);
+    detail::resize_big(tree.by_min, E);
+    detail::resize_big(tree.by_max, E);
     read(tree.by_min.data(), E * 4);
     read(tree.by_max.data(), E * 4);
+  }
+  if (has_hierarchy) {
+    BisectionHierarchy& hh = p.hierarchy.emplace();
+    std::uint16_t reserved = 0;
+    read(&hh.root_size, 4);
+    read(&hh.error_threshold, 1);
+    read(&hh.displacement_threshold, 1);
+    read(&reserved, 2);
+    read(&hh.codes.scale, 8);
+    read(&hh.codes.zero, 8);
+    read(&hh.displacement_codes.scale, 8);
+    read(&hh.displacement_codes.zero, 8);
+    detail::resize_big(hh.error_code, N);
+    read(hh.error_code.data(), N);
+    if (has_moves) {
+      detail::resize_big(hh.displacement_code, N);
+      read(hh.displacement_code.data(), N);
+    }
+    detail::resize_big(hh.value_span, N);
+    read(hh.value_span.data(), N * 8);
   }
   std::uint32_t stored;
   in.read(reinterpret_cast<char*>(&stored), 4);
@@ -196,6 +258,7 @@ PreparedGrid load_grid(const std::string& path) {
       if (grid.ijk[i][a] >= static_cast<std::uint64_t>(grid.source.dims[a]))
         throw InputError(fmt::format("{}: vertex {} lies outside the volume", path, i));
   }
+  if (p.hierarchy) validate_hierarchy(*p.hierarchy, grid, path);
   if (has_index) {
     validate_interval_tree(tree, grid, path);
     finish_interval_tree(tree, grid);

@@ -5,16 +5,21 @@
 #include <fmt/format.h>
 #include <httplib.h>
 
+#include <unistd.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstring>
+#include <deque>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <list>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <set>
+#include <thread>
 #include <unordered_map>
 
 #include "adaptiso/error.hpp"
@@ -66,6 +71,22 @@ std::string client_id(const httplib::Request& req) {
   return c;
 }
 
+// The page's files: web_root/served.txt lists them (one relative path a line, # comments); the
+// page itself is always among them. Nothing else in the folder is served (web/node_modules
+// holds test tooling).
+std::set<std::string> read_served_files(const fs::path& root) {
+  std::set<std::string> files{"index.html"};
+  std::ifstream list(root / "served.txt");
+  for (std::string line; std::getline(list, line);) {
+    line = line.substr(0, line.find('#'));
+    while (!line.empty() && std::isspace(static_cast<unsigned char>(line.back()))) line.pop_back();
+    while (!line.empty() && std::isspace(static_cast<unsigned char>(line.front()))) line.erase(0, 1);
+    if (line.empty() || line.find("..") != std::string::npos || line.front() == '/') continue;
+    files.insert(line);
+  }
+  return files;
+}
+
 const char* content_type(const fs::path& p) {
   const std::string e = p.extension().string();
   if (e == ".html") return "text/html; charset=utf-8";
@@ -113,6 +134,65 @@ struct Client {
   std::unique_ptr<Extractor> extractor;
 };
 
+// Connections are served by threads that are added while all are busy, up to a limit: a few
+// clients that send their requests slowly (or hold their connection open) then cannot starve the
+// others, as the fixed pool of 8 did (/api/info waited 17 s behind 8 clients sending a header
+// line a second).
+class ElasticPool : public httplib::TaskQueue {
+public:
+  explicit ElasticPool(std::size_t max_threads) : max_(max_threads) {}
+  void enqueue(std::function<void()> fn) override {
+    std::lock_guard lock(mutex_);
+    jobs_.push_back(std::move(fn));
+    if (idle_ == 0 && threads_.size() < max_) threads_.emplace_back([this] { work(); });
+    ready_.notify_one();
+  }
+  void shutdown() override {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    ready_.notify_all();
+    for (auto& t : threads_) t.join();
+  }
+
+private:
+  void work() {
+    for (;;) {
+      std::function<void()> job;
+      {
+        std::unique_lock lock(mutex_);
+        ++idle_;
+        ready_.wait(lock, [&] { return stop_ || !jobs_.empty(); });
+        --idle_;
+        if (jobs_.empty()) return;  // stopping
+        job = std::move(jobs_.front());
+        jobs_.pop_front();
+      }
+      job();
+    }
+  }
+  std::size_t max_;
+  std::mutex mutex_;
+  std::condition_variable ready_;
+  std::deque<std::function<void()>> jobs_;
+  std::vector<std::thread> threads_;
+  std::size_t idle_ = 0;
+  bool stop_ = false;
+};
+
+// The host name of a Host header ("name", "name:port", "[v6]:port").
+std::string host_name(const std::string& header) {
+  if (!header.empty() && header[0] == '[') return header.substr(0, header.find(']') + 1);
+  return header.substr(0, header.find(':'));
+}
+
+bool is_ip_literal(const std::string& name) {
+  if (name.size() > 2 && name.front() == '[' && name.back() == ']') return true;  // IPv6
+  return !name.empty() &&
+         std::all_of(name.begin(), name.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)) || c == '.'; });
+}
+
 constexpr int kHistogramBins = 128;
 constexpr std::size_t kMaxWireframeEdges = 20'000'000;
 
@@ -122,6 +202,7 @@ struct ViewServer::Impl {
   ViewOptions opt;
   httplib::Server http;
   fs::path web_root;
+  std::set<std::string> served;  // the page's files (web_root/served.txt), relative to web_root
 
   std::mutex state_mutex;  // guards everything below
   std::string stage = "starting", failure;
@@ -136,6 +217,7 @@ struct ViewServer::Impl {
   std::shared_ptr<const PreparedGrid> ready();  // throws NotReady while preparing
 
   void routes();
+  bool host_allowed(const httplib::Request& req) const;
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
   void reference(const httplib::Request& req, httplib::Response& res);
@@ -175,10 +257,27 @@ ViewServer::ViewServer(ViewOptions options) : impl_(std::make_unique<Impl>()) {
   impl_->web_root = fs::weakly_canonical(impl_->opt.web_dir, ec);
   if (ec || !fs::is_regular_file(impl_->web_root / "index.html"))
     throw OptionError("web_dir", fmt::format("{}: the viewer page is not there (no index.html)", impl_->opt.web_dir));
+  impl_->served = read_served_files(impl_->web_root);
   impl_->routes();
 }
 
 ViewServer::~ViewServer() { stop(); }
+
+// Pages reach a local server through DNS rebinding (a name that resolves to 127.0.0.1): only the
+// names and addresses the server listens on are accepted, and IP literals when it listens on all
+// interfaces, with the machine's own name.
+bool ViewServer::Impl::host_allowed(const httplib::Request& req) const {
+  if (!req.has_header("Host")) return true;  // HTTP/1.0 clients
+  std::string name = host_name(req.get_header_value("Host"));
+  for (auto& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  if (name == "localhost" || name == "127.0.0.1" || name == "[::1]" || name == opt.host) return true;
+  if (opt.host == "0.0.0.0" || opt.host == "::") {
+    char machine[256] = {};
+    gethostname(machine, sizeof machine - 1);
+    return is_ip_literal(name) || name == machine;
+  }
+  return false;
+}
 
 int ViewServer::bind() {
   auto& s = impl_->http;
@@ -249,7 +348,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
                 {"histogram", histogram},
                 {"reference", volume != nullptr},
                 {"reduction", {{"method", s.method}, {"max_error", s.max_error}, {"threshold", s.threshold}}},
-                {"source", s.file},
+                {"source", fs::path(s.file).filename().string()},  // the file's name: never where it lies
                 {"facts", nlohmann::json::parse(to_json(grid->stats))}});
     }
   }
@@ -346,6 +445,17 @@ void ViewServer::Impl::routes() {
       }
     };
   };
+  http.new_task_queue = [] { return new ElasticPool(256); };
+  http.set_tcp_nodelay(true);  // small answers on a kept-alive connection were held back 40 ms (Nagle)
+  http.set_read_timeout(5, 0);
+  http.set_keep_alive_timeout(5);
+  http.set_keep_alive_max_count(1000);  // the page asks for a surface per slider step on one connection
+  http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+    if (host_allowed(req)) return httplib::Server::HandlerResponse::Unhandled;
+    res.status = 403;
+    res.set_content("host not allowed (the viewer answers only to the names and addresses it listens on)\n", "text/plain");
+    return httplib::Server::HandlerResponse::Handled;
+  });
   http.set_payload_max_length(1 << 16);
   http.Get("/api/info", guarded(&Impl::info));
   http.Get("/api/surface", guarded(&Impl::surface));
@@ -364,6 +474,8 @@ void ViewServer::Impl::routes() {
   http.Post("/.*", not_allowed);
   http.Put("/.*", not_allowed);
   http.Delete("/.*", not_allowed);
+  http.Options("/.*", not_allowed);
+  http.Patch("/.*", not_allowed);
 }
 
 void ViewServer::Impl::serve_static(const httplib::Request& req, httplib::Response& res) {
@@ -376,11 +488,11 @@ void ViewServer::Impl::serve_static(const httplib::Request& req, httplib::Respon
   if (path.size() > 512 || path.find('\\') != std::string::npos || path.find('\0') != std::string::npos ||
       path.find("/.") != std::string::npos || path.find("//") != std::string::npos)
     return not_found();
+  if (!served.count(path.substr(1))) return not_found();  // only what the page loads
   const fs::path file = web_root / path.substr(1);
   std::error_code ec;
   const fs::path real = fs::weakly_canonical(file, ec);
-  const std::string root = web_root.string() + "/";
-  if (ec || real.string().compare(0, root.size(), root) != 0 || !fs::is_regular_file(real, ec)) return not_found();
+  if (ec || !fs::is_regular_file(real, ec)) return not_found();
   const char* type = content_type(real);
   if (!type) return not_found();
   std::ifstream in(real, std::ios::binary);

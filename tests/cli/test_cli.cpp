@@ -377,3 +377,20 @@ INSTANTIATE_TEST_SUITE_P(Datasets, RealDataCli, ::testing::ValuesIn(testutil::da
     if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
   return s;
 });
+
+TEST(Cli, TheSameInputAndOptionsGiveTheSameBytes) {
+  // Grid files keep no timings; the Delaunay grid is unique for any insertion order.
+  TempDir t("same");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 40 -o " + (t / "s.nrrd")).code, 0);
+  for (const char* grid : {"bisection", "delaunay"})
+    for (int i = 0; i < 2; ++i) {
+      const std::string n = std::string(grid) + std::to_string(i);
+      auto r = testutil::run_cli(fmt::format("run {} --grid {} --relative --max-error 0.05 --iso 0.6 -o {} --save-grid {} --quiet",
+                                             t / "s.nrrd", grid, t / (n + ".ply"), t / (n + ".adg")));
+      ASSERT_EQ(r.code, 0) << r.err;
+      if (i == 1) {
+        EXPECT_EQ(testutil::read_bytes(t / (std::string(grid) + "0.ply")), testutil::read_bytes(t / (std::string(grid) + "1.ply"))) << grid;
+        EXPECT_EQ(testutil::read_bytes(t / (std::string(grid) + "0.adg")), testutil::read_bytes(t / (std::string(grid) + "1.adg"))) << grid;
+      }
+    }
+}

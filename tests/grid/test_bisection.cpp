@@ -54,7 +54,8 @@ Check brute_force(const Volume& v, const TetGrid& g) {
       for (std::int64_t y = lo[1]; y <= hi[1]; ++y)
         for (std::int64_t x = lo[0]; x <= hi[0]; ++x) {
           const I3 q{x, y, z};
-          const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]), det(P[0], P[1], P[2], q)};
+          const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]),
+                                     det(P[0], P[1], P[2], q)};
           if (l[0] < 0 || l[1] < 0 || l[2] < 0 || l[3] < 0) continue;
           double rec = 0;
           for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * g.values[t[i]];
@@ -84,7 +85,8 @@ Conformity conformity(const Volume& v, const TetGrid& g) {
     if (d <= 0) ++c.nonpositive;
     six_volume += d;
     // Outward faces of a positive tetrahedron (a,b,c,d): (b,c,d), (a,d,c), (a,b,d), (a,c,b).
-    const std::array<std::array<std::uint32_t, 3>, 4> fs = {{{t[1], t[2], t[3]}, {t[0], t[3], t[2]}, {t[0], t[1], t[3]}, {t[0], t[2], t[1]}}};
+    const std::array<std::array<std::uint32_t, 3>, 4> fs = {
+        {{t[1], t[2], t[3]}, {t[0], t[3], t[2]}, {t[0], t[1], t[3]}, {t[0], t[2], t[1]}}};
     for (auto f : fs) {
       // Parity of the permutation sorting f: equal parity = same orientation.
       int parity = 0;
@@ -150,8 +152,8 @@ BisectionGrid grid_of(const Volume& v, double max_error) {
 TEST(Bisection, EveryVoxelWithinTheBoundAndConformingOverSizesAndShapes) {
   // Sizes 2…65 and slabs; odd, even, 2^k and 2^k+1 extents; bounds from 0 to the whole range.
   std::mt19937 rng(3);
-  const std::vector<Dims> shapes = {{2, 2, 2},   {3, 3, 3},  {5, 5, 5},  {17, 17, 17}, {33, 33, 33}, {16, 16, 16}, {2, 9, 5},
-                                    {17, 3, 9},  {2, 40, 7}, {33, 2, 2}, {6, 11, 4},   {9, 9, 2},    {64, 7, 3},  {65, 5, 6}};
+  const std::vector<Dims> shapes = {{2, 2, 2},  {3, 3, 3},  {5, 5, 5},  {17, 17, 17}, {33, 33, 33}, {16, 16, 16}, {2, 9, 5},
+                                    {17, 3, 9}, {2, 40, 7}, {33, 2, 2}, {6, 11, 4},   {9, 9, 2},    {64, 7, 3},   {65, 5, 6}};
   for (const Dims& d : shapes)
     for (double bound : {0.0, 0.5, 2.0, 4.5, 100.0}) {
       const Volume v = random_volume(d, rng, 1 + static_cast<int>(rng() % 6));
@@ -267,8 +269,10 @@ TEST(Bisection, DiamondParentsAndChildrenMatchTheHierarchyBuiltTetByTet) {
         for (int j = i + 1; j < 4; ++j) {
           std::int64_t len = 0;
           for (int a = 0; a < 3; ++a) len += std::int64_t(t[i][a] - t[j][a]) * (t[i][a] - t[j][a]);
-          if (len > best) best = len, bi = i, bj = j, ties = 0;
-          else if (len == best) ++ties;
+          if (len > best)
+            best = len, bi = i, bj = j, ties = 0;
+          else if (len == best)
+            ++ties;
         }
       ASSERT_EQ(ties, 0) << "the longest edge is unique";
       if ((t[bi][0] + t[bj][0]) % 2 || (t[bi][1] + t[bj][1]) % 2 || (t[bi][2] + t[bj][2]) % 2) continue;
@@ -319,7 +323,7 @@ TEST(Bisection, ErrorCodesAreConservativeAndMonotone) {
   std::uint8_t previous = 0;
   for (double e = 1e-13; e < 1e5; e *= 1.01) {
     const std::uint8_t c = codes.code(e);
-    EXPECT_GE(codes.error(c), std::min(e, codes.scale)) << e;  // never smaller than the error it stands for
+    EXPECT_GE(codes.error(c), std::min(e, codes.scale)) << e;     // never smaller than the error it stands for
     if (c > 0 && c < 254) EXPECT_LT(codes.error(c - 1), e) << e;  // and the smallest such code
     EXPECT_GE(c, previous);
     previous = c;
@@ -378,9 +382,12 @@ TEST(Bisection, DisplacementCriterionHoldsTetrahedronByTetrahedron) {
     for (int a = 0; a < 3; ++a) {
       std::int64_t lo[3] = {x, y, z}, hi[3] = {x, y, z};
       double span = 2;
-      if (p[a] == 0) lo[a] = p[a], hi[a] = p[a] + 1, span = 1;
-      else if (p[a] == v.dims[a] - 1) lo[a] = p[a] - 1, hi[a] = p[a], span = 1;
-      else lo[a] = p[a] - 1, hi[a] = p[a] + 1;
+      if (p[a] == 0)
+        lo[a] = p[a], hi[a] = p[a] + 1, span = 1;
+      else if (p[a] == v.dims[a] - 1)
+        lo[a] = p[a] - 1, hi[a] = p[a], span = 1;
+      else
+        lo[a] = p[a] - 1, hi[a] = p[a] + 1;
       const double d = (v.at(hi[0], hi[1], hi[2]) - v.at(lo[0], lo[1], lo[2])) / span;
       sq += d * d;
     }
@@ -408,7 +415,8 @@ TEST(Bisection, DisplacementCriterionHoldsTetrahedronByTetrahedron) {
         for (std::int64_t y = lo[1]; y <= hi[1]; ++y)
           for (std::int64_t x = lo[0]; x <= hi[0]; ++x) {
             const I3 q{x, y, z};
-            const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]), det(P[0], P[1], P[2], q)};
+            const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]),
+                                       det(P[0], P[1], P[2], q)};
             if (l[0] < 0 || l[1] < 0 || l[2] < 0 || l[3] < 0) continue;
             if (std::count(l, l + 4, Dt) == 1) continue;  // a vertex: no error there
             double rec = 0;

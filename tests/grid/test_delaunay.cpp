@@ -4,11 +4,14 @@
 
 #include <CGAL/Exact_predicates_exact_constructions_kernel.h>
 
+#include <tbb/task_arena.h>
+
 #include <map>
 #include <random>
 #include <set>
 
 #include "adaptiso/delaunay.hpp"
+#include "adaptiso/extractor.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "adaptiso/volume_io.hpp"
@@ -22,10 +25,10 @@ namespace {
 TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
 
 EK::Point_3 ept(const TetGrid& grid, std::uint32_t v) {
-  // Exact grid-frame coordinates: spacing · index computed in exact arithmetic from the doubles.
-  return EK::Point_3(EK::FT(grid.source.spacing[0]) * static_cast<int>(grid.ijk[v][0]),
-                     EK::FT(grid.source.spacing[1]) * static_cast<int>(grid.ijk[v][1]),
-                     EK::FT(grid.source.spacing[2]) * static_cast<int>(grid.ijk[v][2]));
+  // Exact coordinates in the triangulation's metric: the index times delaunay_metric's scales.
+  const Vec3 scale = delaunay_metric(grid.source.spacing);
+  return EK::Point_3(EK::FT(scale[0]) * static_cast<int>(grid.ijk[v][0]), EK::FT(scale[1]) * static_cast<int>(grid.ijk[v][1]),
+                     EK::FT(scale[2]) * static_cast<int>(grid.ijk[v][2]));
 }
 
 // Checks every invariant of a grid; returns the number of interior faces checked.
@@ -40,8 +43,9 @@ std::size_t check_grid(const Volume& v, const TetGrid& grid) {
     total.exact();  // collapse the lazy expression DAG (it would otherwise grow one level per tet)
     for (auto x : t) used[x] = 1;
   }
-  EK::FT box = EK::FT(v.spacing[0]) * static_cast<int>(v.dims[0] - 1) * EK::FT(v.spacing[1]) * static_cast<int>(v.dims[1] - 1) *
-               EK::FT(v.spacing[2]) * static_cast<int>(v.dims[2] - 1);
+  const Vec3 scale = delaunay_metric(v.spacing);
+  EK::FT box = EK::FT(scale[0]) * static_cast<int>(v.dims[0] - 1) * EK::FT(scale[1]) * static_cast<int>(v.dims[1] - 1) * EK::FT(scale[2]) *
+               static_cast<int>(v.dims[2] - 1);
   EXPECT_TRUE(total == box) << CGAL::to_double(total) << " vs " << CGAL::to_double(box);
   EXPECT_EQ(std::count(used.begin(), used.end(), 0), 0) << "unused vertices";
   // Delaunay: for each interior face, the far vertex of the other tet is not strictly inside.
@@ -119,4 +123,59 @@ TEST(Delaunay, FlatVolumeIsRefused) {
   TetGrid g;
   g.source.dims = v.dims;
   EXPECT_THROW(delaunay_grid(v, value_range(v), all_voxels(v)), InputError);
+}
+
+TEST(Delaunay, AnisotropicSpacingGivesNoFlatTetrahedronAndNoZeroAreaTriangle) {
+  // A CT-like phantom at 0.9 × 0.9 × 1.6 mm: in rounded physical coordinates coplanar lattice
+  // points became slightly non-coplanar and CGAL built slivers between them (108 of 2.1 M
+  // tetrahedra were flat in exact lattice arithmetic).
+  for (Vec3 spacing : {Vec3{0.9, 0.9, 1.6}, Vec3{0.3378, 0.3378, 0.5}, Vec3{1.40625, 1.40625, 2.5}, Vec3{1, 3, 7}}) {
+    Volume v = make_synthetic("sphere", 40, ScalarType::i16);
+    v.spacing = spacing;
+    ReduceOptions o;
+    o.max_error = 0.08;
+    o.relative = true;
+    const TetGrid g = build(v, reduce(v, o).kept);
+    check_grid(v, g);
+    std::size_t flat = 0;
+    for (const auto& t : g.tets) {
+      std::int64_t P[4][3];
+      for (int i = 0; i < 4; ++i)
+        for (int a = 0; a < 3; ++a) P[i][a] = g.ijk[t[i]][a];
+      std::int64_t u[3], w[3], z[3];
+      for (int a = 0; a < 3; ++a) u[a] = P[1][a] - P[0][a], w[a] = P[2][a] - P[0][a], z[a] = P[3][a] - P[0][a];
+      flat += u[0] * (w[1] * z[2] - w[2] * z[1]) - u[1] * (w[0] * z[2] - w[2] * z[0]) + u[2] * (w[0] * z[1] - w[1] * z[0]) <= 0;
+    }
+    EXPECT_EQ(flat, 0u) << spacing[2];
+    Extractor ex(testutil::prepared(g));
+    for (double iso : {450.0, 700.0, 950.0}) {
+      ex.extract(iso);
+      const Mesh& m = ex.mesh();
+      ASSERT_GT(m.triangle_count(), 0u);
+      for (const auto& tri : m.triangles) {
+        Mesh one;
+        one.positions = {m.positions[tri[0]], m.positions[tri[1]], m.positions[tri[2]]};
+        one.triangles = {{0, 1, 2}};
+        ASSERT_GT(mesh_area(one), 0) << "spacing z " << spacing[2] << " iso " << iso;
+      }
+    }
+  }
+}
+
+TEST(Delaunay, SameGridForAnyThreadCount) {
+  // Degenerate lattice input admits many Delaunay tetrahedrizations; symbolic perturbation picks
+  // one whatever the insertion order, and the tetrahedra are written in a canonical order.
+  Volume v = make_synthetic("sphere", 36, ScalarType::i16);
+  v.spacing = {0.9, 0.9, 1.6};
+  ReduceOptions o;
+  o.max_error = 0.05;
+  o.relative = true;
+  const auto kept = reduce(v, o).kept;
+  TetGrid one, four;
+  tbb::task_arena(1).execute([&] { one = delaunay_grid(v, value_range(v), kept); });
+  tbb::task_arena(4).execute([&] { four = delaunay_grid(v, value_range(v), kept); });
+  EXPECT_EQ(one.tets, four.tets);
+  DelaunayOptions sequential;
+  sequential.parallel = false;
+  EXPECT_EQ(delaunay_grid(v, value_range(v), kept, sequential).tets, one.tets);
 }

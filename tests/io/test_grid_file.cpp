@@ -6,6 +6,8 @@
 #include <cstring>
 #include <random>
 
+#include "adaptiso/prepare.hpp"
+
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
@@ -102,4 +104,41 @@ TEST(GridFile, FilesWithoutAnIndexAndVersion1FilesGetOneBuiltOnLoad) {
   bad[20] = 1;  // a version 1 file cannot announce an index
   testutil::write_bytes(t / "v1bad.adg", bad);
   EXPECT_THROW(load_grid(t / "v1bad.adg"), InputError);
+}
+
+TEST(GridFile, BisectionGridsKeepTheirHierarchy) {
+  testutil::TempDir t("gridbis");
+  for (double displacement : {0.0, 0.5}) {
+    PrepareOptions o;
+    o.max_error = 0.03;
+    o.max_displacement = displacement;
+    const Volume v = make_synthetic("marschner-lobb", 19, ScalarType::f32);
+    const PreparedGrid p = prepare(v, o);
+    ASSERT_TRUE(p.hierarchy);
+    save_grid(p, t / "b.adg");
+    const PreparedGrid q = load_grid(t / "b.adg");
+    ASSERT_TRUE(q.hierarchy);
+    EXPECT_EQ(q.hierarchy->error_code, p.hierarchy->error_code);
+    EXPECT_EQ(q.hierarchy->displacement_code, p.hierarchy->displacement_code);
+    EXPECT_EQ(q.hierarchy->value_span, p.hierarchy->value_span);
+    EXPECT_EQ(q.hierarchy->error_threshold, p.hierarchy->error_threshold);
+    EXPECT_EQ(q.hierarchy->root_size, p.hierarchy->root_size);
+    EXPECT_EQ(q.hierarchy->codes.scale, p.hierarchy->codes.scale);
+    save_grid(q, t / "c.adg");
+    EXPECT_EQ(testutil::read_bytes(t / "b.adg"), testutil::read_bytes(t / "c.adg"));
+    // Damage anywhere, including the hierarchy at the end, is refused.
+    const std::string full = testutil::read_bytes(t / "b.adg");
+    std::mt19937 rng(4);
+    for (int trial = 0; trial < 100; ++trial) {
+      std::string c = full;
+      const std::size_t at = trial < 50 ? full.size() - 1 - rng() % std::min<std::size_t>(full.size(), 4000) : rng() % full.size();
+      c[at] ^= static_cast<char>(1 + rng() % 255);
+      testutil::write_bytes(t / "d.adg", c);
+      EXPECT_THROW(load_grid(t / "d.adg"), InputError) << "byte " << at;
+    }
+    for (std::size_t len : {full.size() - 1, full.size() - 5, full.size() - 1000}) {
+      testutil::write_bytes(t / "e.adg", full.substr(0, len));
+      EXPECT_THROW(load_grid(t / "e.adg"), InputError) << len;
+    }
+  }
 }

@@ -4,6 +4,10 @@
 #include <gtest/gtest.h>
 #include <httplib.h>
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -234,4 +238,149 @@ TEST(ViewServer, RefusesAMissingPageFolder) {
   ViewOptions o = options();
   o.web_dir = "/nonexistent/web";
   EXPECT_THROW(ViewServer s(o), InputError);
+}
+
+namespace {
+
+// A raw loopback connection (for requests httplib's client would not send).
+struct RawConnection {
+  int fd = -1;
+  explicit RawConnection(int port) {
+    fd = socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_port = htons(static_cast<std::uint16_t>(port));
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    if (connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) fd = -1;
+  }
+  ~RawConnection() {
+    if (fd >= 0) close(fd);
+  }
+  bool send_text(const std::string& s) const {
+    return fd >= 0 && ::send(fd, s.data(), s.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(s.size());
+  }
+};
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+TEST(ViewServer, SlowClientsDoNotFreezeTheOthers) {
+  // Twelve clients sending their headers a line every 300 ms hold their connections for seconds;
+  // with a fixed pool of 8 workers /api/info waited behind them (10–17 s).
+  Running run(options());
+  std::atomic<bool> done{false};
+  std::vector<std::thread> slow;
+  for (int i = 0; i < 12; ++i)
+    slow.emplace_back([&] {
+      RawConnection c(run.port);
+      c.send_text("GET /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\n");
+      for (int k = 0; k < 15 && !done; ++k) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));
+        c.send_text("X-Slow-" + std::to_string(k) + ": 1\r\n");
+      }
+    });
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  auto c = run.client();
+  const auto t0 = std::chrono::steady_clock::now();
+  auto r = c.Get("/api/info");
+  const double waited = seconds_since(t0);
+  done = true;
+  for (auto& t : slow) t.join();
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
+  EXPECT_LT(waited, 2.0) << "an ordinary request waited behind slow clients";
+}
+
+TEST(ViewServer, KeptAliveRequestsAreNotDelayed) {
+  // Without TCP_NODELAY the 2nd to 5th request on a kept-alive connection waited ~40 ms each
+  // (Nagle's algorithm against delayed acknowledgements); 20 of them took over 0.8 s.
+  Fixture f = sphere_grid();
+  Running run(options());
+  run.server.set_grid(f.grid);
+  RawConnection c(run.port);
+  auto request = [&](const std::string& path) {  // one request, its whole answer read
+    if (!c.send_text("GET " + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")) return false;
+    std::string got;
+    char buf[65536];
+    std::size_t need = std::string::npos;
+    while (need == std::string::npos || got.size() < need) {
+      const ssize_t n = recv(c.fd, buf, sizeof buf, 0);
+      if (n <= 0) return false;
+      got.append(buf, static_cast<std::size_t>(n));
+      if (const auto end = got.find("\r\n\r\n"); end != std::string::npos && need == std::string::npos) {
+        const auto at = got.find("Content-Length: ");
+        if (at == std::string::npos) return false;
+        need = end + 4 + std::stoul(got.substr(at + 16));
+      }
+    }
+    return true;
+  };
+  // Small answers (an empty surface: a header, then an 8-byte body) are where a second small
+  // write waits for the acknowledgement of the first.
+  ASSERT_TRUE(request("/api/surface?iso=5000"));
+  const auto t0 = std::chrono::steady_clock::now();
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(request("/api/surface?iso=" + std::to_string(5000 + i)));
+  EXPECT_LT(seconds_since(t0), 0.5);
+}
+
+TEST(ViewServer, AnswersOnlyToTheNamesItListensOn) {
+  // DNS rebinding: a page from another origin reaching 127.0.0.1 under its own name.
+  Running run(options());
+  for (const char* host : {"evil.example", "attacker.example:8080", "localhost.evil.example"}) {
+    RawConnection c(run.port);
+    ASSERT_TRUE(c.send_text(std::string("GET /api/info HTTP/1.1\r\nHost: ") + host + "\r\nConnection: close\r\n\r\n"));
+    char buf[256] = {};
+    const ssize_t n = recv(c.fd, buf, sizeof buf - 1, 0);
+    ASSERT_GT(n, 12) << host;
+    EXPECT_EQ(std::string(buf, 12), "HTTP/1.1 403") << host;
+  }
+  for (std::string host : {"127.0.0.1", "localhost", "LOCALHOST"}) {
+    httplib::Client c("127.0.0.1", run.port);
+    auto r = c.Get("/api/info", {{"Host", host + ":" + std::to_string(run.port)}});
+    ASSERT_TRUE(r) << host;
+    EXPECT_EQ(r->status, 200) << host;
+  }
+}
+
+TEST(ViewServer, InfoGivesTheSourceFileNameOnly) {
+  Fixture f = sphere_grid();
+  auto grid = std::make_shared<PreparedGrid>(*f.grid);
+  grid->grid.source.file = "/home/someone/private/scans/patient-42.nrrd";  // as older grid files stored it
+  Running run(options());
+  run.server.set_grid(grid);
+  auto r = run.client().Get("/api/info");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(nlohmann::json::parse(r->body)["source"], "patient-42.nrrd");
+  EXPECT_EQ(r->body.find("/home/someone"), std::string::npos);
+}
+
+TEST(ViewServer, ServesOnlyWhatThePageLoads) {
+  Running run(options());
+  auto c = run.client();
+  for (const char* ok : {"/", "/index.html", "/viewer.js", "/style.css", "/node_modules/three/build/three.module.js",
+                         "/node_modules/three/build/three.core.js", "/node_modules/three/examples/jsm/controls/OrbitControls.js"}) {
+    auto r = c.Get(ok);
+    ASSERT_TRUE(r) << ok;
+    EXPECT_EQ(r->status, 200) << ok;
+  }
+  for (const char* no : {"/node_modules/playwright-core/package.json", "/node_modules/three/package.json", "/package.json", "/served.txt",
+                         "/node_modules/.package-lock.json", "/package-lock.json"}) {
+    auto r = c.Get(no);
+    ASSERT_TRUE(r) << no;
+    EXPECT_EQ(r->status, 404) << no;
+  }
+}
+
+TEST(ViewServer, OtherMethodsAre405) {
+  Running run(options());
+  auto c = run.client();
+  auto o = c.Options("/api/info");
+  ASSERT_TRUE(o);
+  EXPECT_EQ(o->status, 405);
+  auto p = c.Patch("/api/info", "x", "text/plain");
+  ASSERT_TRUE(p);
+  EXPECT_EQ(p->status, 405);
 }

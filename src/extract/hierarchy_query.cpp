@@ -1,0 +1,161 @@
+// Queries of a bisection grid at a coarser error (see hierarchy_query.hpp): the walk of the
+// selection (grid/traversal.hpp) with the query's threshold, pruned where the values beneath a
+// diamond do not straddle the iso-value, then marching tetrahedra over the leaves it finds.
+#include "adaptiso/hierarchy_query.hpp"
+
+#include <fmt/format.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cmath>
+
+#include "adaptiso/error.hpp"
+#include "extract/march_detail.hpp"
+#include "grid/traversal.hpp"
+#include "util/big_array.hpp"
+
+namespace adaptiso {
+namespace detail {
+
+// What a query needs beside the grid: the lattice and the voxel → vertex numbering.
+struct HierarchyIndex {
+  Lattice lat;
+  VertexNumbers numbers;
+};
+
+namespace {
+
+struct QueryRule {
+  const VertexNumbers& numbers;
+  const BisectionHierarchy& h;
+  std::uint8_t threshold, displacement_threshold;
+  bool displacement;
+  double iso;
+
+  bool split_vertex(std::uint32_t id) const {
+    return h.error_code[id] > threshold || (displacement && h.displacement_code[id] > displacement_threshold);
+  }
+  // A diamond that is not a vertex of the grid was not split at the prepared error: nor at a coarser one.
+  bool split(std::int64_t voxel) const {
+    const std::uint32_t id = numbers.find(voxel);
+    return id != VertexNumbers::kNone && split_vertex(id);
+  }
+  Decision decide(std::int64_t voxel) const {
+    const std::uint32_t id = numbers.find(voxel);
+    if (id == VertexNumbers::kNone || !split_vertex(id)) return Decision::leaf;
+    const auto& span = h.value_span[id];
+    return span[0] < iso && iso <= span[1] ? Decision::descend : Decision::prune;  // a cut needs a value below and one at or above
+  }
+};
+
+}  // namespace
+}  // namespace detail
+
+HierarchyQuery::HierarchyQuery(std::shared_ptr<const PreparedGrid> grid) : grid_(std::move(grid)) {
+  if (!grid_ || !grid_->hierarchy || grid_->hierarchy->error_code.size() != grid_->grid.vertex_count() ||
+      grid_->hierarchy->value_span.size() != grid_->grid.vertex_count())
+    throw InputError("this grid has no bisection hierarchy: queries at another error need a bisection grid");
+  const TetGrid& g = grid_->grid;
+  index_ = std::make_unique<detail::HierarchyIndex>();
+  index_->lat = detail::make_lattice(g.source.dims);
+  if (grid_->hierarchy->root_size != index_->lat.S) throw InputError("the grid's hierarchy does not match its dimensions");
+  using detail::assign_big;
+  auto& n = index_->numbers;
+  assign_big(n.bits, static_cast<std::size_t>((g.source.dims[0] * g.source.dims[1] * g.source.dims[2] + 63) / 64), std::uint64_t{0});
+  for (std::size_t v = 0; v < g.vertex_count(); ++v) {
+    const auto i = static_cast<std::uint64_t>(index_->lat.index({static_cast<std::int32_t>(g.ijk[v][0]), static_cast<std::int32_t>(g.ijk[v][1]),
+                                                                 static_cast<std::int32_t>(g.ijk[v][2])}));
+    n.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
+  }
+  n.count();
+}
+
+HierarchyQuery::~HierarchyQuery() = default;
+HierarchyQuery::HierarchyQuery(HierarchyQuery&&) noexcept = default;
+HierarchyQuery& HierarchyQuery::operator=(HierarchyQuery&&) noexcept = default;
+
+const PreparedGrid& HierarchyQuery::grid() const { return *grid_; }
+
+double HierarchyQuery::prepared_error() const {
+  const auto& h = *grid_->hierarchy;
+  return h.codes.error(h.error_threshold);
+}
+
+Mesh HierarchyQuery::extract(double iso, double max_error, double max_displacement, HierarchyQueryStats* stats,
+                             std::vector<std::array<std::uint32_t, 4>>* used) const {
+  using namespace detail;
+  using Clock = std::chrono::steady_clock;
+  if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
+  if (!(max_error >= 0)) throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", max_error));
+  if (!(max_displacement >= 0)) throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", max_displacement));
+  const auto t0 = Clock::now();
+  const TetGrid& g = grid_->grid;
+  const BisectionHierarchy& h = *grid_->hierarchy;
+  const bool displacement = !h.displacement_code.empty();
+  // Never finer than prepared: the finer diamonds are not in the grid.
+  const std::uint8_t threshold = std::max(h.codes.threshold(max_error), h.error_threshold);
+  const std::uint8_t displacement_threshold =
+      displacement ? std::max(max_displacement > 0 ? h.displacement_codes.threshold(max_displacement) : std::uint8_t{0}, h.displacement_threshold) : 0;
+  const QueryRule rule{index_->numbers, h, threshold, displacement_threshold, displacement, iso};
+  const Traversal<QueryRule> walk(index_->lat, rule);
+  const Frontier top = walk.frontier(10);
+  const double unsplit_bound = h.codes.error(h.error_threshold);  // leaves whose diamond the grid never split
+  std::vector<std::vector<Quad>> found(top.roots.size());
+  std::vector<double> bound(top.roots.size(), 0);
+  std::vector<std::size_t> visited(top.roots.size(), 0);
+  tbb::parallel_for(std::size_t{0}, top.roots.size(), [&](std::size_t f) {
+    auto& out = found[f];
+    double worst = 0;
+    std::size_t seen = 0;
+    walk.visit(
+        top.roots[f],
+        [&](const Tet& t, std::int64_t voxel) {
+          ++seen;
+          Quad q;
+          double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+          for (int k = 0; k < 4; ++k) {
+            q[k] = index_->numbers.id(index_->lat.index(t[k]));
+            lo = std::min(lo, g.values[q[k]]);
+            hi = std::max(hi, g.values[q[k]]);
+          }
+          if (lo < iso && iso <= hi) {
+            out.push_back(q);
+            if (voxel >= 0) {
+              const std::uint32_t id = index_->numbers.find(voxel);
+              worst = std::max(worst, id == VertexNumbers::kNone ? unsplit_bound : h.codes.error(h.error_code[id]));
+            }
+          }
+          return ValueSpan{};
+        },
+        [&](std::int64_t, const Tet&, const ValueSpan&) { ++seen; });
+    bound[f] = worst;
+    visited[f] = seen;
+  });
+  std::vector<Quad> quads;
+  std::size_t total = 0;
+  for (const auto& part : found) total += part.size();
+  quads.reserve(total);
+  for (const auto& part : found) quads.insert(quads.end(), part.begin(), part.end());
+  const auto t1 = Clock::now();
+  Mesh mesh;
+  MarchScratch scratch;
+  march_into(g, QuadTets{g, quads}, iso, mesh, scratch, nullptr, nullptr);
+  if (used) *used = quads;
+  if (stats) {
+    stats->iso = iso;
+    stats->max_error = std::max(max_error, prepared_error());
+    stats->error_bound = 0;
+    for (double b : bound) stats->error_bound = std::max(stats->error_bound, b);
+    stats->tetrahedra = quads.size();
+    stats->visited = top.roots.size() + top.splits.size();
+    for (std::size_t v : visited) stats->visited += v;
+    stats->triangles = mesh.triangle_count();
+    stats->vertices = mesh.vertex_count();
+    stats->in_range = iso >= g.source.min && iso <= g.source.max;
+    stats->walk_seconds = std::chrono::duration<double>(t1 - t0).count();
+    stats->march_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
+  }
+  return mesh;
+}
+
+}  // namespace adaptiso

@@ -1,0 +1,239 @@
+// Walking the bisection hierarchy top-down (see bisection.hpp, diamond.hpp): from the 6 root
+// tetrahedra, each split at the midpoint of its longest edge while a rule says so. Shared by the
+// selection of a grid (bisection.cpp) and the queries at a coarser error (hierarchy_query.cpp).
+// Internal.
+#pragma once
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "adaptiso/error.hpp"
+#include "adaptiso/volume.hpp"
+#include "grid/diamond.hpp"
+#include "util/big_array.hpp"
+
+namespace adaptiso::detail {
+
+using Tet = std::array<Coord, 4>;
+
+inline Lattice make_lattice(const Dims& dims) {
+  Lattice lat;
+  std::int64_t extent = 1;
+  for (int a = 0; a < 3; ++a) {
+    if (dims[a] < 2)
+      throw InputError(fmt::format("a volume of {} x {} x {} voxels is flat: a grid of tetrahedra needs at least 2 voxels along every axis",
+                                   dims[0], dims[1], dims[2]));
+    if (dims[a] - 1 > (std::int64_t{1} << 30)) throw InputError(fmt::format("dimension {} is too large for the bisection grid", dims[a]));
+    lat.X[a] = static_cast<std::int32_t>(dims[a] - 1);
+    extent = std::max(extent, dims[a] - 1);
+  }
+  lat.S = static_cast<std::int32_t>(std::bit_ceil(static_cast<std::uint64_t>(extent)));
+  lat.k = std::countr_zero(static_cast<std::uint32_t>(lat.S));
+  lat.nx = dims[0];
+  lat.nxy = dims[0] * dims[1];
+  return lat;
+}
+
+// The 6 root tetrahedra around the root cube's diagonal, positively oriented.
+inline std::array<Tet, 6> root_tetrahedra(std::int32_t S) {
+  std::array<Tet, 6> out;
+  const int perms[6][3] = {{0, 1, 2}, {1, 2, 0}, {2, 0, 1}, {0, 2, 1}, {2, 1, 0}, {1, 0, 2}};
+  for (int t = 0; t < 6; ++t) {
+    Coord v1{0, 0, 0};
+    v1[perms[t][0]] = S;
+    Coord v2 = v1;
+    v2[perms[t][1]] = S;
+    out[t] = {Coord{0, 0, 0}, v1, v2, Coord{S, S, S}};
+    if (t >= 3) std::swap(out[t][1], out[t][2]);  // odd permutations
+  }
+  return out;
+}
+
+// The midpoint of the longest edge (unique in this hierarchy) and that edge's ends, or false when
+// it is not a lattice point (a unit Kuhn tetrahedron: a leaf of the hierarchy).
+inline bool split_point(const Tet& t, Coord& m, int& ei, int& ej) {
+  std::int64_t best = -1;
+  for (int i = 0; i < 4; ++i)
+    for (int j = i + 1; j < 4; ++j) {
+      std::int64_t len = 0;
+      for (int a = 0; a < 3; ++a) {
+        const std::int64_t d = t[i][a] - t[j][a];
+        len += d * d;
+      }
+      if (len > best) {
+        best = len;
+        ei = i;
+        ej = j;
+      }
+    }
+  for (int a = 0; a < 3; ++a) {
+    const std::int32_t sum = t[ei][a] + t[ej][a];
+    if (sum & 1) return false;
+    m[a] = sum / 2;
+  }
+  return true;
+}
+
+// The values under a subtree (of its leaves' vertices), combined upwards.
+struct ValueSpan {
+  double lo = std::numeric_limits<double>::infinity(), hi = -std::numeric_limits<double>::infinity();
+  void add(const ValueSpan& o) {
+    lo = std::min(lo, o.lo);
+    hi = std::max(hi, o.hi);
+  }
+};
+
+// The top of the traversal, cut into subtrees to run in parallel: the subtrees' roots in
+// depth-first order, and the split tetrahedra inside the box above them, each with the range of
+// subtrees below it (children before parents, so spans combine in one pass).
+struct Frontier {
+  std::vector<Tet> roots;
+  struct Split {
+    std::int64_t voxel;
+    Tet tet;
+    std::size_t first, last;  // roots[first, last)
+  };
+  std::vector<Split> splits;
+};
+
+// What a rule says of a tetrahedron inside the box, by the voxel at its refinement edge's midpoint.
+enum class Decision { leaf, descend, prune };
+
+// Rule: decide(voxel) — is a tetrahedron inside the box, whose midpoint is that voxel, a leaf, or
+// split (and then is its subtree walked or pruned)? split(voxel) — is it split at all (for
+// tetrahedra across the box's faces, whose midpoint lies in the box)? Diamonds that cross the
+// box's far faces are always split (no tetrahedron reaches outside the volume); the leaves inside
+// the box are the grid, and a leaf that is not inside lies beyond a far face.
+template <class Rule>
+class Traversal {
+public:
+  Traversal(const Lattice& lat, const Rule& rule) : lat_(lat), rule_(rule) {}
+
+  // Subtrees cut `depth` splits below the roots (leaves above that depth included): the units of
+  // parallel work, in the order the whole traversal would meet them.
+  Frontier frontier(int depth) const {
+    Frontier f;
+    for (const Tet& t : root_tetrahedra(lat_.S)) collect(t, depth, f);
+    return f;
+  }
+
+  // Calls leaf(t, voxel) for every leaf inside the box below t, depth first (voxel: its
+  // refinement edge's midpoint, −1 for a unit tetrahedron), and split(voxel, t, span)
+  // once the subtree of a split tetrahedron inside the box (midpoint at voxel) is done, with the
+  // span the leaves below it returned. Returns the span of the whole subtree.
+  template <class Leaf, class Split>
+  ValueSpan visit(const Tet& t, Leaf&& leaf, Split&& split) const {
+    if (inside(t)) return visit_inside(t, leaf, split);
+    if (outside(t)) return {};
+    Coord m;
+    int i, j;
+    if (!split_point(t, m, i, j) || !split_across(m)) return {};  // a leaf not inside is beyond the box
+    Tet a = t, b = t;
+    a[j] = m;  // replacing an end by the midpoint keeps the orientation
+    b[i] = m;
+    ValueSpan s = visit(a, leaf, split);
+    s.add(visit(b, leaf, split));
+    return s;
+  }
+
+  const Lattice& lattice() const { return lat_; }
+
+private:
+  const Lattice& lat_;
+  const Rule& rule_;
+
+  // Inside the box, so are the halves: no more checks against it.
+  template <class Leaf, class Split>
+  ValueSpan visit_inside(const Tet& t, Leaf& leaf, Split& split) const {
+    Coord m;
+    int i, j;
+    if (!split_point(t, m, i, j)) return leaf(t, std::int64_t{-1});
+    const std::int64_t voxel = lat_.index(m);
+    const Decision d = rule_.decide(voxel);
+    if (d == Decision::leaf) return leaf(t, voxel);
+    if (d == Decision::prune) return {};
+    Tet a = t, b = t;
+    a[j] = m;
+    b[i] = m;
+    ValueSpan s = visit_inside(a, leaf, split);
+    s.add(visit_inside(b, leaf, split));
+    split(voxel, t, s);
+    return s;
+  }
+
+  void collect(const Tet& t, int depth, Frontier& f) const {
+    if (outside(t)) return;
+    Coord m;
+    int i, j;
+    if (depth == 0 || !split_point(t, m, i, j)) return f.roots.push_back(t);
+    const bool in = inside(t);
+    if (in) {
+      const Decision d = rule_.decide(lat_.index(m));
+      if (d == Decision::leaf) return f.roots.push_back(t);
+      if (d == Decision::prune) return;
+    } else if (!split_across(m)) {
+      return;  // a leaf not inside is beyond the box
+    }
+    const std::size_t first = f.roots.size();
+    Tet a = t, b = t;
+    a[j] = m;
+    b[i] = m;
+    collect(a, depth - 1, f);
+    collect(b, depth - 1, f);
+    if (in) f.splits.push_back({lat_.index(m), t, first, f.roots.size()});
+  }
+
+  // Wholly beyond a far face of the box.
+  bool outside(const Tet& t) const {
+    for (int a = 0; a < 3; ++a)
+      if (std::min({t[0][a], t[1][a], t[2][a], t[3][a]}) >= lat_.X[a]) return true;
+    return false;
+  }
+  bool inside(const Tet& t) const {
+    for (const Coord& v : t)
+      if (!lat_.in_box(v)) return false;
+    return true;
+  }
+  // A tetrahedron not inside the box: split when its diamond crosses the box (the rule decides
+  // for a midpoint in the box, whose diamond may have tetrahedra inside).
+  bool split_across(const Coord& m) const {
+    if (lat_.in_box(m)) return rule_.split(lat_.index(m));
+    return placement(classify(m, lat_.k), lat_).forced;
+  }
+};
+
+// Without a popcount instruction in the baseline instruction set, std::popcount is a library
+// call; numbering asks it for every vertex of every tetrahedron.
+inline int bit_count(std::uint64_t x) {
+  x = x - ((x >> 1) & 0x5555555555555555ull);
+  x = (x & 0x3333333333333333ull) + ((x >> 2) & 0x3333333333333333ull);
+  x = (x + (x >> 4)) & 0x0f0f0f0f0f0f0f0full;
+  return static_cast<int>((x * 0x0101010101010101ull) >> 56);
+}
+
+// Vertex numbers from a bitmap of used voxels: the rank of a voxel among the used ones (ascending
+// linear index, the grid's vertex order).
+struct VertexNumbers {
+  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
+  std::vector<std::uint64_t> bits;
+  std::vector<std::uint64_t> before;  // used voxels in the words before each word
+  std::uint32_t id(std::int64_t voxel) const {
+    const std::size_t w = static_cast<std::size_t>(voxel) >> 6;
+    const std::uint64_t below = bits[w] & ((std::uint64_t{1} << (voxel & 63)) - 1);
+    return static_cast<std::uint32_t>(before[w] + static_cast<std::uint64_t>(bit_count(below)));
+  }
+  bool used(std::int64_t voxel) const { return (bits[static_cast<std::size_t>(voxel) >> 6] >> (voxel & 63)) & 1; }
+  // kNone for a voxel that is no vertex.
+  std::uint32_t find(std::int64_t voxel) const { return used(voxel) ? id(voxel) : kNone; }
+  void count() {
+    assign_big(before, bits.size() + 1, std::uint64_t{0});
+    for (std::size_t w = 0; w < bits.size(); ++w) before[w + 1] = before[w] + static_cast<std::uint64_t>(bit_count(bits[w]));
+  }
+};
+
+}  // namespace adaptiso::detail

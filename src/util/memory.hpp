@@ -1,0 +1,20 @@
+// Will a stage's arrays fit? Work that cannot fit in memory is refused before it starts, with an
+// estimate, rather than ending in the out-of-memory killer hours later.
+#pragma once
+#include <cstdint>
+#include <string>
+
+namespace adaptiso::detail {
+
+// Memory the system can give this process now (Linux: MemAvailable; elsewhere the physical
+// memory), or the cap set in the environment as ADAPTISO_MEMORY_LIMIT (bytes).
+std::uint64_t available_memory();
+
+// Throws OptionError(option, "<what> needs about X GB, Y GB are available; <advice>") when `bytes`
+// exceed the available memory (InputError when no option can help: option empty).
+// "17 s", "3 min", "2.5 h".
+std::string duration_text(double seconds);
+
+void check_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice);
+
+}  // namespace adaptiso::detail

@@ -1,0 +1,180 @@
+// Queries of a bisection grid at a coarser error against preparing at that error: the same
+// triangles; every voxel in the tetrahedra used within the reported bound (brute force, exact
+// barycentric coordinates); closed, oriented surfaces; refusals.
+#include <gtest/gtest.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <random>
+
+#include "adaptiso/extractor.hpp"
+#include "adaptiso/hierarchy_query.hpp"
+#include "adaptiso/synthetic.hpp"
+#include "test_util.hpp"
+
+using namespace adaptiso;
+
+namespace {
+
+using Corner = std::array<float, 3>;
+using Triangle = std::array<Corner, 3>;
+
+// Triangles as their corner positions, each rotated to start at its smallest corner (the
+// orientation kept), sorted: equal for two meshes of the same surface whatever the numbering.
+std::vector<Triangle> triangles_of(const Mesh& m) {
+  std::vector<Triangle> out;
+  for (const auto& t : m.triangles) {
+    Triangle tri{m.positions[t[0]], m.positions[t[1]], m.positions[t[2]]};
+    const int k = static_cast<int>(std::min_element(tri.begin(), tri.end()) - tri.begin());
+    std::rotate(tri.begin(), tri.begin() + k, tri.end());
+    out.push_back(tri);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::shared_ptr<const PreparedGrid> prepared_at(const Volume& v, double max_error) {
+  PrepareOptions o;
+  o.max_error = max_error;
+  o.relative = false;
+  return std::make_shared<const PreparedGrid>(prepare(v, o));
+}
+
+double largest_error(const Volume& v, const TetGrid& g, const std::vector<std::array<std::uint32_t, 4>>& tets) {
+  double worst = 0;
+  for (const auto& t : tets) {
+    std::int64_t P[4][3];
+    for (int i = 0; i < 4; ++i)
+      for (int a = 0; a < 3; ++a) P[i][a] = g.ijk[t[i]][a];
+    auto det = [](const std::int64_t* a, const std::int64_t* b, const std::int64_t* c, const std::int64_t* d) {
+      std::int64_t u[3], w[3], z[3];
+      for (int k = 0; k < 3; ++k) u[k] = b[k] - a[k], w[k] = c[k] - a[k], z[k] = d[k] - a[k];
+      return u[0] * (w[1] * z[2] - w[2] * z[1]) - u[1] * (w[0] * z[2] - w[2] * z[0]) + u[2] * (w[0] * z[1] - w[1] * z[0]);
+    };
+    const std::int64_t D = det(P[0], P[1], P[2], P[3]);
+    EXPECT_GT(D, 0);
+    std::int64_t lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) lo[a] = std::min({P[0][a], P[1][a], P[2][a], P[3][a]}), hi[a] = std::max({P[0][a], P[1][a], P[2][a], P[3][a]});
+    for (std::int64_t z = lo[2]; z <= hi[2]; ++z)
+      for (std::int64_t y = lo[1]; y <= hi[1]; ++y)
+        for (std::int64_t x = lo[0]; x <= hi[0]; ++x) {
+          const std::int64_t q[3] = {x, y, z};
+          const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]), det(P[0], P[1], P[2], q)};
+          if (l[0] < 0 || l[1] < 0 || l[2] < 0 || l[3] < 0) continue;
+          double rec = 0;
+          for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * g.values[t[i]];
+          worst = std::max(worst, std::abs(v.at(x, y, z) - rec));
+        }
+  }
+  return worst;
+}
+
+}  // namespace
+
+TEST(HierarchyQuery, EqualsPreparingAtThatErrorForEveryIsoAndError) {
+  for (const char* name : {"sphere", "marschner-lobb", "torus"})
+    for (std::int64_t n : {23, 33}) {
+      Volume v = make_synthetic(name, n, ScalarType::f32);
+      v.spacing = {1.0, 0.75, 1.5};
+      const ValueRange r = value_range(v);
+      const double range = r.max - r.min;
+      const auto fine = prepared_at(v, 0.005 * range);
+      const HierarchyQuery query(fine);
+      for (double rel : {0.005, 0.02, 0.07, 0.25, std::numeric_limits<double>::infinity()}) {
+        const auto coarse = prepared_at(v, rel * range);
+        Extractor ex(coarse);
+        for (double f : {0.3, 0.55, 0.8}) {
+          const double iso = r.min + f * range;
+          ex.extract(iso);
+          HierarchyQueryStats st;
+          const Mesh q = query.extract(iso, rel * range, 0, &st);
+          EXPECT_EQ(triangles_of(q), triangles_of(ex.mesh())) << name << " " << n << " rel " << rel << " iso " << f;
+          EXPECT_EQ(q.vertex_count(), ex.mesh().vertex_count());
+          EXPECT_LE(st.error_bound, std::max(rel * range, query.prepared_error()));
+        }
+      }
+    }
+}
+
+TEST(HierarchyQuery, EveryVoxelOfTheTetrahedraUsedIsWithinTheReportedBound) {
+  std::mt19937 rng(8);
+  for (auto d : {Dims{17, 17, 17}, Dims{30, 21, 12}, Dims{9, 40, 5}}) {
+    Volume v = make_volume(d, ScalarType::f32);
+    for (std::int64_t z = 0; z < d[2]; ++z)
+      for (std::int64_t y = 0; y < d[1]; ++y)
+        for (std::int64_t x = 0; x < d[0]; ++x)
+          v.set(v.index(x, y, z), std::sin(0.3 * x) * std::cos(0.2 * y) + 0.05 * z + 0.02 * double(rng() % 10));
+    const ValueRange r = value_range(v);
+    const auto grid = prepared_at(v, 0.01);
+    const HierarchyQuery query(grid);
+    for (double e : {0.01, 0.05, 0.2, 0.6}) {
+      for (double f : {0.25, 0.5, 0.75}) {
+        HierarchyQueryStats st;
+        std::vector<std::array<std::uint32_t, 4>> used;
+        const Mesh m = query.extract(r.min + f * (r.max - r.min), e, 0, &st, &used);
+        EXPECT_EQ(used.size(), st.tetrahedra);
+        EXPECT_LE(st.error_bound, std::max(e, query.prepared_error()) + 1e-12);
+        EXPECT_LE(largest_error(v, grid->grid, used), st.error_bound + 1e-9) << d[0] << " e " << e << " f " << f;
+      }
+    }
+  }
+}
+
+TEST(HierarchyQuery, SurfacesAreClosedAndOrientedAtEveryError) {
+  const Volume v = make_synthetic("sphere", 48, ScalarType::i16);
+  const auto grid = prepared_at(v, 5);
+  const HierarchyQuery query(grid);
+  std::size_t previous = ~std::size_t{0};
+  for (double e : {5.0, 20.0, 60.0, 150.0, 400.0}) {
+    const Mesh m = query.extract(700, e);
+    const auto c = testutil::edge_census(m, v.dims, v.spacing);
+    EXPECT_EQ(c.boundary, 0u) << e;
+    EXPECT_EQ(c.nonmanifold, 0u) << e;
+    EXPECT_EQ(c.misoriented, 0u) << e;
+    EXPECT_EQ(c.euler, 2) << e;
+    EXPECT_GT(mesh_volume(m), 0) << e;
+    EXPECT_LE(m.triangle_count(), previous) << "a coarser error gives no more triangles";
+    previous = m.triangle_count();
+  }
+}
+
+TEST(HierarchyQuery, SameSurfaceForAnyThreadCountAndRefusals) {
+  const Volume v = make_synthetic("marschner-lobb", 40, ScalarType::f32);
+  const auto grid = prepared_at(v, 0.002);
+  const HierarchyQuery query(grid);
+  Mesh one, four;
+  tbb::task_arena(1).execute([&] { one = query.extract(0.5, 0.03); });
+  tbb::task_arena(4).execute([&] { four = query.extract(0.5, 0.03); });
+  EXPECT_EQ(one.triangles, four.triangles);
+  EXPECT_EQ(one.positions, four.positions);
+  // Below the prepared error: answered at the prepared error.
+  HierarchyQueryStats st;
+  query.extract(0.5, 0, 0, &st);
+  EXPECT_EQ(st.max_error, query.prepared_error());
+  EXPECT_THROW(query.extract(std::nan(""), 1), OptionError);
+  EXPECT_THROW(query.extract(0.5, -1), OptionError);
+  PrepareOptions o;
+  o.grid = GridKind::delaunay;
+  o.max_error = 0.1;
+  EXPECT_THROW(HierarchyQuery(std::make_shared<const PreparedGrid>(prepare(v, o))), InputError);
+}
+
+TEST(HierarchyQuery, IsoValuesEqualToVertexValuesGiveThePreparedSurface) {
+  // Ties: a vertex at the iso-value counts as above it, in the pruning as in marching.
+  std::mt19937 rng(21);
+  for (int trial = 0; trial < 6; ++trial) {
+    const Dims d{9 + std::int64_t(rng() % 9), 9 + std::int64_t(rng() % 9), 5 + std::int64_t(rng() % 9)};
+    Volume v = make_volume(d, ScalarType::i16);
+    for (std::int64_t z = 0; z < d[2]; ++z)
+      for (std::int64_t y = 0; y < d[1]; ++y)
+        for (std::int64_t x = 0; x < d[0]; ++x) v.set(v.index(x, y, z), std::round(4 * std::sin(0.4 * x + 0.3 * y) + z % 3 + double(rng() % 2)));
+    const auto fine = prepared_at(v, 0);
+    const HierarchyQuery query(fine);
+    for (double e : {0.5, 1.0, 2.5})
+      for (double iso : {-3.0, -1.0, 0.0, 1.0, 2.0, 4.0}) {
+        Extractor ex(prepared_at(v, e));
+        ex.extract(iso);
+        EXPECT_EQ(triangles_of(query.extract(iso, e)), triangles_of(ex.mesh())) << trial << " e " << e << " iso " << iso;
+      }
+  }
+}
