@@ -93,7 +93,8 @@ nlohmann::json volume_json(const Volume& v, const ValueRange& r) {
           {"type", std::string(scalar_name(v.type))},
           {"min", r.min},
           {"max", r.max},
-          {"voxels", v.voxel_count()}};
+          {"voxels", v.voxel_count()},
+          {"bytes", v.bytes.size()}};
 }
 
 std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, double min, double max) {

@@ -105,4 +105,11 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
 
 BisectionGrid bisection_grid(const Volume& v, const ValueRange& range, const BisectionOptions& options, const Progress& progress = {});
 
+// The grid at a coarser bound from a bisection grid and its hierarchy, without the volume: the
+// same grid bisection_grid gives at that bound (vertices, tetrahedra and their order), gradients
+// copied. Bounds below the fine grid's give the fine grid. Throws InputError when the hierarchy
+// is not the grid's, OptionError for a bad bound.
+BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& hierarchy, const BisectionOptions& options,
+                                const Progress& progress = {});
+
 }  // namespace adaptiso

@@ -28,10 +28,10 @@ namespace adaptiso {
 
 struct HierarchyQueryStats {
   double iso = 0;
-  double max_error = 0;         // asked for (raised to the prepared bound when below it)
-  double error_bound = 0;       // guaranteed for the tetrahedra used: the largest of their bounds
-  std::size_t tetrahedra = 0;   // leaves cut by the surface (marched)
-  std::size_t visited = 0;      // tetrahedra the walk met
+  double max_error = 0;        // asked for (raised to the prepared bound when below it)
+  double error_bound = 0;      // guaranteed for the tetrahedra used: the largest of their bounds
+  std::size_t tetrahedra = 0;  // leaves cut by the surface (marched)
+  std::size_t visited = 0;     // tetrahedra the walk met
   std::size_t triangles = 0, vertices = 0;
   bool in_range = true;
   double walk_seconds = 0, march_seconds = 0;

@@ -99,7 +99,13 @@ struct PreparedGrid {
 };
 
 PreparedGrid prepare(const Volume& v, const PrepareOptions& options, const Progress& progress = {});
+
 // The same with the value range already known (it is scanned once otherwise).
 PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOptions& options, const Progress& progress = {});
+
+// A bisection grid at a coarser bound (data units; +∞: the coarsest) from a prepared one, without
+// the volume: what prepare would give at that bound, with its own index (the viewer's levels of
+// detail). Throws InputError for a grid without a hierarchy.
+PreparedGrid coarsen(const PreparedGrid& grid, double max_error, double max_displacement = 0, const Progress& progress = {});
 
 }  // namespace adaptiso

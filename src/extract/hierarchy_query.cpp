@@ -63,8 +63,8 @@ HierarchyQuery::HierarchyQuery(std::shared_ptr<const PreparedGrid> grid) : grid_
   auto& n = index_->numbers;
   assign_big(n.bits, static_cast<std::size_t>((g.source.dims[0] * g.source.dims[1] * g.source.dims[2] + 63) / 64), std::uint64_t{0});
   for (std::size_t v = 0; v < g.vertex_count(); ++v) {
-    const auto i = static_cast<std::uint64_t>(index_->lat.index({static_cast<std::int32_t>(g.ijk[v][0]), static_cast<std::int32_t>(g.ijk[v][1]),
-                                                                 static_cast<std::int32_t>(g.ijk[v][2])}));
+    const auto i = static_cast<std::uint64_t>(index_->lat.index(
+        {static_cast<std::int32_t>(g.ijk[v][0]), static_cast<std::int32_t>(g.ijk[v][1]), static_cast<std::int32_t>(g.ijk[v][2])}));
     n.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
   }
   n.count();
@@ -87,7 +87,8 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
   using Clock = std::chrono::steady_clock;
   if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
   if (!(max_error >= 0)) throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", max_error));
-  if (!(max_displacement >= 0)) throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", max_displacement));
+  if (!(max_displacement >= 0))
+    throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", max_displacement));
   const auto t0 = Clock::now();
   const TetGrid& g = grid_->grid;
   const BisectionHierarchy& h = *grid_->hierarchy;
@@ -95,7 +96,9 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
   // Never finer than prepared: the finer diamonds are not in the grid.
   const std::uint8_t threshold = std::max(h.codes.threshold(max_error), h.error_threshold);
   const std::uint8_t displacement_threshold =
-      displacement ? std::max(max_displacement > 0 ? h.displacement_codes.threshold(max_displacement) : std::uint8_t{0}, h.displacement_threshold) : 0;
+      displacement
+          ? std::max(max_displacement > 0 ? h.displacement_codes.threshold(max_displacement) : std::uint8_t{0}, h.displacement_threshold)
+          : 0;
   const QueryRule rule{index_->numbers, h, threshold, displacement_threshold, displacement, iso};
   const Traversal<QueryRule> walk(index_->lat, rule);
   const Frontier top = walk.frontier(10);

@@ -2,10 +2,15 @@
 // the volume — and the error of the tetrahedral grid's linear reconstruction at every original voxel.
 #include "adaptiso/gradients.hpp"
 
+#include "util/big_array.hpp"
+
 #include <tbb/combinable.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include <Eigen/SVD>
+#include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <numeric>
@@ -109,18 +114,23 @@ void central_difference_gradients(TetGrid& grid, const Volume& vol, const Progre
   });
 }
 
+// The error at every voxel, measured in the tetrahedron that claims it first. The result must not
+// depend on which one that is (thread timing decides; grid files and `run` outputs must be the same
+// bytes for any thread count): a voxel on a shared face, edge or vertex has the same barycentric
+// coordinates in every tetrahedron around it (the same rational numbers, each correctly rounded),
+// and its terms are added in ascending vertex id, so its interpolant is the same double whichever
+// tetrahedron claims it. The maximum is then order-free; the sum of squares is taken over the
+// per-voxel errors in voxel order with a deterministic reduction.
 ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& grid, const Progress& progress) {
   const std::size_t nvox = static_cast<std::size_t>(vol.voxel_count());
-  std::vector<std::uint8_t> claimed(nvox, 0);
-  struct Acc {
-    double max = 0, sq = 0;
-    std::int64_t n = 0;
-  };
-  tbb::combinable<Acc> acc;
+  constexpr float unclaimed = -1.0f;
+  std::vector<float> error;  // per voxel, < 0 until a tetrahedron claims it
+  detail::assign_big(error, nvox, unclaimed);
+  tbb::combinable<double> largest([] { return 0.0; });
   std::atomic<std::size_t> done{0};
   const std::size_t nt = grid.tet_count();
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nt, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
-    Acc& a = acc.local();
+    double& worst = largest.local();
     for (std::size_t t = r.begin(); t < r.end(); ++t) {
       const auto& T = grid.tets[t];
       std::int64_t P[4][3];
@@ -135,6 +145,9 @@ ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& gri
           lo[c] = std::min(lo[c], P[i][c]);
           hi[c] = std::max(hi[c], P[i][c]);
         }
+      // Corners in ascending vertex id: the order the interpolant adds its terms in.
+      std::array<int, 4> order{0, 1, 2, 3};
+      std::sort(order.begin(), order.end(), [&](int a, int b) { return T[a] < T[b]; });
       // Signed volumes in index space (exact in 64-bit integers).
       auto det = [](const std::int64_t* a, const std::int64_t* b, const std::int64_t* c, const std::int64_t* d) {
         std::int64_t u[3], v[3], w[3];
@@ -156,25 +169,40 @@ ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& gri
             for (auto li : l) in = in && (D > 0 ? li >= 0 : li <= 0);
             if (!in) continue;
             const std::size_t idx = static_cast<std::size_t>(vol.index(x, y, z));
-            if (std::atomic_ref<std::uint8_t>(claimed[idx]).exchange(1) != 0) continue;
+            if (std::atomic_ref<float>(error[idx]).load(std::memory_order_relaxed) >= 0) continue;
             double rec = 0;
-            for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * grid.values[T[i]];
-            double e = std::abs(vol.at(static_cast<std::int64_t>(idx)) - rec);
-            a.max = std::max(a.max, e);
-            a.sq += e * e;
-            a.n++;
+            for (int i : order)
+              if (l[i] != 0) rec += static_cast<double>(l[i]) / static_cast<double>(D) * grid.values[T[i]];
+            const double e = std::abs(vol.at(static_cast<std::int64_t>(idx)) - rec);
+            float expected = unclaimed;
+            if (!std::atomic_ref<float>(error[idx]).compare_exchange_strong(expected, static_cast<float>(e), std::memory_order_relaxed))
+              continue;
+            worst = std::max(worst, e);
           }
     }
     std::size_t d = done += r.size();
     report(progress, "reconstruction error", static_cast<double>(d) / static_cast<double>(nt));
   });
-  Acc total;
-  acc.combine_each([&](const Acc& a) {
-    total.max = std::max(total.max, a.max);
-    total.sq += a.sq;
-    total.n += a.n;
-  });
-  return {total.max, total.n ? std::sqrt(total.sq / static_cast<double>(total.n)) : 0.0, total.n};
+  struct Sum {
+    double sq = 0;
+    std::int64_t n = 0;
+  };
+  const Sum total = tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<std::size_t>(0, nvox, std::size_t{1} << 16), Sum{},
+      [&](const tbb::blocked_range<std::size_t>& r, Sum s) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i)
+          if (error[i] >= 0) {
+            s.sq += static_cast<double>(error[i]) * static_cast<double>(error[i]);
+            ++s.n;
+          }
+        return s;
+      },
+      [](Sum a, const Sum& b) {
+        return Sum{a.sq + b.sq, a.n + b.n};
+      });
+  double max = 0;
+  largest.combine_each([&](double m) { max = std::max(max, m); });
+  return {max, total.n ? std::sqrt(total.sq / static_cast<double>(total.n)) : 0.0, total.n};
 }
 
 }  // namespace adaptiso

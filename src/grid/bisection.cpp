@@ -589,51 +589,41 @@ BisectionErrors bisection_errors(const Volume& v, const ValueRange& range, bool 
   return e;
 }
 
-BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const BisectionErrors& errors, const BisectionOptions& o,
-                               const Progress& progress) {
-  using namespace detail;
-  if (!(o.max_error >= 0))  // +∞: no error criterion (the displacement alone, or the coarsest grid)
-    throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
-  const Lattice lat = make_lattice(v.dims);
-  if (errors.code.size() != static_cast<std::size_t>(v.voxel_count()) || errors.root_size != lat.S)
-    throw std::invalid_argument("bisection_select: the errors belong to another volume");
-  if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
-    throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", o.max_displacement));
-  const bool displacement = o.max_displacement > 0;
-  if (displacement && errors.displacement_code.size() != errors.code.size())
-    throw std::invalid_argument("bisection_select: the errors were computed without the displacement criterion");
-  const std::vector<std::uint8_t>& code = errors.code;
-  BisectionGrid out;
-  out.hierarchy.codes = errors.codes;
-  const std::uint8_t threshold = errors.codes.threshold(o.max_error);
-  const std::uint8_t displacement_threshold = displacement ? errors.displacement_codes.threshold(o.max_displacement) : 0;
-  const CodedSplits rule{code, threshold, displacement ? &errors.displacement_code : nullptr, displacement_threshold};
-  const Traversal<CodedSplits> selection(lat, rule);
-  // Subtrees 12 splits below the roots: up to 24576 units of work, enough to balance the threads.
-  const Frontier top = selection.frontier(12);
-  const std::vector<Tet>& frontier = top.roots;
-  auto no_split = [](std::int64_t, const Tet&, const ValueSpan&) {};
-  // The leaves' vertices are marked a byte per voxel (a relaxed atomic byte store is a plain
-  // store; a bit would need a locked read-modify-write), then packed into bits.
+namespace detail {
+namespace {
+
+// The grid of a traversal's leaves inside the box. The vertices they use are marked among
+// `space` candidates (the candidate of a lattice voxel: key(voxel)) a byte each (a relaxed atomic
+// byte store is a plain store; a bit would need a locked read-modify-write), numbered in candidate
+// order, size(count) sizes the arrays and fill(candidate, id) gives each vertex its data
+// (out.grid.values at least); then the
+// tetrahedra are written with their final numbers, and each split diamond gets the span of the
+// values beneath it. Both walks cut the hierarchy 12 splits below the roots into subtrees run in
+// parallel and placed in depth-first order, so the grid is the same for any thread count.
+template <class Rule, class Key, class Size, class Fill>
+void assemble(const Lattice& lat, const Rule& rule, std::size_t space, Key key, Size size, Fill fill, BisectionGrid& out,
+              const Progress& progress) {
+  const Traversal<Rule> walk(lat, rule);
+  const Frontier top = walk.frontier(12);
+  const std::vector<Tet>& roots = top.roots;
   std::vector<std::uint8_t> used;
-  assign_big(used, static_cast<std::size_t>(v.voxel_count()), std::uint8_t{0});
-  std::vector<std::uint64_t> leaves(frontier.size() + 1, 0);
+  assign_big(used, space, std::uint8_t{0});
+  std::vector<std::uint64_t> leaves(roots.size() + 1, 0);
   report(progress, "select", 0);
-  tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t f) {
+  tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
     std::uint64_t count = 0;
-    selection.visit(
-        frontier[f],
+    walk.visit(
+        roots[f],
         [&](const Tet& t, std::int64_t) {
           ++count;
-          for (const Coord& c : t)
-            std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
+          for (const Coord& c : t) std::atomic_ref<std::uint8_t>(used[key(lat.index(c))]).store(1, std::memory_order_relaxed);
           return ValueSpan{};
         },
-        no_split);
+        [](std::int64_t, const Tet&, const ValueSpan&) {});
     leaves[f + 1] = count;
   });
-  for (std::size_t f = 0; f < frontier.size(); ++f) leaves[f + 1] += leaves[f];
-  VertexNumbers numbers;
+  for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
+  VertexNumbers numbers;  // over the candidates
   numbers.bits.assign((used.size() + 63) / 64, 0);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 4096), [&](const auto& r) {
     for (std::size_t w = r.begin(); w < r.end(); ++w) {
@@ -651,51 +641,32 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   if (vertices >= std::numeric_limits<std::uint32_t>::max() || tets >= std::numeric_limits<std::uint32_t>::max())
     throw OptionError("max_error", fmt::format("{} vertices and {} tetrahedra exceed the grid's 32-bit indices; raise it", vertices, tets));
   report(progress, "select", 0.5);
-
   TetGrid& g = out.grid;
-  g.source = grid_source(v, range);
-  g.source.method = "bisection";
-  g.source.max_error = o.max_error;
-  resize_big(g.ijk, vertices);
-  resize_big(g.values, vertices);
-  resize_big(out.hierarchy.error_code, vertices);
-  if (displacement) resize_big(out.hierarchy.displacement_code, vertices);
-  visit_values(v, [&]<class T>(std::span<const T> values) {
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 1024), [&](const auto& r) {
-      for (std::size_t w = r.begin(); w < r.end(); ++w) {
-        std::uint64_t id = numbers.before[w];
-        for (std::uint64_t b = numbers.bits[w]; b; b &= b - 1) {
-          const auto i = static_cast<std::int64_t>(w * 64 + static_cast<std::size_t>(std::countr_zero(b)));
-          g.ijk[id] = {static_cast<std::uint32_t>(i % v.dims[0]), static_cast<std::uint32_t>((i / v.dims[0]) % v.dims[1]),
-                       static_cast<std::uint32_t>(i / lat.nxy)};
-          g.values[id] = static_cast<double>(values[static_cast<std::size_t>(i)]);
-          out.hierarchy.error_code[id] = code[static_cast<std::size_t>(i)];
-          if (displacement) out.hierarchy.displacement_code[id] = errors.displacement_code[static_cast<std::size_t>(i)];
-          ++id;
-        }
-      }
-    });
+  size(vertices);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 1024), [&](const auto& r) {
+    for (std::size_t w = r.begin(); w < r.end(); ++w) {
+      std::uint64_t id = numbers.before[w];
+      for (std::uint64_t b = numbers.bits[w]; b; b &= b - 1) fill(w * 64 + static_cast<std::size_t>(std::countr_zero(b)), id++);
+    }
   });
-  // The tetrahedra, with the values beneath each split diamond (for queries at a coarser error:
-  // a subtree whose values do not straddle the iso-value holds no surface).
   resize_big(g.tets, tets);
   auto& spans = out.hierarchy.value_span;
   spans.assign(vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
   auto merge = [&](std::int64_t voxel, const ValueSpan& s) {
-    auto& span = spans[numbers.id(voxel)];
+    auto& span = spans[numbers.id(static_cast<std::int64_t>(key(voxel)))];
     atomic_min(span[0], down(s.lo));
     atomic_max(span[1], up(s.hi));
   };
-  std::vector<ValueSpan> root_spans(frontier.size());
-  tbb::parallel_for(std::size_t{0}, frontier.size(), [&](std::size_t f) {
+  std::vector<ValueSpan> root_spans(roots.size());
+  tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
     std::uint64_t at = leaves[f];
-    root_spans[f] = selection.visit(
-        frontier[f],
+    root_spans[f] = walk.visit(
+        roots[f],
         [&](const Tet& t, std::int64_t) {
           auto& q = g.tets[at++];
           ValueSpan s;
           for (int k = 0; k < 4; ++k) {
-            q[k] = numbers.id(lat.index(t[k]));
+            q[k] = numbers.id(static_cast<std::int64_t>(key(lat.index(t[k]))));
             s.lo = std::min(s.lo, g.values[q[k]]);
             s.hi = std::max(s.hi, g.values[q[k]]);
           }
@@ -710,13 +681,131 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   }
   report(progress, "select", 1);
   out.hierarchy.root_size = lat.S;
-  out.hierarchy.error_threshold = threshold;
+}
+
+void check_bounds(const BisectionOptions& o) {
+  if (!(o.max_error >= 0))  // +∞: no error criterion (the displacement alone, or the coarsest grid)
+    throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
+  if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
+    throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", o.max_displacement));
+}
+
+}  // namespace
+}  // namespace detail
+
+BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const BisectionErrors& errors, const BisectionOptions& o,
+                               const Progress& progress) {
+  using namespace detail;
+  check_bounds(o);
+  const Lattice lat = make_lattice(v.dims);
+  if (errors.code.size() != static_cast<std::size_t>(v.voxel_count()) || errors.root_size != lat.S)
+    throw std::invalid_argument("bisection_select: the errors belong to another volume");
+  const bool displacement = o.max_displacement > 0;
+  if (displacement && errors.displacement_code.size() != errors.code.size())
+    throw std::invalid_argument("bisection_select: the errors were computed without the displacement criterion");
+  BisectionGrid out;
+  out.hierarchy.codes = errors.codes;
+  const std::uint8_t threshold = errors.codes.threshold(o.max_error);
+  const std::uint8_t displacement_threshold = displacement ? errors.displacement_codes.threshold(o.max_displacement) : 0;
+  const CodedSplits rule{errors.code, threshold, displacement ? &errors.displacement_code : nullptr, displacement_threshold};
+  TetGrid& g = out.grid;
+  g.source = grid_source(v, range);
+  g.source.method = "bisection";
+  g.source.max_error = o.max_error;
+  auto& h = out.hierarchy;
+  visit_values(v, [&]<class T>(std::span<const T> values) {
+    auto voxel_of = [](std::int64_t voxel) { return static_cast<std::size_t>(voxel); };
+    auto size = [&](std::uint64_t n) {
+      resize_big(g.ijk, n);
+      resize_big(g.values, n);
+      resize_big(h.error_code, n);
+      if (displacement) resize_big(h.displacement_code, n);
+    };
+    auto fill = [&](std::size_t i, std::uint64_t id) {
+      g.ijk[id] = {static_cast<std::uint32_t>(static_cast<std::int64_t>(i) % v.dims[0]),
+                   static_cast<std::uint32_t>((static_cast<std::int64_t>(i) / v.dims[0]) % v.dims[1]),
+                   static_cast<std::uint32_t>(static_cast<std::int64_t>(i) / lat.nxy)};
+      g.values[id] = static_cast<double>(values[i]);
+      h.error_code[id] = errors.code[i];
+      if (displacement) h.displacement_code[id] = errors.displacement_code[i];
+    };
+    assemble(lat, rule, static_cast<std::size_t>(v.voxel_count()), voxel_of, size, fill, out, progress);
+  });
+  h.error_threshold = threshold;
   if (displacement) {
-    out.hierarchy.displacement_codes = errors.displacement_codes;
-    out.hierarchy.displacement_threshold = displacement_threshold;
+    h.displacement_codes = errors.displacement_codes;
+    h.displacement_threshold = displacement_threshold;
     out.displacement_bound = errors.displacement_codes.error(displacement_threshold);
   }
   out.error_bound = errors.codes.error(threshold);
+  return out;
+}
+
+BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& fh, const BisectionOptions& o, const Progress& progress) {
+  using namespace detail;
+  check_bounds(o);
+  const Lattice lat = make_lattice(fine.source.dims);
+  if (fh.root_size != lat.S || fh.error_code.size() != fine.vertex_count() || fh.value_span.size() != fine.vertex_count())
+    throw InputError("this grid's hierarchy does not match it");
+  const bool displacement = !fh.displacement_code.empty();
+  if (o.max_displacement > 0 && !displacement)
+    throw OptionError("max_displacement", "this grid was prepared without the displacement criterion");
+  // The fine grid's vertices by voxel: its vertices are numbered in ascending voxel order.
+  VertexNumbers fine_numbers;
+  assign_big(fine_numbers.bits, static_cast<std::size_t>((lat.nxy * (lat.X[2] + 1) + 63) / 64), std::uint64_t{0});
+  for (const auto& p : fine.ijk) {
+    const auto i = static_cast<std::uint64_t>(
+        lat.index({static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])}));
+    fine_numbers.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
+  }
+  fine_numbers.count();
+  BisectionGrid out;
+  auto& h = out.hierarchy;
+  h.codes = fh.codes;
+  h.error_threshold = std::max(fh.codes.threshold(o.max_error), fh.error_threshold);  // never finer than the fine grid
+  if (displacement) {
+    h.displacement_codes = fh.displacement_codes;
+    h.displacement_threshold =
+        std::max(o.max_displacement > 0 ? fh.displacement_codes.threshold(o.max_displacement) : std::uint8_t{0}, fh.displacement_threshold);
+    out.displacement_bound = fh.displacement_codes.error(h.displacement_threshold);
+  }
+  // The fine grid's codes spread back over the voxels (a voxel that is no vertex of the fine grid
+  // was not split, code 0), so the walk tests a voxel as directly as the selection from the volume.
+  const auto voxels = static_cast<std::size_t>(lat.nxy * (lat.X[2] + 1));
+  std::vector<std::uint8_t> code, moves;
+  assign_big(code, voxels, std::uint8_t{0});
+  if (displacement) assign_big(moves, voxels, std::uint8_t{0});
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, fine.vertex_count(), 1 << 16), [&](const auto& r) {
+    for (std::size_t f = r.begin(); f < r.end(); ++f) {
+      const auto& p = fine.ijk[f];
+      const auto i = static_cast<std::size_t>(
+          lat.index({static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])}));
+      code[i] = fh.error_code[f];
+      if (displacement) moves[i] = fh.displacement_code[f];
+    }
+  });
+  const CodedSplits rule{code, h.error_threshold, displacement ? &moves : nullptr, h.displacement_threshold};
+  TetGrid& g = out.grid;
+  g.source = fine.source;
+  g.source.max_error = std::max(o.max_error, fh.codes.error(fh.error_threshold));
+  auto voxel_of = [](std::int64_t voxel) { return static_cast<std::size_t>(voxel); };
+  auto size = [&](std::uint64_t n) {
+    resize_big(g.ijk, n);
+    resize_big(g.values, n);
+    if (!fine.gradients.empty()) resize_big(g.gradients, n);
+    resize_big(h.error_code, n);
+    if (displacement) resize_big(h.displacement_code, n);
+  };
+  auto fill = [&](std::size_t voxel, std::uint64_t id) {
+    const std::uint32_t f = fine_numbers.id(static_cast<std::int64_t>(voxel));
+    g.ijk[id] = fine.ijk[f];
+    g.values[id] = fine.values[f];
+    if (!fine.gradients.empty()) g.gradients[id] = fine.gradients[f];
+    h.error_code[id] = fh.error_code[f];
+    if (displacement) h.displacement_code[id] = fh.displacement_code[f];
+  };
+  assemble(lat, rule, voxels, voxel_of, size, fill, out, progress);
+  out.error_bound = fh.codes.error(h.error_threshold);
   return out;
 }
 

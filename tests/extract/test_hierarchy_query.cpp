@@ -54,12 +54,14 @@ double largest_error(const Volume& v, const TetGrid& g, const std::vector<std::a
     const std::int64_t D = det(P[0], P[1], P[2], P[3]);
     EXPECT_GT(D, 0);
     std::int64_t lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) lo[a] = std::min({P[0][a], P[1][a], P[2][a], P[3][a]}), hi[a] = std::max({P[0][a], P[1][a], P[2][a], P[3][a]});
+    for (int a = 0; a < 3; ++a)
+      lo[a] = std::min({P[0][a], P[1][a], P[2][a], P[3][a]}), hi[a] = std::max({P[0][a], P[1][a], P[2][a], P[3][a]});
     for (std::int64_t z = lo[2]; z <= hi[2]; ++z)
       for (std::int64_t y = lo[1]; y <= hi[1]; ++y)
         for (std::int64_t x = lo[0]; x <= hi[0]; ++x) {
           const std::int64_t q[3] = {x, y, z};
-          const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]), det(P[0], P[1], P[2], q)};
+          const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]),
+                                     det(P[0], P[1], P[2], q)};
           if (l[0] < 0 || l[1] < 0 || l[2] < 0 || l[3] < 0) continue;
           double rec = 0;
           for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * g.values[t[i]];
@@ -167,7 +169,8 @@ TEST(HierarchyQuery, IsoValuesEqualToVertexValuesGiveThePreparedSurface) {
     Volume v = make_volume(d, ScalarType::i16);
     for (std::int64_t z = 0; z < d[2]; ++z)
       for (std::int64_t y = 0; y < d[1]; ++y)
-        for (std::int64_t x = 0; x < d[0]; ++x) v.set(v.index(x, y, z), std::round(4 * std::sin(0.4 * x + 0.3 * y) + z % 3 + double(rng() % 2)));
+        for (std::int64_t x = 0; x < d[0]; ++x)
+          v.set(v.index(x, y, z), std::round(4 * std::sin(0.4 * x + 0.3 * y) + z % 3 + double(rng() % 2)));
     const auto fine = prepared_at(v, 0);
     const HierarchyQuery query(fine);
     for (double e : {0.5, 1.0, 2.5})
@@ -177,4 +180,32 @@ TEST(HierarchyQuery, IsoValuesEqualToVertexValuesGiveThePreparedSurface) {
         EXPECT_EQ(triangles_of(query.extract(iso, e)), triangles_of(ex.mesh())) << trial << " e " << e << " iso " << iso;
       }
   }
+}
+
+TEST(Coarsen, GivesTheGridPreparedAtThatErrorWithoutTheVolume) {
+  for (const char* name : {"sphere", "marschner-lobb"})
+    for (Dims d : {Dims{33, 33, 33}, Dims{40, 23, 17}}) {
+      Volume v = make_synthetic(name, d[0], ScalarType::f32);
+      if (d[1] != d[0]) {  // a box that is not a cube: crop
+        Volume c = make_volume(d, ScalarType::f32);
+        for (std::int64_t z = 0; z < d[2]; ++z)
+          for (std::int64_t y = 0; y < d[1]; ++y)
+            for (std::int64_t x = 0; x < d[0]; ++x) c.set(c.index(x, y, z), v.at(x, y, z));
+        v = c;
+      }
+      const ValueRange r = value_range(v);
+      const auto fine = prepared_at(v, 0.003 * (r.max - r.min));
+      for (double rel : {0.003, 0.01, 0.05, 0.3, std::numeric_limits<double>::infinity()}) {
+        const PreparedGrid coarse = coarsen(*fine, rel * (r.max - r.min));
+        const auto direct = prepared_at(v, rel * (r.max - r.min));
+        EXPECT_EQ(coarse.grid.tets, direct->grid.tets) << name << " rel " << rel;
+        EXPECT_EQ(coarse.grid.ijk, direct->grid.ijk);
+        EXPECT_EQ(coarse.grid.values, direct->grid.values);
+        EXPECT_EQ(coarse.grid.gradients, direct->grid.gradients);
+        EXPECT_EQ(coarse.hierarchy->error_code, direct->hierarchy->error_code);
+        EXPECT_EQ(coarse.hierarchy->value_span, direct->hierarchy->value_span);
+        EXPECT_EQ(coarse.hierarchy->error_threshold, direct->hierarchy->error_threshold);
+        EXPECT_EQ(coarse.index.by_min, direct->index.by_min);
+      }
+    }
 }

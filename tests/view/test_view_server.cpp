@@ -268,8 +268,9 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 }  // namespace
 
 TEST(ViewServer, SlowClientsDoNotFreezeTheOthers) {
-  // Twelve clients sending their headers a line every 300 ms hold their connections for seconds;
-  // with a fixed pool of 8 workers /api/info waited behind them (10–17 s).
+  // Twelve clients sending their headers a line every 300 ms hold their connections for up to 12 s
+  // (until this request is answered); with a fixed pool of 8 workers /api/info waited behind
+  // them (10–17 s). The bound leaves room for a loaded machine and still catches the wait.
   Running run(options());
   std::atomic<bool> done{false};
   std::vector<std::thread> slow;
@@ -277,7 +278,7 @@ TEST(ViewServer, SlowClientsDoNotFreezeTheOthers) {
     slow.emplace_back([&] {
       RawConnection c(run.port);
       c.send_text("GET /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\n");
-      for (int k = 0; k < 15 && !done; ++k) {
+      for (int k = 0; k < 40 && !done; ++k) {
         std::this_thread::sleep_for(std::chrono::milliseconds(300));
         c.send_text("X-Slow-" + std::to_string(k) + ": 1\r\n");
       }
@@ -291,7 +292,7 @@ TEST(ViewServer, SlowClientsDoNotFreezeTheOthers) {
   for (auto& t : slow) t.join();
   ASSERT_TRUE(r);
   EXPECT_EQ(r->status, 200);
-  EXPECT_LT(waited, 2.0) << "an ordinary request waited behind slow clients";
+  EXPECT_LT(waited, 6.0) << "an ordinary request waited behind slow clients";
 }
 
 TEST(ViewServer, KeptAliveRequestsAreNotDelayed) {
