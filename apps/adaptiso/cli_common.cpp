@@ -85,6 +85,13 @@ void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << std::endl; 
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
+std::string error_summary(const PrepareStats& s) {
+  std::string text = s.error_bound >= 0 ? fmt::format("error <= {:.6g} guaranteed (asked {:.6g})", s.error_bound, s.max_error)
+                                        : fmt::format("octree error bound {:.6g}", s.max_error);
+  if (s.pl_max_error >= 0) text += fmt::format("; piecewise-linear error measured: max {:.6g}, rms {:.6g}", s.pl_max_error, s.pl_rms_error);
+  return text;
+}
+
 nlohmann::json volume_json(const Volume& v, const ValueRange& r) {
   return {{"dims", v.dims},
           {"spacing", v.spacing},

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <string>
 
+#include "adaptiso/prepare.hpp"
 #include "adaptiso/progress.hpp"
 #include "adaptiso/volume_io.hpp"
 
@@ -46,6 +47,9 @@ private:
 
 void print_json(const nlohmann::json& j);
 double seconds_since(std::chrono::steady_clock::time_point t0);
+// "error ≤ B guaranteed (asked E)" for a bisection grid, the measured piecewise-linear error
+// against the bound for a Delaunay grid.
+std::string error_summary(const PrepareStats& stats);
 nlohmann::json volume_json(const Volume& v, const ValueRange& range);
 
 // Parses "--iso" values (comma-separated numbers); relative ones map [0,1] onto [min, max].

@@ -191,9 +191,8 @@ void add_run(CLI::App& app) {
       j["grid"] = *save;
     }
     if (!out->json && !out->quiet)
-      std::cout << fmt::format("kept {} of {} voxels ({:.2f} %), {} tetrahedra; piecewise-linear error max {:.6g} (bound {:.6g})\n",
-                               p->stats.kept, p->stats.voxels, 100.0 * j["ratio"].get<double>(), p->stats.tetrahedra, p->stats.pl_max_error,
-                               p->stats.max_error);
+      std::cout << fmt::format("kept {} of {} voxels ({:.2f} %), {} tetrahedra; {}\n", p->stats.kept, p->stats.voxels,
+                               100.0 * j["ratio"].get<double>(), p->stats.tetrahedra, error_summary(p->stats));
     j["surfaces"] = extract_all(p, *mesh_out, values, *out);
     j["seconds"]["total"] = seconds_since(t_all);
     if (out->json) print_json(j);

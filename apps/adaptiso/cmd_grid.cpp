@@ -40,10 +40,10 @@ void add_prepare(CLI::App& app) {
     if (out->json) return print_json(j);
     if (out->quiet) return;
     const auto& st = p.stats;
-    std::cout << fmt::format("kept {} of {} voxels, {} tetrahedra; piecewise-linear error max {:.6g} rms {:.6g} (bound {:.6g})\n", st.kept,
-                             st.voxels, st.tetrahedra, st.pl_max_error, st.pl_rms_error, st.max_error)
-              << fmt::format("reduce {:.3f} s, tetrahedralize {:.3f} s, gradients {:.3f} s, index {:.3f} s\nwrote {}\n",
-                             st.seconds("reduce"), st.seconds("tetrahedralize"), st.seconds("gradients"), st.seconds("index"), *output);
+    std::string stages;
+    for (const auto& stage : st.stages) stages += fmt::format("{}{} {:.3f} s", stages.empty() ? "" : ", ", stage.name, stage.seconds);
+    std::cout << fmt::format("kept {} of {} voxels, {} tetrahedra; {}\n{}\nwrote {}\n", st.kept, st.voxels, st.tetrahedra,
+                             error_summary(st), stages, *output);
   });
 }
 

@@ -27,6 +27,8 @@ void add_reduce(CLI::App& app) {
     auto t0 = Clock::now();
     ReduceOptions o = rf->options();
     const ValueRange range = value_range(v);
+    if (rf->max_error->count() == 0)  // the same default bound as prepare, run and view
+      o.max_error = o.relative ? kDefaultRelativeError : kDefaultRelativeError * (range.max - range.min);
     ReduceResult r = reduce(v, range, o, tp.callback());
     double secs = seconds_since(t0);
     tp.finish();

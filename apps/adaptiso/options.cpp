@@ -1,12 +1,16 @@
 #include "options.hpp"
 
+#include <fmt/format.h>
+
 #include <limits>
 
 namespace adaptiso::cli {
 
 void ReduceFlags::add(CLI::App* app) {
+  const std::string max_error_help = fmt::format(
+      "Max-norm error bound (data units; fraction of the range with --relative); default: {:g} of the value range", kDefaultRelativeError);
   app->add_option("--method", method, "reconstruction | structural | both")->check(CLI::IsMember({"reconstruction", "structural", "both"}));
-  max_error = app->add_option("--max-error", o.max_error, "Max-norm error bound (data units; fraction of the range with --relative)");
+  max_error = app->add_option("--max-error", o.max_error, max_error_help);
   app->add_option("--threshold", o.threshold,
                   "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)");
   app->add_option("--gradient", gradient, "Structural: central | canny")->check(CLI::IsMember({"central", "canny"}));
@@ -42,7 +46,7 @@ void PrepareFlags::add(CLI::App* app) {
 PrepareOptions PrepareFlags::options(const std::string& source_path) const {
   const ReduceOptions r = reduce.options();
   PrepareOptions p;
-  p.max_error = r.max_error;
+  if (reduce.max_error->count() > 0) p.max_error = r.max_error;  // otherwise the library's default
   p.relative = r.relative;
   p.method = r.method;
   p.threshold = r.threshold;

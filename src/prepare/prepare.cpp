@@ -53,8 +53,8 @@ private:
 };
 
 void check_options(const PrepareOptions& o) {
-  if (!(o.max_error >= 0) || (!std::isfinite(o.max_error) && o.grid == GridKind::delaunay))
-    throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
+  if (o.max_error && (!(*o.max_error >= 0) || (!std::isfinite(*o.max_error) && o.grid == GridKind::delaunay)))
+    throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", *o.max_error));
   if (o.tree_depth > 24) throw OptionError("tree_depth", fmt::format("must be between 0 and 24, got {}", o.tree_depth));
   if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
     throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", o.max_displacement));
@@ -64,10 +64,19 @@ void check_options(const PrepareOptions& o) {
 
 }  // namespace
 
-ReduceOptions reduce_options(const PrepareOptions& o) {
+double absolute_max_error(const PrepareOptions& o, const ValueRange& range) {
+  const double span = range.max - range.min;
+  if (!o.max_error) return kDefaultRelativeError * span;
+  return o.relative ? *o.max_error * span : *o.max_error;
+}
+
+ReduceOptions reduce_options(const PrepareOptions& o, const ValueRange& range) {
   ReduceOptions r;
   r.method = o.method;
-  r.max_error = o.max_error;
+  const double span = range.max - range.min;
+  // ReduceOptions::relative covers the error and the threshold alike: keep the error in the unit
+  // the threshold is given in.
+  r.max_error = o.relative && span > 0 ? absolute_max_error(o, range) / span : absolute_max_error(o, range);
   r.threshold = o.threshold;
   r.gradient = o.structural_gradient;
   r.sigma = o.sigma;
@@ -149,7 +158,7 @@ namespace {
 // The paper's grid: reduction (§2.1), then Delaunay (§2.2).
 TetGrid delaunay_pipeline(const Volume& v, const ValueRange& range, const PrepareOptions& o, StageClock& clock, PrepareStats& stats,
                           const Progress& progress) {
-  const ReduceResult r = clock.run("reduce", [&] { return reduce(v, range, reduce_options(o), progress); });
+  const ReduceResult r = clock.run("reduce", [&] { return reduce(v, range, reduce_options(o, range), progress); });
   stats.max_error = r.max_error;
   stats.threshold = r.threshold;
   DelaunayOptions delaunay;
@@ -165,7 +174,7 @@ TetGrid delaunay_pipeline(const Volume& v, const ValueRange& range, const Prepar
 TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const PrepareOptions& o, StageClock& clock, PreparedGrid& p,
                            const Progress& progress) {
   BisectionOptions b;
-  b.max_error = o.relative ? o.max_error * (range.max - range.min) : o.max_error;
+  b.max_error = absolute_max_error(o, range);
   b.max_displacement = o.max_displacement;
   const BisectionErrors errors = clock.run("error_hierarchy", [&] { return bisection_errors(v, range, b.max_displacement > 0, progress); });
   BisectionGrid grid = clock.run("select", [&] { return bisection_select(v, range, errors, b, progress); });

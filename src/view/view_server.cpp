@@ -144,7 +144,10 @@ public:
   void enqueue(std::function<void()> fn) override {
     std::lock_guard lock(mutex_);
     jobs_.push_back(std::move(fn));
-    if (idle_ == 0 && threads_.size() < max_) threads_.emplace_back([this] { work(); });
+    // An idle thread takes one job when it wakes; until then it still counts as idle, so compare
+    // the queued jobs with the idle threads (checking idle_ == 0 left a burst of connections
+    // queued behind one idle thread, which a slow client then held).
+    if (jobs_.size() > idle_ && threads_.size() < max_) threads_.emplace_back([this] { work(); });
     ready_.notify_one();
   }
   void shutdown() override {

@@ -290,6 +290,38 @@ TEST(PrepareCli, JsonFieldsAndExport) {
   EXPECT_FALSE(std::filesystem::exists(t / "x.vtu"));
 }
 
+// A newcomer's first command: with no --max-error, the reconstruction analysis kept 80 % of the CT
+// bunny (bound 0) and `run`/`view` handed tens of millions of points to Delaunay. Every command
+// now uses kDefaultRelativeError of the value range, and --help says so.
+TEST(Cli, DefaultErrorIsAFractionOfTheRange) {
+  testutil::TempDir t("defaults");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 40 -o " + (t / "s.nrrd")).code, 0);
+  const double span = 1000.0 - 296.0;  // the generated sphere's value range (info --json)
+  auto info = nlohmann::json::parse(testutil::run_cli("info --json " + (t / "s.nrrd")).out);
+  ASSERT_EQ(info["max"].get<double>() - info["min"].get<double>(), span);
+  for (const char* grid : {"bisection", "delaunay"}) {
+    auto r = testutil::run_cli(fmt::format("prepare {} --grid {} --json -o {}", t / "s.nrrd", grid, t / "s.adg"));
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_DOUBLE_EQ(nlohmann::json::parse(r.out)["max_error"].get<double>(), kDefaultRelativeError * span) << grid;
+  }
+  // --relative still makes the iso-values relative; the default bound is the same.
+  auto r = testutil::run_cli(fmt::format("run {} --relative --iso 0.5 --json -o {}", t / "s.nrrd", t / "s.ply"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_DOUBLE_EQ(nlohmann::json::parse(r.out)["max_error"].get<double>(), kDefaultRelativeError * span);
+  r = testutil::run_cli(fmt::format("reduce {} --json -o {}", t / "s.nrrd", t / "k.ply"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_DOUBLE_EQ(nlohmann::json::parse(r.out)["max_error"].get<double>(), kDefaultRelativeError * span);
+  EXPECT_LT(nlohmann::json::parse(r.out)["ratio"].get<double>(), 0.5);
+  // An explicit bound of 0 is still lossless.
+  r = testutil::run_cli(fmt::format("prepare {} --max-error 0 --json -o {}", t / "s.nrrd", t / "s.adg"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(nlohmann::json::parse(r.out)["max_error"].get<double>(), 0.0);
+  for (const char* cmd : {"prepare", "run", "view", "reduce"}) {
+    const auto help = testutil::run_cli(std::string(cmd) + " --help").out;
+    EXPECT_NE(help.find(fmt::format("default: {:g} of the value range", kDefaultRelativeError)), std::string::npos) << cmd;
+  }
+}
+
 TEST(ExtractCli, RunExtractSeveralIsoValuesAndBadInput) {
   testutil::TempDir t("extract");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 50 -o " + (t / "s.nrrd")).code, 0);

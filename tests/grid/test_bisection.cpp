@@ -323,8 +323,10 @@ TEST(Bisection, ErrorCodesAreConservativeAndMonotone) {
   std::uint8_t previous = 0;
   for (double e = 1e-13; e < 1e5; e *= 1.01) {
     const std::uint8_t c = codes.code(e);
-    EXPECT_GE(codes.error(c), std::min(e, codes.scale)) << e;     // never smaller than the error it stands for
-    if (c > 0 && c < 254) EXPECT_LT(codes.error(c - 1), e) << e;  // and the smallest such code
+    EXPECT_GE(codes.error(c), std::min(e, codes.scale)) << e;  // never smaller than the error it stands for
+    if (c > 0 && c < 254) {
+      EXPECT_LT(codes.error(c - 1), e) << e;  // and the smallest such code
+    }
     EXPECT_GE(c, previous);
     previous = c;
   }
@@ -333,7 +335,9 @@ TEST(Bisection, ErrorCodesAreConservativeAndMonotone) {
   for (double bound : {0.0, 0.3, 1.0, 17.0, 4000.0, 1e9}) {
     const std::uint8_t t = codes.threshold(bound);
     EXPECT_LE(codes.error(t), std::max(bound, codes.zero));
-    if (t < 254) EXPECT_GT(codes.error(t + 1), bound);
+    if (t < 254) {
+      EXPECT_GT(codes.error(t + 1), bound);
+    }
   }
 }
 
