@@ -13,7 +13,8 @@
 namespace adaptiso::cli {
 
 void add_prepare(CLI::App& app) {
-  auto* cmd = app.add_subcommand("prepare", "Reduce, tetrahedralize, compute gradients and the extraction index; save the grid (.adg)");
+  auto* cmd = app.add_subcommand(
+      "prepare", "Build the tetrahedral grid (bisection or Delaunay), its vertex gradients and the extraction index; save it (.adg)");
   auto in = std::make_shared<VolumeInput>();
   auto pf = std::make_shared<PrepareFlags>();
   auto out = std::make_shared<OutputFlags>();

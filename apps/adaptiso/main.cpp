@@ -5,11 +5,8 @@
 #include <iostream>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/version.hpp"
 #include "cli_common.hpp"
-
-#ifndef ADAPTISO_VERSION
-#define ADAPTISO_VERSION "0.0.0"
-#endif
 
 int main(int argc, char** argv) {
   CLI::App app{"adaptiso: adaptive iso-surface generation from 3D scalar volumes (Lürig & Ertl)"};

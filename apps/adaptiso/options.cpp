@@ -9,7 +9,8 @@ namespace adaptiso::cli {
 void ReduceFlags::add(CLI::App* app) {
   const std::string max_error_help = fmt::format(
       "Max-norm error bound (data units; fraction of the range with --relative); default: {:g} of the value range", kDefaultRelativeError);
-  app->add_option("--method", method, "reconstruction | structural | both")->check(CLI::IsMember({"reconstruction", "structural", "both"}));
+  app->add_option("--method", method, "Delaunay grid (and reduce): reconstruction | structural | both")
+      ->check(CLI::IsMember({"reconstruction", "structural", "both"}));
   max_error = app->add_option("--max-error", o.max_error, max_error_help);
   app->add_option("--threshold", o.threshold,
                   "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)");

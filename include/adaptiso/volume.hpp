@@ -11,9 +11,15 @@
 // (identity unless the file records an oblique orientation; the grid is never resampled). The
 // pipeline works in the "grid frame" spacing ⊙ (i, j, k), which differs from world coordinates only
 // by that rotation and the origin; outputs are transformed to world coordinates when written.
+//
+// Storage: the volume owns its bytes (readers fill them), or views memory someone else owns (a
+// numpy array in the Python module) and keeps that owner alive; writing through values() or set()
+// to a view copies it first, so the owner's memory is only ever read.
 #pragma once
+#include <algorithm>
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -35,6 +41,63 @@ std::optional<ScalarType> parse_scalar_type(std::string_view name);
 using Vec3 = std::array<double, 3>;
 using Dims = std::array<std::int64_t, 3>;
 
+// The voxel bytes of a volume: owned (a vector's interface for the readers) or a read-only view of
+// memory kept alive by a shared owner.
+class VoxelBuffer {
+public:
+  VoxelBuffer() = default;
+  VoxelBuffer(std::vector<unsigned char>&& owned) : own_(std::move(owned)) {}  // NOLINT: readers assign vectors
+  // A view of n bytes at data, valid while owner lives.
+  static VoxelBuffer view(const unsigned char* data, std::size_t n, std::shared_ptr<const void> owner) {
+    VoxelBuffer b;
+    b.view_ = data;
+    b.view_size_ = n;
+    b.owner_ = std::move(owner);
+    return b;
+  }
+  bool is_view() const { return view_ != nullptr; }
+  const unsigned char* data() const { return view_ ? view_ : own_.data(); }
+  unsigned char* data() {  // copies a view first: the owner's memory is never written
+    own();
+    return own_.data();
+  }
+  std::size_t size() const { return view_ ? view_size_ : own_.size(); }
+  bool empty() const { return size() == 0; }
+  const unsigned char* begin() const { return data(); }
+  const unsigned char* end() const { return data() + size(); }
+  void assign(std::size_t n, unsigned char x) { drop_view(), own_.assign(n, x); }
+  template <class It>
+  void assign(It first, It last) {
+    drop_view();
+    own_.assign(first, last);
+  }
+  void resize(std::size_t n) { own(), own_.resize(n); }
+  void swap(VoxelBuffer& o) noexcept {
+    std::swap(own_, o.own_);
+    std::swap(view_, o.view_);
+    std::swap(view_size_, o.view_size_);
+    std::swap(owner_, o.owner_);
+  }
+  bool operator==(const VoxelBuffer& o) const { return size() == o.size() && std::equal(begin(), end(), o.begin()); }
+
+private:
+  void drop_view() {
+    view_ = nullptr;
+    view_size_ = 0;
+    owner_.reset();
+  }
+  void own() {
+    if (!view_) return;
+    std::vector<unsigned char> copy(view_, view_ + view_size_);
+    drop_view();
+    own_.swap(copy);
+  }
+  std::vector<unsigned char> own_;
+  const unsigned char* view_ = nullptr;
+  std::size_t view_size_ = 0;
+  std::shared_ptr<const void> owner_;
+};
+
 struct Volume {
   Dims dims{0, 0, 0};
   Vec3 spacing{1, 1, 1};
@@ -42,7 +105,7 @@ struct Volume {
   // Row-major 3×3; column a is the world direction of index axis a.
   std::array<double, 9> direction{1, 0, 0, 0, 1, 0, 0, 0, 1};
   ScalarType type = ScalarType::f32;
-  std::vector<unsigned char> bytes;  // voxel_count() * scalar_size(type) bytes, native endianness
+  VoxelBuffer bytes;  // voxel_count() * scalar_size(type) bytes, native endianness
 
   std::int64_t voxel_count() const { return dims[0] * dims[1] * dims[2]; }
   std::int64_t index(std::int64_t i, std::int64_t j, std::int64_t k) const { return i + dims[0] * (j + dims[1] * k); }

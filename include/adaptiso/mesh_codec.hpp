@@ -1,0 +1,27 @@
+// adaptiso/mesh_codec.hpp — a compact encoding of a mesh for the wire (the viewer's surfaces).
+//
+// Positions are quantized to 16 bits per axis over the mesh's bounding box (an error of at most
+// half a step: extent / 131070 per axis), normals to 8-bit octahedral coordinates (about 0.6° at
+// worst), 8 bytes a vertex in first-use order, compressed with meshoptimizer's vertex codec;
+// triangles with its index codec. Layout, little-endian:
+//   char[4] "ADM1"; u32 vertex count V; u32 triangle count T; f32 origin[3]; f32 step[3]
+//   (position = origin + step ⊙ q); u32 vertex bytes; vertex stream; u32 index bytes; index stream
+// The vertex stream decodes (meshopt_decodeVertexBuffer, 8-byte vertices) to u16 qx, qy, qz and
+// i8 ox, oy, the octahedral normal (x, y = o / 127; z = 1 − |x| − |y|; where z < 0,
+// (x, y) ← ((1 − |y|)·sign x, (1 − |x|)·sign y); then normalised); the index stream
+// (meshopt_decodeIndexBuffer) to u32 indices[3T]. The same triangles as the mesh, in the same order
+// and winding (the index codec may rotate a triangle's corners), the vertices renumbered by first
+// use.
+#pragma once
+#include <string>
+#include <string_view>
+
+#include "adaptiso/mesh.hpp"
+
+namespace adaptiso {
+
+std::string encode_mesh_compact(const Mesh& mesh);
+// The decoded mesh (positions and normals as quantized); throws InputError on a malformed buffer.
+Mesh decode_mesh_compact(std::string_view bytes);
+
+}  // namespace adaptiso

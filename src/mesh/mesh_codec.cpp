@@ -1,0 +1,145 @@
+// The compact mesh encoding (see mesh_codec.hpp), with meshoptimizer's codecs.
+#include "adaptiso/mesh_codec.hpp"
+
+#include <fmt/format.h>
+#include <meshoptimizer.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <vector>
+
+#include "adaptiso/error.hpp"
+
+namespace adaptiso {
+namespace {
+
+struct Packed {  // one vertex as encoded: 8 bytes
+  std::uint16_t q[3];
+  std::int8_t o[2];
+};
+static_assert(sizeof(Packed) == 8);
+
+// Octahedral mapping of a unit vector to two signed 8-bit coordinates.
+void octahedral(const std::array<float, 3>& n, std::int8_t out[2]) {
+  const double s = std::abs(n[0]) + std::abs(n[1]) + std::abs(n[2]);
+  double x = s > 0 ? n[0] / s : 0, y = s > 0 ? n[1] / s : 0;
+  if (n[2] < 0) {
+    const double fx = (1 - std::abs(y)) * (x >= 0 ? 1 : -1), fy = (1 - std::abs(x)) * (y >= 0 ? 1 : -1);
+    x = fx;
+    y = fy;
+  }
+  out[0] = static_cast<std::int8_t>(std::lround(std::clamp(x, -1.0, 1.0) * 127));
+  out[1] = static_cast<std::int8_t>(std::lround(std::clamp(y, -1.0, 1.0) * 127));
+}
+
+std::array<float, 3> from_octahedral(const std::int8_t o[2]) {
+  double x = o[0] / 127.0, y = o[1] / 127.0;
+  const double z = 1 - std::abs(x) - std::abs(y);
+  if (z < 0) {
+    const double fx = (1 - std::abs(y)) * (x >= 0 ? 1 : -1), fy = (1 - std::abs(x)) * (y >= 0 ? 1 : -1);
+    x = fx;
+    y = fy;
+  }
+  const double len = std::sqrt(x * x + y * y + z * z);
+  return {static_cast<float>(x / len), static_cast<float>(y / len), static_cast<float>(z / len)};
+}
+
+template <class T>
+void put(std::string& out, const T& x) {
+  out.append(reinterpret_cast<const char*>(&x), sizeof x);
+}
+
+}  // namespace
+
+std::string encode_mesh_compact(const Mesh& m) {
+  const std::size_t V = m.vertex_count(), T = m.triangle_count();
+  // Vertices in first-use order: the codecs compress neighbours' differences.
+  std::vector<unsigned int> remap(V);
+  const std::size_t used = meshopt_optimizeVertexFetchRemap(remap.data(), &m.triangles[0][0], 3 * T, V);
+  std::vector<unsigned int> indices(3 * T);
+  if (T) meshopt_remapIndexBuffer(indices.data(), &m.triangles[0][0], 3 * T, remap.data());
+  float lo[3] = {0, 0, 0}, step[3] = {1, 1, 1};
+  if (V) {
+    float hi[3];
+    for (int a = 0; a < 3; ++a) lo[a] = hi[a] = m.positions[0][a];
+    for (const auto& p : m.positions)
+      for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], p[a]), hi[a] = std::max(hi[a], p[a]);
+    for (int a = 0; a < 3; ++a) step[a] = hi[a] > lo[a] ? (hi[a] - lo[a]) / 65535.0f : 1.0f;
+  }
+  std::vector<Packed> packed(used);
+  const bool normals = m.normals.size() == V;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 1 << 14), [&](const auto& r) {
+    for (std::size_t v = r.begin(); v < r.end(); ++v) {
+      if (remap[v] == ~0u) continue;  // unused vertex
+      Packed& p = packed[remap[v]];
+      for (int a = 0; a < 3; ++a)
+        p.q[a] = static_cast<std::uint16_t>(std::clamp(std::lround((m.positions[v][a] - lo[a]) / step[a]), 0L, 65535L));
+      if (normals) octahedral(m.normals[v], p.o);
+      else p.o[0] = p.o[1] = 0;
+    }
+  });
+  std::vector<unsigned char> vbuf(meshopt_encodeVertexBufferBound(used, sizeof(Packed)));
+  vbuf.resize(meshopt_encodeVertexBuffer(vbuf.data(), vbuf.size(), packed.data(), used, sizeof(Packed)));
+  std::vector<unsigned char> ibuf(meshopt_encodeIndexBufferBound(3 * T, used));
+  ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), indices.data(), 3 * T));
+  std::string out;
+  out.reserve(44 + vbuf.size() + ibuf.size());
+  out.append("ADM1", 4);
+  put(out, static_cast<std::uint32_t>(used));
+  put(out, static_cast<std::uint32_t>(T));
+  for (float x : lo) put(out, x);
+  for (float x : step) put(out, x);
+  put(out, static_cast<std::uint32_t>(vbuf.size()));
+  out.append(reinterpret_cast<const char*>(vbuf.data()), vbuf.size());
+  put(out, static_cast<std::uint32_t>(ibuf.size()));
+  out.append(reinterpret_cast<const char*>(ibuf.data()), ibuf.size());
+  return out;
+}
+
+Mesh decode_mesh_compact(std::string_view b) {
+  auto fail = [](const char* why) { throw InputError(fmt::format("compact mesh: {}", why)); };
+  std::size_t at = 0;
+  auto take = [&](void* dst, std::size_t n) {
+    if (b.size() - at < n) fail("truncated");
+    std::memcpy(dst, b.data() + at, n);
+    at += n;
+  };
+  char magic[4];
+  take(magic, 4);
+  if (std::memcmp(magic, "ADM1", 4) != 0) fail("bad magic");
+  std::uint32_t V, T, vbytes, ibytes;
+  float lo[3], step[3];
+  take(&V, 4);
+  take(&T, 4);
+  take(lo, 12);
+  take(step, 12);
+  take(&vbytes, 4);
+  if (b.size() - at < vbytes) fail("truncated vertices");
+  if (V > vbytes * std::uint64_t{32} + 64) fail("vertex count");  // the codec needs at least ~1/32 byte a vertex
+  std::vector<Packed> packed(V);
+  if (meshopt_decodeVertexBuffer(packed.data(), V, sizeof(Packed), reinterpret_cast<const unsigned char*>(b.data() + at), vbytes) != 0)
+    fail("vertex stream");
+  at += vbytes;
+  take(&ibytes, 4);
+  if (b.size() - at != ibytes) fail("index stream size");
+  if (T > ibytes * std::uint64_t{16} + 64) fail("triangle count");
+  Mesh m;
+  m.triangles.resize(T);
+  if (T && meshopt_decodeIndexBuffer(&m.triangles[0][0], 3 * std::size_t{T}, 4, reinterpret_cast<const unsigned char*>(b.data() + at), ibytes) != 0)
+    fail("index stream");
+  for (const auto& t : m.triangles)
+    for (auto v : t)
+      if (v >= V) fail("index out of range");
+  m.positions.resize(V);
+  m.normals.resize(V);
+  for (std::size_t v = 0; v < V; ++v) {
+    for (int a = 0; a < 3; ++a) m.positions[v][a] = lo[a] + step[a] * packed[v].q[a];
+    m.normals[v] = from_octahedral(packed[v].o);
+  }
+  return m;
+}
+
+}  // namespace adaptiso
