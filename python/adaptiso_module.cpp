@@ -69,14 +69,22 @@ ScalarType scalar_type_of(const py::dtype& d) {
 
 py::dtype dtype_of(ScalarType t) {
   switch (t) {
-    case ScalarType::u8: return py::dtype::of<std::uint8_t>();
-    case ScalarType::i8: return py::dtype::of<std::int8_t>();
-    case ScalarType::u16: return py::dtype::of<std::uint16_t>();
-    case ScalarType::i16: return py::dtype::of<std::int16_t>();
-    case ScalarType::u32: return py::dtype::of<std::uint32_t>();
-    case ScalarType::i32: return py::dtype::of<std::int32_t>();
-    case ScalarType::f32: return py::dtype::of<float>();
-    case ScalarType::f64: return py::dtype::of<double>();
+    case ScalarType::u8:
+      return py::dtype::of<std::uint8_t>();
+    case ScalarType::i8:
+      return py::dtype::of<std::int8_t>();
+    case ScalarType::u16:
+      return py::dtype::of<std::uint16_t>();
+    case ScalarType::i16:
+      return py::dtype::of<std::int16_t>();
+    case ScalarType::u32:
+      return py::dtype::of<std::uint32_t>();
+    case ScalarType::i32:
+      return py::dtype::of<std::int32_t>();
+    case ScalarType::f32:
+      return py::dtype::of<float>();
+    case ScalarType::f64:
+      return py::dtype::of<double>();
   }
   throw std::logic_error("unknown scalar type");
 }
@@ -88,7 +96,8 @@ std::shared_ptr<Volume> volume_from_array(const py::array& input, const Vec3& sp
   if (input.ndim() != 3) throw py::value_error("volume: the array must have 3 dimensions [z, y, x], got " + std::to_string(input.ndim()));
   const ScalarType type = scalar_type_of(input.dtype());
   py::array a = py::array::ensure(input, py::array::c_style);  // the same array when it already is
-  if (!a || a.dtype().byteorder() == '>') a = py::array(py::module_::import("numpy").attr("ascontiguousarray")(input, input.dtype().attr("newbyteorder")("=")));
+  if (!a || a.dtype().byteorder() == '>')
+    a = py::array(py::module_::import("numpy").attr("ascontiguousarray")(input, input.dtype().attr("newbyteorder")("=")));
   auto v = std::make_shared<Volume>();
   v->dims = {a.shape(2), a.shape(1), a.shape(0)};
   for (auto d : v->dims)
@@ -237,14 +246,17 @@ C-contiguous array in native byte order is used in place (no copy; the volume ke
 never writes to it); any other array is copied. spacing and origin are (x, y, z).)")
       .def(py::init([](const py::array& array, Vec3 spacing, Vec3 origin) { return volume_from_array(array, spacing, origin); }),
            py::arg("array"), py::arg("spacing") = Vec3{1, 1, 1}, py::arg("origin") = Vec3{0, 0, 0})
-      .def_property_readonly("dims", [](const Volume& v) { return v.dims; }, "(nx, ny, nz)")
-      .def_property_readonly("shape", [](const Volume& v) { return py::make_tuple(v.dims[2], v.dims[1], v.dims[0]); },
-                             "(nz, ny, nx), the array's shape")
-      .def_property_readonly("spacing", [](const Volume& v) { return v.spacing; }, "(x, y, z)")
-      .def_property_readonly("origin", [](const Volume& v) { return v.origin; }, "(x, y, z)")
+      .def_property_readonly(
+          "dims", [](const Volume& v) { return v.dims; }, "(nx, ny, nz)")
+      .def_property_readonly(
+          "shape", [](const Volume& v) { return py::make_tuple(v.dims[2], v.dims[1], v.dims[0]); }, "(nz, ny, nx), the array's shape")
+      .def_property_readonly(
+          "spacing", [](const Volume& v) { return v.spacing; }, "(x, y, z)")
+      .def_property_readonly(
+          "origin", [](const Volume& v) { return v.origin; }, "(x, y, z)")
       .def_property_readonly("dtype", [](const Volume& v) { return dtype_of(v.type); })
-      .def_property_readonly("is_view", [](const Volume& v) { return v.bytes.is_view(); },
-                             "True when the volume reads a numpy array's memory in place")
+      .def_property_readonly(
+          "is_view", [](const Volume& v) { return v.bytes.is_view(); }, "True when the volume reads a numpy array's memory in place")
       .def_property_readonly(
           "array", [](py::object self) { return volume_array(self.cast<std::shared_ptr<Volume>>(), self); },
           "The values as a read-only array [z, y, x] over the volume's memory (no copy)")
@@ -293,7 +305,10 @@ world coordinates, faces counter-clockwise seen from the side the normals point 
 max_error (bisection grids): a coarser error than the prepared one, from the grid's hierarchy.
 relative: iso (and max_error) as fractions of the value range. Safe to call from several threads.)")
       .def(
-          "extractor", [](Grid& g) { return PyExtractor{std::make_shared<Extractor>(g.grid), {}}; },
+          "extractor",
+          [](Grid& g) {
+            return PyExtractor{std::make_shared<Extractor>(g.grid), {}};
+          },
           "An Extractor for browsing iso-values: each call after the first updates the previous surface.")
       .def(
           "coarsen",
@@ -305,11 +320,15 @@ relative: iso (and max_error) as fractions of the value range. Safe to call from
       .def(
           "save", [](Grid& g, const std::string& path) { file_call([&] { save_grid(*g.grid, path); }); }, py::arg("path"),
           "Writes the grid (.adg); OSError when it cannot be written.")
-      .def_property_readonly("stats", [](const Grid& g) { return json_object(to_json(g.grid->stats)); },
-                             "How the grid was made: the prepare statistics as a dict (the command line's --json)")
+      .def_property_readonly(
+          "stats", [](const Grid& g) { return json_object(to_json(g.grid->stats)); },
+          "How the grid was made: the prepare statistics as a dict (the command line's --json)")
       .def_property_readonly("vertex_count", [](const Grid& g) { return g.grid->grid.vertex_count(); })
       .def_property_readonly("tetrahedron_count", [](const Grid& g) { return g.grid->grid.tet_count(); })
-      .def_property_readonly("value_range", [](const Grid& g) { return std::pair{g.grid->grid.source.min, g.grid->grid.source.max}; })
+      .def_property_readonly("value_range",
+                             [](const Grid& g) {
+                               return std::pair{g.grid->grid.source.min, g.grid->grid.source.max};
+                             })
       .def_property_readonly(
           "error_bound",
           [](const Grid& g) -> py::object {
@@ -384,7 +403,10 @@ gradients: "auto", "lsq" or "central". method, threshold, structural_gradient, s
 Delaunay grid's reduction. verify: measure the error voxel by voxel. ValueError on a bad option.)");
 
   m.def(
-      "load", [](const std::string& path) { return file_call([&] { return Grid{std::make_shared<const PreparedGrid>(load_grid(path)), nullptr}; }); },
+      "load",
+      [](const std::string& path) {
+        return file_call([&] { return Grid{std::make_shared<const PreparedGrid>(load_grid(path)), nullptr}; });
+      },
       py::arg("path"), "Reads a grid file (.adg); OSError when it cannot be read.");
 
   m.def(
@@ -475,8 +497,9 @@ C-contiguous.)");
         }
         return out;
       },
-      py::arg("volume"), py::kw_only(), py::arg("max_error") = py::none(), py::arg("relative") = false, py::arg("method") = "reconstruction",
-      py::arg("threshold") = 0.0, py::arg("gradient") = "central", py::arg("sigma") = 1.0, py::arg("kernel") = 0,
+      py::arg("volume"), py::kw_only(), py::arg("max_error") = py::none(), py::arg("relative") = false,
+      py::arg("method") = "reconstruction", py::arg("threshold") = 0.0, py::arg("gradient") = "central", py::arg("sigma") = 1.0,
+      py::arg("kernel") = 0,
       R"(The paper's vertex reduction (§2.1) alone: the kept voxels as an int64 array (N, 3) of [z, y, x]
 indices (array[tuple(kept.T)] gives their values), in ascending file order.)");
 }

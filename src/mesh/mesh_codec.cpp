@@ -77,8 +77,10 @@ std::string encode_mesh_compact(const Mesh& m) {
       Packed& p = packed[remap[v]];
       for (int a = 0; a < 3; ++a)
         p.q[a] = static_cast<std::uint16_t>(std::clamp(std::lround((m.positions[v][a] - lo[a]) / step[a]), 0L, 65535L));
-      if (normals) octahedral(m.normals[v], p.o);
-      else p.o[0] = p.o[1] = 0;
+      if (normals)
+        octahedral(m.normals[v], p.o);
+      else
+        p.o[0] = p.o[1] = 0;
     }
   });
   std::vector<unsigned char> vbuf(meshopt_encodeVertexBufferBound(used, sizeof(Packed)));
@@ -128,7 +130,8 @@ Mesh decode_mesh_compact(std::string_view b) {
   if (T > ibytes * std::uint64_t{16} + 64) fail("triangle count");
   Mesh m;
   m.triangles.resize(T);
-  if (T && meshopt_decodeIndexBuffer(&m.triangles[0][0], 3 * std::size_t{T}, 4, reinterpret_cast<const unsigned char*>(b.data() + at), ibytes) != 0)
+  if (T && meshopt_decodeIndexBuffer(&m.triangles[0][0], 3 * std::size_t{T}, 4, reinterpret_cast<const unsigned char*>(b.data() + at),
+                                     ibytes) != 0)
     fail("index stream");
   for (const auto& t : m.triangles)
     for (auto v : t)

@@ -7,6 +7,7 @@
 
 #include <unistd.h>
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
@@ -18,13 +19,16 @@
 #include <list>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <set>
 #include <thread>
 #include <unordered_map>
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
+#include "adaptiso/levels_of_detail.hpp"
 #include "adaptiso/marching_cubes.hpp"
+#include "adaptiso/mesh_codec.hpp"
 #include "adaptiso/number.hpp"
 #include "adaptiso/wireframe.hpp"
 
@@ -60,6 +64,23 @@ double parse_iso(const httplib::Request& req) {
   auto x = parse_finite(s);
   if (!x) throw BadRequest(fmt::format("iso must be a finite number, not '{}'", s.substr(0, 40)));
   return *x;
+}
+
+// An optional non-negative number parameter (error=, budget=).
+std::optional<double> parse_optional(const httplib::Request& req, const char* name) {
+  if (!req.has_param(name)) return std::nullopt;
+  const std::string s = req.get_param_value(name);
+  auto x = parse_finite(s);
+  if (!x || *x < 0) throw BadRequest(fmt::format("{} must be a non-negative number, not '{}'", name, s.substr(0, 40)));
+  return x;
+}
+
+// The body's encoding: format=plain (the default) or format=compact (mesh_codec.hpp).
+bool compact_format(const httplib::Request& req) {
+  if (!req.has_param("format")) return false;
+  const std::string f = req.get_param_value("format");
+  if (f != "plain" && f != "compact") throw BadRequest("format must be plain or compact");
+  return f == "compact";
 }
 
 std::string client_id(const httplib::Request& req) {
@@ -129,9 +150,10 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
   return {{"min", h.min}, {"max", h.max}, {"counts", h.counts}, {"of", of}};
 }
 
+// A page's state: an incremental Extractor per level of detail it has used.
 struct Client {
   std::mutex mutex;
-  std::unique_ptr<Extractor> extractor;
+  std::vector<std::unique_ptr<Extractor>> extractors;  // by level; level 0 is the prepared grid
 };
 
 // Connections are served by threads that are added while all are busy, up to a limit: a few
@@ -211,12 +233,17 @@ struct ViewServer::Impl {
   std::string stage = "starting", failure;
   double fraction = 0;
   std::shared_ptr<const PreparedGrid> grid;
+  std::shared_ptr<LevelsOfDetail> levels;  // bisection grids: coarser grids for dragging, built in the background
   std::shared_ptr<const Volume> volume;
   nlohmann::json histogram;
   std::list<std::string> lru;  // most recent first
   std::unordered_map<std::string, std::pair<std::shared_ptr<Client>, std::list<std::string>::iterator>> clients;
 
+  std::thread level_builder;
+  std::atomic<bool> stop_building{false};
+
   std::shared_ptr<Client> client(const std::string& id);
+  void build_levels(std::shared_ptr<LevelsOfDetail> lod);
   std::shared_ptr<const PreparedGrid> ready();  // throws NotReady while preparing
 
   void routes();
@@ -264,7 +291,26 @@ ViewServer::ViewServer(ViewOptions options) : impl_(std::make_unique<Impl>()) {
   impl_->routes();
 }
 
-ViewServer::~ViewServer() { stop(); }
+ViewServer::~ViewServer() {
+  stop();
+  impl_->stop_building = true;
+  if (impl_->level_builder.joinable()) impl_->level_builder.join();
+}
+
+// Coarser grids for dragging, coarsest first, while the page already shows the prepared one.
+void ViewServer::Impl::build_levels(std::shared_ptr<LevelsOfDetail> lod) {
+  stop_building = true;
+  if (level_builder.joinable()) level_builder.join();
+  stop_building = false;
+  if (!lod) return;
+  level_builder = std::thread([this, lod] {
+    try {
+      lod->build(&stop_building);
+    } catch (const std::exception& e) {  // out of memory, most likely: the page keeps the levels it has
+      std::cerr << "adaptiso view: levels of detail stopped: " << e.what() << "\n";
+    }
+  });
+}
 
 // Pages reach a local server through DNS rebinding (a name that resolves to 127.0.0.1): only the
 // names and addresses the server listens on are accepted, and IP literals when it listens on all
@@ -316,7 +362,10 @@ void ViewServer::set_grid(std::shared_ptr<const PreparedGrid> g) {
   }
   if (hist.is_null())  // no volume: the histogram of the grid's vertex values
     hist = histogram_json(histogram(g->grid.values, {g->grid.source.min, g->grid.source.max}, kHistogramBins), "vertices");
+  auto lod = g->hierarchy ? std::make_shared<LevelsOfDetail>(g) : nullptr;
+  impl_->build_levels(lod);
   std::lock_guard lock(impl_->state_mutex);
+  impl_->levels = lod;
   impl_->clients.clear();  // a client's Extractor keeps its own grid alive; new requests start on this one
   impl_->lru.clear();
   impl_->histogram = hist;
@@ -353,6 +402,15 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
                 {"reduction", {{"method", s.method}, {"max_error", s.max_error}, {"threshold", s.threshold}}},
                 {"source", fs::path(s.file).filename().string()},  // the file's name: never where it lies
                 {"facts", nlohmann::json::parse(to_json(grid->stats))}});
+      // The error of the prepared surface, and the coarser levels offered while dragging.
+      const auto& st = grid->stats;
+      j["error_bound"] = st.error_bound >= 0 ? st.error_bound : st.pl_max_error;
+      j["error_guaranteed"] = st.error_bound >= 0;
+      nlohmann::json ladder = nlohmann::json::array();
+      if (levels)
+        for (std::size_t k = 0; k < levels->size(); ++k)
+          ladder.push_back({{"bound", levels->bound(k)}, {"built", levels->grid(k) != nullptr}});
+      j["levels"] = ladder;
     }
   }
   res.set_content(j.dump(), "application/json");
@@ -361,19 +419,46 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
 void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& res) {
   const double iso = parse_iso(req);
   const std::string id = client_id(req);
+  const auto error = parse_optional(req, "error");
+  const auto budget = parse_optional(req, "budget");
+  const bool compact = compact_format(req);
   auto g = ready();
+  std::shared_ptr<LevelsOfDetail> lod;
+  {
+    std::lock_guard lock(state_mutex);
+    lod = levels;
+  }
+  // The level: the coarsest within error= (the prepared grid by default), then as fine as the
+  // triangle budget allows.
+  std::size_t level = 0;
+  if (lod && error) level = lod->level_for_error(*error);
+  if (lod && budget) level = lod->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), level);
+  const auto grid = level ? lod->grid(level) : g;
   auto c = client(id);
   std::lock_guard lock(c->mutex);  // one request at a time per client; other clients run freely
-  if (!c->extractor || &c->extractor->grid() != g.get()) c->extractor = std::make_unique<Extractor>(g);
-  const ExtractStats st = c->extractor->extract(iso);
+  if (c->extractors.size() <= level) c->extractors.resize(level + 1);
+  auto& ex = c->extractors[level];
+  if (!ex || &ex->grid() != grid.get()) ex = std::make_unique<Extractor>(grid);
+  const ExtractStats st = ex->extract(iso);
+  if (lod) lod->record(level, st.triangles);
+  const auto t0 = std::chrono::steady_clock::now();
+  std::string body = compact ? encode_mesh_compact(ex->mesh()) : encode_mesh(ex->mesh());
+  const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const auto& stats = grid->stats;
   res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.sweep_seconds + st.march_seconds));
+  res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));
   res.set_header("X-Triangles", std::to_string(st.triangles));
   res.set_header("X-Vertices", std::to_string(st.vertices));
   res.set_header("X-Active-Tetrahedra", std::to_string(st.active));
   res.set_header("X-Incremental", st.incremental ? "1" : "0");
   res.set_header("X-In-Range", st.in_range ? "1" : "0");
+  res.set_header("X-Level", std::to_string(level));
+  // The error of what is returned: guaranteed (bisection) or measured (Delaunay), data units.
+  res.set_header("X-Error-Bound", fmt::format("{:.17g}", stats.error_bound >= 0 ? stats.error_bound : stats.pl_max_error));
+  res.set_header("X-Error-Guaranteed", stats.error_bound >= 0 ? "1" : "0");
+  res.set_header("X-Encoding", compact ? "compact" : "plain");
   res.set_header("Cache-Control", "no-store");
-  res.set_content(encode_mesh(c->extractor->mesh()), "application/octet-stream");
+  res.set_content(std::move(body), "application/octet-stream");
 }
 
 void ViewServer::Impl::reference(const httplib::Request& req, httplib::Response& res) {

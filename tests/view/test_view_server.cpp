@@ -1,6 +1,7 @@
 // The viewer's HTTP server, in process, through cpp-httplib's client: the API against direct
 // library calls, bad requests (400/404/405, path traversal), the preparing state, and many
 // concurrent clients. The browser end-to-end test is tests/browser/viewer.test.mjs.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <httplib.h>
 
@@ -17,6 +18,8 @@
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/marching_cubes.hpp"
+#include "adaptiso/mesh_codec.hpp"
+#include "adaptiso/prepare.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "adaptiso/view_server.hpp"
@@ -384,4 +387,69 @@ TEST(ViewServer, OtherMethodsAre405) {
   auto p = c.Patch("/api/info", "x", "text/plain");
   ASSERT_TRUE(p);
   EXPECT_EQ(p->status, 405);
+}
+
+TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
+  // A bisection grid: /api/info lists the ladder; error= and budget= choose a coarser level, whose
+  // surface is the one preparing at that level's bound gives, and the answer names its bound.
+  const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 40, ScalarType::f32));
+  PrepareOptions o;
+  o.max_error = 0.002;
+  o.relative = true;
+  const auto grid = std::make_shared<const PreparedGrid>(prepare(*volume, o));
+  Running run(options());
+  run.server.set_grid(grid);
+  auto c = run.client();
+  nlohmann::json info;
+  for (int i = 0; i < 500; ++i) {  // the levels are built in the background
+    info = nlohmann::json::parse(c.Get("/api/info")->body);
+    if (std::all_of(info["levels"].begin(), info["levels"].end(), [](const auto& l) { return l["built"].template get<bool>(); })) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_GE(info["levels"].size(), 5u);
+  EXPECT_DOUBLE_EQ(info["error_bound"].get<double>(), grid->stats.error_bound);
+  EXPECT_TRUE(info["error_guaranteed"].get<bool>());
+  const double iso = 0.5;
+  auto fine = c.Get("/api/surface?iso=0.5&client=a");
+  ASSERT_EQ(fine->status, 200);
+  EXPECT_EQ(fine->get_header_value("X-Level"), "0");
+  EXPECT_DOUBLE_EQ(std::stod(fine->get_header_value("X-Error-Bound")), grid->stats.error_bound);
+  for (std::size_t k = 1; k < info["levels"].size(); k += 2) {
+    const double bound = info["levels"][k]["bound"].get<double>();
+    auto r = c.Get(fmt::format("/api/surface?iso={}&client=a&error={:.17g}", iso, bound));
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->get_header_value("X-Level"), std::to_string(k));
+    const double guaranteed = std::stod(r->get_header_value("X-Error-Bound"));
+    EXPECT_LE(guaranteed, bound);
+    EXPECT_GE(guaranteed, grid->stats.error_bound);
+    // The same surface as a grid prepared at that bound.
+    PrepareOptions at = o;
+    at.max_error = bound;
+    at.relative = false;
+    Extractor direct(std::make_shared<const PreparedGrid>(prepare(*volume, at)));
+    direct.extract(iso);
+    EXPECT_TRUE(same_surface(r->body, encode_mesh(direct.mesh()))) << "level " << k;
+  }
+  // A budget smaller than the prepared surface gives a coarser level within it, once the ladder
+  // has seen the levels' counts.
+  const std::uint32_t full = triangles_in(fine->body);
+  std::string level;
+  for (int step = 0; step < 6; ++step) {
+    auto r = c.Get(fmt::format("/api/surface?iso={}&client=a&budget={}", iso + 0.001 * step, full / 4));
+    ASSERT_EQ(r->status, 200);
+    level = r->get_header_value("X-Level");
+    if (step > 2) {
+      EXPECT_LE(std::stoul(r->get_header_value("X-Triangles")), full / 4);
+    }
+  }
+  EXPECT_NE(level, "0");
+  // Compact encoding: the same triangles in far fewer bytes.
+  auto compact = c.Get("/api/surface?iso=0.5&client=b&format=compact");
+  ASSERT_EQ(compact->status, 200);
+  EXPECT_EQ(compact->get_header_value("X-Encoding"), "compact");
+  const Mesh decoded = decode_mesh_compact(compact->body);
+  EXPECT_EQ(decoded.triangle_count(), full);
+  EXPECT_LT(compact->body.size() * 3, fine->body.size());
+  for (const char* bad : {"error=-1", "error=abc", "budget=-5", "format=zip"})
+    EXPECT_EQ(c.Get(std::string("/api/surface?iso=0.5&") + bad)->status, 400) << bad;
 }

@@ -1,0 +1,80 @@
+// Levels of detail of a bisection grid (see levels_of_detail.hpp).
+#include "adaptiso/levels_of_detail.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "adaptiso/error.hpp"
+
+namespace adaptiso {
+
+LevelsOfDetail::LevelsOfDetail(std::shared_ptr<const PreparedGrid> fine) {
+  if (!fine || !fine->hierarchy) throw InputError("levels of detail need a bisection grid with its hierarchy");
+  const double span = fine->grid.source.max - fine->grid.source.min;
+  // A lossless grid (bound 0) starts the ladder at 1/4096 of the range.
+  double e = fine->stats.error_bound > 0 ? fine->stats.error_bound : span / 4096;
+  bounds_.push_back(std::max(fine->stats.error_bound, 0.0));
+  while (span > 0 && e < span) {
+    e *= 2;
+    bounds_.push_back(e);
+  }
+  grids_.assign(bounds_.size(), nullptr);
+  grids_[0] = std::move(fine);
+  triangles_.assign(bounds_.size(), 0);
+}
+
+double LevelsOfDetail::bound(std::size_t level) const { return bounds_.at(level); }
+
+std::shared_ptr<const PreparedGrid> LevelsOfDetail::grid(std::size_t level) const {
+  std::lock_guard lock(mutex_);
+  return grids_.at(level);
+}
+
+std::size_t LevelsOfDetail::built() const {
+  std::lock_guard lock(mutex_);
+  return static_cast<std::size_t>(std::count_if(grids_.begin(), grids_.end(), [](const auto& g) { return g != nullptr; }));
+}
+
+void LevelsOfDetail::build(const std::atomic<bool>* stop) {
+  const auto fine = grid(0);
+  for (std::size_t level = size(); level-- > 1;) {
+    if (stop && stop->load()) return;
+    if (grid(level)) continue;
+    auto g = std::make_shared<const PreparedGrid>(coarsen(*fine, bounds_[level]));
+    std::lock_guard lock(mutex_);
+    grids_[level] = std::move(g);
+  }
+}
+
+std::size_t LevelsOfDetail::level_for_error(double max_error) const {
+  std::lock_guard lock(mutex_);
+  std::size_t best = 0;
+  for (std::size_t k = 1; k < bounds_.size(); ++k)
+    if (grids_[k] && bounds_[k] <= max_error) best = k;
+  return best;
+}
+
+std::size_t LevelsOfDetail::level_for_budget(std::size_t triangles, std::size_t finest) const {
+  std::lock_guard lock(mutex_);
+  // Expected triangles per level, coarse to fine: recorded, or twice the next coarser estimate.
+  std::vector<double> expected(bounds_.size(), 0);
+  double coarser = 0;
+  for (std::size_t k = bounds_.size(); k-- > 0;) {
+    expected[k] = triangles_[k] ? static_cast<double>(triangles_[k]) : std::max(2 * coarser, 1.0);
+    coarser = expected[k];
+  }
+  std::size_t coarsest_built = 0;
+  for (std::size_t k = 0; k < bounds_.size(); ++k)
+    if (grids_[k]) coarsest_built = k;
+  for (std::size_t k = finest; k < bounds_.size(); ++k)
+    if (grids_[k] && expected[k] <= static_cast<double>(triangles)) return k;
+  return std::max(coarsest_built, finest);
+}
+
+void LevelsOfDetail::record(std::size_t level, std::size_t triangles) {
+  std::lock_guard lock(mutex_);
+  triangles_.at(level) = std::max<std::size_t>(triangles, 1);
+}
+
+}  // namespace adaptiso
