@@ -22,8 +22,10 @@ if [ ${#missing[@]} -gt 0 ]; then
   apt-get update -qq
   apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
-# three.js for the viewer page and playwright-core for its test, pinned by web/package-lock.json.
+# three.js and the meshoptimizer decoder for the viewer page and playwright-core for its test,
+# pinned by web/package-lock.json.
 if [ ! -f web/node_modules/three/build/three.module.js ] || [ ! -f web/node_modules/playwright-core/package.json ] ||
+   [ ! -f web/node_modules/meshoptimizer/meshopt_decoder.module.js ] ||
    [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then
   echo "installing the viewer's npm packages (web/)"
   (cd web && npm ci --no-audit --no-fund --loglevel=error)

@@ -1,9 +1,16 @@
 // adaptiso viewer page: talks to `adaptiso view` (README "Viewer API"), draws with three.js.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { MeshoptDecoder } from 'meshoptimizer/decoder';
 
 const $ = (id) => document.getElementById(id);
 const client = Math.random().toString(36).slice(2, 12);  // this page's sweep state on the server
+const params = new URLSearchParams(location.search);
+// While the iso slider is dragged the server picks the level of detail that fits this many
+// triangles (?budget=N); the surface at the chosen error follows when the slider rests.
+const budget = Number(params.get('budget')) || 150000;
+// Every surface shown, with its timings, for scripts and the browser benchmark.
+const record = (window.adaptisoSurfaces = []);
 const canvas = $('view');
 const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
 renderer.setPixelRatio(window.devicePixelRatio);
@@ -26,7 +33,8 @@ const tets = new THREE.LineSegments(new THREE.BufferGeometry(), new THREE.LineBa
 scene.add(surface, reference, points, tets);
 
 let info = null;
-const stats = { extract: 0, transfer: 0, triangles: 0, vertices: 0, active: 0, incremental: false, inRange: true, refTriangles: null };
+const stats = { extract: 0, transfer: 0, decode: 0, bytes: 0, triangles: 0, vertices: 0, active: 0, incremental: false, inRange: true,
+                refTriangles: null, error: 0, guaranteed: true, level: 0, coarse: false };
 
 function resize() {
   const w = window.innerWidth, h = window.innerHeight;
@@ -47,18 +55,23 @@ function showStatus(text) { $('status').textContent = text; }
 function updateStats() {
   if (!info) return;
   const lines = [
+    `error: ${stats.guaranteed ? '≤' : 'measured'} ${Number(stats.error).toPrecision(4)}` +
+      ` (${(100 * stats.error / ((info.max - info.min) || 1)).toPrecision(3)} % of the range)${stats.coarse ? ', coarse while dragging' : ''}`,
     `kept vertices: ${info.kept}`,
     `tetrahedra: ${info.tetrahedra}`,
     `triangles: ${stats.triangles}`,
     `vertices: ${stats.vertices}`,
     `active tetrahedra: ${stats.active}`,
     `extraction: ${(stats.extract * 1000).toFixed(1)} ms${stats.incremental ? ' (incremental)' : ''}`,
-    `transfer: ${stats.transfer.toFixed(1)} ms`,
+    `transfer: ${stats.transfer.toFixed(1)} ms, ${(stats.bytes / Math.max(stats.triangles, 1)).toFixed(1)} bytes/triangle`,
+    `decode: ${stats.decode.toFixed(1)} ms`,
   ];
   if (!stats.inRange) lines.push('iso-value outside the value range: empty surface');
   if (stats.refTriangles !== null) lines.push(`reference triangles: ${stats.refTriangles}`);
   $('stats').textContent = lines.join('\n');
   $('stats').dataset.iso = String(shownIso);  // the exact iso-value shown, for scripts and tests
+  $('stats').dataset.error = String(stats.error);  // the error of the surface shown (data units)
+  $('stats').dataset.level = String(stats.level);
 }
 
 // Binary mesh: u32 V, u32 T, f32 positions[3V], f32 normals[3V], u32 indices[3T].
@@ -72,6 +85,36 @@ function decodeMesh(buffer) {
   return g;
 }
 
+// Compact mesh (mesh_codec.hpp): "ADM1", u32 V, u32 T, f32 origin[3], f32 step[3], u32 vertex bytes,
+// meshopt vertex stream of 8-byte vertices (u16 x, y, z; i8 octahedral normal), u32 index bytes,
+// meshopt index stream.
+function decodeCompact(buffer) {
+  const view = new DataView(buffer);
+  const V = view.getUint32(4, true), T = view.getUint32(8, true);
+  const origin = [0, 1, 2].map((a) => view.getFloat32(12 + 4 * a, true)), step = [0, 1, 2].map((a) => view.getFloat32(24 + 4 * a, true));
+  const vbytes = view.getUint32(36, true);
+  const packed = new Uint8Array(8 * V);
+  MeshoptDecoder.decodeVertexBuffer(packed, V, 8, new Uint8Array(buffer, 40, vbytes));
+  const ibytes = view.getUint32(40 + vbytes, true);
+  const indices = new Uint32Array(3 * T);
+  MeshoptDecoder.decodeIndexBuffer(new Uint8Array(indices.buffer), 3 * T, 4, new Uint8Array(buffer, 44 + vbytes, ibytes));
+  const q = new Uint16Array(packed.buffer), o = new Int8Array(packed.buffer);
+  const pos = new Float32Array(3 * V), nrm = new Float32Array(3 * V);
+  for (let v = 0; v < V; v++) {
+    for (let a = 0; a < 3; a++) pos[3 * v + a] = origin[a] + step[a] * q[4 * v + a];
+    let x = o[8 * v + 6] / 127, y = o[8 * v + 7] / 127;
+    const z = 1 - Math.abs(x) - Math.abs(y);
+    if (z < 0) { const fx = (1 - Math.abs(y)) * (x >= 0 ? 1 : -1), fy = (1 - Math.abs(x)) * (y >= 0 ? 1 : -1); x = fx; y = fy; }
+    const len = Math.hypot(x, y, z) || 1;
+    nrm[3 * v] = x / len; nrm[3 * v + 1] = y / len; nrm[3 * v + 2] = z / len;
+  }
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.BufferAttribute(pos, 3));
+  g.setAttribute('normal', new THREE.BufferAttribute(nrm, 3));
+  g.setIndex(new THREE.BufferAttribute(indices, 1));
+  return g;
+}
+
 function replaceGeometry(object, geometry) {
   object.geometry.dispose();
   object.geometry = geometry;
@@ -82,32 +125,65 @@ function isoFromSlider() {
   return info.min + (info.max - info.min) * (Number(s.value) / Number(s.max));
 }
 
-// At most one surface request in flight; while it runs only the latest wanted value is kept, so
-// requests never go stale and dragging updates the surface as fast as the server answers.
+// The error asked for at rest: the slider runs on a log scale from the prepared bound to the
+// value range (data units); its left end is the prepared surface.
+function errorFromSlider() {
+  const e = $('error'), lo = info.error_bound, hi = info.max - info.min;
+  if (!(lo > 0) || !(hi > lo)) return lo || 0;
+  return lo * Math.pow(hi / lo, Number(e.value) / Number(e.max));
+}
+function showError() {
+  const e = errorFromSlider();
+  $('error-value').textContent = `≤ ${e.toPrecision(3)} (${(100 * e / ((info.max - info.min) || 1)).toPrecision(2)} %)`;
+}
+
+// At most one surface request in flight; while it runs only the latest wanted request is kept, so
+// requests never go stale and dragging updates the surface as fast as the server answers. A
+// request while dragging (coarse) asks for the triangle budget; a request at rest for the error.
 let wanted = null, inFlight = false, shownIso = null;
-function requestSurface(iso) {
-  wanted = iso;
+function requestSurface(iso, coarse = false) {
+  wanted = { iso, coarse: coarse && $('lod').checked, input: performance.now() };
   if (!inFlight) pump();
 }
 async function pump() {
   if (wanted === null) return;
-  const iso = wanted;
+  const { iso, coarse, input } = wanted;
   wanted = null;
   inFlight = true;
   try {
     const t0 = performance.now();
-    const r = await fetch(`api/surface?iso=${encodeURIComponent(iso)}&client=${client}`);
+    let url = `api/surface?iso=${encodeURIComponent(iso)}&client=${client}&format=compact`;
+    if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
+    if (coarse) url += `&budget=${budget}`;
+    const r = await fetch(url);
     if (!r.ok) throw new Error(await r.text());
     const buffer = await r.arrayBuffer();
-    stats.transfer = performance.now() - t0 - 1000 * Number(r.headers.get('X-Extract-Seconds'));
+    const t1 = performance.now();
+    await MeshoptDecoder.ready;
+    const geometry = decodeCompact(buffer);
+    const t2 = performance.now();
     stats.extract = Number(r.headers.get('X-Extract-Seconds'));
+    stats.transfer = t1 - t0 - 1000 * (stats.extract + Number(r.headers.get('X-Encode-Seconds')));
+    stats.decode = t2 - t1;
+    stats.bytes = buffer.byteLength;
     stats.triangles = Number(r.headers.get('X-Triangles'));
     stats.vertices = Number(r.headers.get('X-Vertices'));
     stats.active = Number(r.headers.get('X-Active-Tetrahedra'));
     stats.incremental = r.headers.get('X-Incremental') === '1';
     stats.inRange = r.headers.get('X-In-Range') === '1';
-    replaceGeometry(surface, decodeMesh(buffer));
+    stats.error = Number(r.headers.get('X-Error-Bound'));
+    stats.guaranteed = r.headers.get('X-Error-Guaranteed') === '1';
+    stats.level = Number(r.headers.get('X-Level'));
+    stats.coarse = coarse;
+    replaceGeometry(surface, geometry);
+    // Upload and draw now (three.js uploads a geometry when it is first drawn), so the timing
+    // covers the geometry on the GPU; SwiftShader's drawing is CPU work and reported with it.
+    renderer.render(scene, camera);
+    const t3 = performance.now();
     shownIso = iso;
+    record.push({ iso, coarse, level: stats.level, error: stats.error, triangles: stats.triangles, bytes: stats.bytes,
+                  request: t1 - t0, server: 1000 * stats.extract, decode: t2 - t1, draw: t3 - t2, fromInput: t2 - input,
+                  fromInputDrawn: t3 - input, at: t3 });
     updateStats();
     if ($('show-tets').checked) loadTetrahedra(iso);
     if ($('show-reference').checked) loadReference(iso);
@@ -199,7 +275,9 @@ async function start() {
     await new Promise((ok) => setTimeout(ok, 300));
   }
   const d = info.dims, s = info.spacing;
-  showStatus(`${d.join('×')} voxels, values ${info.min} … ${info.max}; ${info.reduction.method}, max error ${Number(info.reduction.max_error).toPrecision(4)}`);
+  const grid = info.facts.grid === 'bisection' ? 'bisection grid' : `Delaunay grid (${info.reduction.method})`;
+  showStatus(`${d.join('×')} voxels, values ${info.min} … ${info.max}; ${grid}, ` +
+             `error ${info.error_guaranteed ? '≤' : 'measured'} ${Number(info.error_bound).toPrecision(4)}`);
   const box = new THREE.Box3();
   const corner = (i, j, k) => {  // world = origin + direction · (spacing ⊙ index)
     const g = [i * s[0], j * s[1], k * s[2]], D = info.direction, o = info.origin;
@@ -216,7 +294,14 @@ async function start() {
   const initial = info.min + 0.5 * (info.max - info.min);
   slider.value = String(Math.round(Number(slider.max) * 0.5));
   field.value = String(initial);
-  slider.addEventListener('input', () => { const v = isoFromSlider(); field.value = String(Number(v.toPrecision(6))); requestSurface(v); });
+  // Dragging sends input events (coarse surfaces within the budget); releasing sends change (the
+  // surface at the chosen error).
+  slider.addEventListener('input', () => { const v = isoFromSlider(); field.value = String(Number(v.toPrecision(6))); requestSurface(v, true); });
+  slider.addEventListener('change', () => requestSurface(isoFromSlider(), false));
+  const errorSlider = $('error');
+  errorSlider.disabled = !(info.levels.length > 1);
+  showError();
+  errorSlider.addEventListener('input', () => { showError(); if (shownIso !== null) requestSurface(shownIso, false); });
   field.addEventListener('change', () => {
     const v = Number(field.value);
     if (!Number.isFinite(v)) return;

@@ -98,6 +98,35 @@ try {
     return s2 / n - (s / n) ** 2;
   });
   if (!(variance > 20)) fail(`the canvas looks blank (luminance variance ${variance})`);
+  // Level of detail: with a small triangle budget, dragging shows coarser surfaces with their
+  // (larger) guaranteed error; releasing the slider settles on the prepared surface and error.
+  const lod = await browser.newPage({ viewport: { width: 800, height: 600 } });
+  lod.on('pageerror', (e) => errors.push(e.message));
+  await lod.goto(`${url}?budget=${process.env.ADAPTISO_VIEW_BUDGET || 300}`);
+  await lod.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
+  const info = await (await fetch(`${url}api/info`)).json();
+  if (info.levels.length < 2) fail(`no coarser levels offered (${JSON.stringify(info.levels)})`);
+  await lod.waitForFunction((n) => fetch('api/info').then((r) => r.json()).then((j) => j.levels.filter((l) => l.built).length === n),
+                            info.levels.length, { timeout: 60000, polling: 200 });
+  const before = await lod.evaluate(() => window.adaptisoSurfaces.length);
+  await lod.evaluate(async () => {  // a drag: input events 30 ms apart, then the release
+    const s = document.getElementById('iso');
+    for (let v = 400; v <= 700; v += 20) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
+  });
+  await lod.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => r.coarse && r.level > 0), before, { timeout: 30000 });
+  const dragged = await lod.evaluate((n) => window.adaptisoSurfaces.slice(n).filter((r) => r.coarse), before);
+  const coarse = dragged.filter((r) => r.level > 0);
+  if (!coarse.every((r) => r.error > info.error_bound)) fail(`a coarse surface claims the prepared error: ${JSON.stringify(coarse[0])}`);
+  await lod.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
+  await lod.waitForFunction((e) => document.getElementById('stats').dataset.level === '0' &&
+    Number(document.getElementById('stats').dataset.error) === e && !/coarse while dragging/.test(document.getElementById('stats').textContent),
+    info.error_bound, { timeout: 30000 });
+  const settled = await lod.evaluate(() => window.adaptisoSurfaces.at(-1));
+  if (settled.coarse || settled.level !== 0) fail(`the surface at rest is not the prepared one: ${JSON.stringify(settled)}`);
+  console.log(`level of detail: ${coarse.length} of ${dragged.length} dragged surfaces coarse (levels ` +
+              `${[...new Set(coarse.map((r) => r.level))].join(',')}, errors up to ${Math.max(...coarse.map((r) => r.error)).toPrecision(3)}), ` +
+              `settled at error ${settled.error.toPrecision(4)} with ${settled.triangles} triangles, ${(settled.bytes / Math.max(settled.triangles, 1)).toFixed(2)} bytes/triangle`);
+  await lod.close();
   // Toggles: kept vertices and the full-resolution reference load without errors.
   await page.check('#show-points');
   await page.check('#show-reference');
