@@ -12,7 +12,8 @@
 // Choosing a level: for an error E, the coarsest built level whose bound is at most E (level 0 when
 // E is below e0: finer cannot be had); for a triangle budget T, the finest built level whose
 // surface is expected to fit, from the triangle counts reported by record() (a level not seen yet
-// is estimated at twice the next coarser level's count). Thread-safe throughout.
+// is estimated from the nearest levels seen, finer and coarser, at a factor of 2 a level, the larger
+// estimate kept). Thread-safe throughout.
 // Throws InputError when the grid has no bisection hierarchy (a Delaunay grid).
 #pragma once
 #include <atomic>

@@ -57,12 +57,28 @@ std::size_t LevelsOfDetail::level_for_error(double max_error) const {
 
 std::size_t LevelsOfDetail::level_for_budget(std::size_t triangles, std::size_t finest) const {
   std::lock_guard lock(mutex_);
-  // Expected triangles per level, coarse to fine: recorded, or twice the next coarser estimate.
-  std::vector<double> expected(bounds_.size(), 0);
-  double coarser = 0;
-  for (std::size_t k = bounds_.size(); k-- > 0;) {
-    expected[k] = triangles_[k] ? static_cast<double>(triangles_[k]) : std::max(2 * coarser, 1.0);
-    coarser = expected[k];
+  // Expected triangles per level: recorded, or else the largest of the estimates from the nearest
+  // recorded finer level (half as many per level coarser) and the nearest recorded coarser one
+  // (twice as many per level finer); a level nothing is known about is expected to be too large.
+  const std::size_t n = bounds_.size();
+  std::vector<double> expected(n, std::numeric_limits<double>::infinity());
+  for (std::size_t k = 0; k < n; ++k) {
+    if (triangles_[k]) {
+      expected[k] = static_cast<double>(triangles_[k]);
+      continue;
+    }
+    double estimate = -1;
+    for (std::size_t j = k; j-- > 0;)
+      if (triangles_[j]) {
+        estimate = std::max(estimate, static_cast<double>(triangles_[j]) / std::ldexp(1.0, static_cast<int>(k - j)));
+        break;
+      }
+    for (std::size_t j = k + 1; j < n; ++j)
+      if (triangles_[j]) {
+        estimate = std::max(estimate, static_cast<double>(triangles_[j]) * std::ldexp(1.0, static_cast<int>(j - k)));
+        break;
+      }
+    if (estimate >= 0) expected[k] = estimate;
   }
   std::size_t coarsest_built = 0;
   for (std::size_t k = 0; k < bounds_.size(); ++k)

@@ -16,12 +16,14 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <list>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <set>
 #include <thread>
+#include <tbb/task_arena.h>
 #include <unordered_map>
 
 #include "adaptiso/error.hpp"
@@ -150,10 +152,96 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
   return {{"min", h.min}, {"max", h.max}, {"counts", h.counts}, {"of", of}};
 }
 
-// A page's state: an incremental Extractor per level of detail it has used.
-struct Client {
+// One incremental Extractor of a page at one level of detail, with its own lock, so a request for
+// a coarse level never waits behind a long extraction at a fine one.
+struct LevelExtractor {
   std::mutex mutex;
-  std::vector<std::unique_ptr<Extractor>> extractors;  // by level; level 0 is the prepared grid
+  std::unique_ptr<Extractor> extractor;
+  double iso = std::numeric_limits<double>::quiet_NaN();  // of the surface it holds
+  // The surface at iso on grid: extracted unless it already is.
+  const Mesh& at(const std::shared_ptr<const PreparedGrid>& grid, double value, ExtractStats* stats = nullptr) {
+    if (!extractor || &extractor->grid() != grid.get()) {
+      extractor = std::make_unique<Extractor>(grid);
+      iso = std::numeric_limits<double>::quiet_NaN();
+    }
+    if (value != iso || stats) {
+      const ExtractStats st = extractor->extract(value);
+      iso = value;
+      if (stats) *stats = st;
+    }
+    return extractor->mesh();
+  }
+};
+
+// A page's state: its extractors by level (level 0 is the prepared grid).
+struct Client {
+  std::mutex mutex;  // guards the vector
+  std::vector<std::shared_ptr<LevelExtractor>> levels;
+  std::shared_ptr<LevelExtractor> level(std::size_t k) {
+    std::lock_guard lock(mutex);
+    if (levels.size() <= k) levels.resize(k + 1);
+    if (!levels[k]) levels[k] = std::make_shared<LevelExtractor>();
+    return levels[k];
+  }
+};
+
+// While a page drags (coarse surfaces within a budget), its surface at rest follows in the
+// background on one thread at low priority, the latest iso-value only; so when the slider rests
+// the accurate surface is a small step away, not a long one. The coarse requests keep the other
+// cores.
+class Follower {
+public:
+  Follower()
+      : arena_(tbb::task_arena::constraints{}.set_max_concurrency(1), 1, tbb::task_arena::priority::low),
+        thread_([this] { run(); }) {}
+  ~Follower() {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    ready_.notify_all();
+    thread_.join();
+  }
+  void follow(const std::shared_ptr<LevelExtractor>& slot, std::shared_ptr<const PreparedGrid> grid, double iso) {
+    {
+      std::lock_guard lock(mutex_);
+      jobs_[slot.get()] = {slot, std::move(grid), iso};
+    }
+    ready_.notify_one();
+  }
+
+private:
+  struct Job {
+    std::weak_ptr<LevelExtractor> slot;
+    std::shared_ptr<const PreparedGrid> grid;
+    double iso = 0;
+  };
+  void run() {
+    for (;;) {
+      Job job;
+      {
+        std::unique_lock lock(mutex_);
+        ready_.wait(lock, [&] { return stop_ || !jobs_.empty(); });
+        if (stop_) return;
+        job = std::move(jobs_.begin()->second);
+        jobs_.erase(jobs_.begin());
+      }
+      auto slot = job.slot.lock();
+      if (!slot) continue;  // the client is gone
+      std::lock_guard lock(slot->mutex);
+      try {
+        arena_.execute([&] { slot->at(job.grid, job.iso); });
+      } catch (const std::exception& e) {  // the page's own request will meet and report it
+        std::cerr << "adaptiso view: background extraction failed: " << e.what() << "\n";
+      }
+    }
+  }
+  tbb::task_arena arena_;
+  std::mutex mutex_;
+  std::condition_variable ready_;
+  std::unordered_map<const LevelExtractor*, Job> jobs_;
+  bool stop_ = false;
+  std::thread thread_;
 };
 
 // Connections are served by threads that are added while all are busy, up to a limit: a few
@@ -241,6 +329,7 @@ struct ViewServer::Impl {
 
   std::thread level_builder;
   std::atomic<bool> stop_building{false};
+  Follower follower;
 
   std::shared_ptr<Client> client(const std::string& id);
   void build_levels(std::shared_ptr<LevelsOfDetail> lod);
@@ -433,14 +522,16 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   std::size_t level = 0;
   if (lod && error) level = lod->level_for_error(*error);
   if (lod && budget) level = lod->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), level);
+  const std::size_t rest = lod && error ? lod->level_for_error(*error) : 0;  // the level shown when the slider rests
   const auto grid = level ? lod->grid(level) : g;
   auto c = client(id);
-  std::lock_guard lock(c->mutex);  // one request at a time per client; other clients run freely
-  if (c->extractors.size() <= level) c->extractors.resize(level + 1);
-  auto& ex = c->extractors[level];
-  if (!ex || &ex->grid() != grid.get()) ex = std::make_unique<Extractor>(grid);
-  const ExtractStats st = ex->extract(iso);
+  auto slot = c->level(level);
+  std::unique_lock lock(slot->mutex);  // one extraction at a time per page and level; others run freely
+  ExtractStats st;
+  slot->at(grid, iso, &st);
   if (lod) lod->record(level, st.triangles);
+  if (level != rest) follower.follow(c->level(rest), rest ? lod->grid(rest) : g, iso);
+  const Extractor* ex = slot->extractor.get();
   const auto t0 = std::chrono::steady_clock::now();
   std::string body = compact ? encode_mesh_compact(ex->mesh()) : encode_mesh(ex->mesh());
   const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

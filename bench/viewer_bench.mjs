@@ -1,0 +1,83 @@
+// The viewer in a real browser (Debian's chromium, headless, SwiftShader), driven like a user:
+// `adaptiso view GRID.adg`, wait until the coarser levels are built, drag the iso slider for a few
+// seconds (input events at 60 Hz), release it, and read the page's own timings
+// (window.adaptisoSurfaces: request, server extraction, decode, upload + draw, from the input).
+//
+// Usage: node bench/viewer_bench.mjs ADAPTISO_CLI GRID.adg [--budget N] [--from F --to T] [--seconds S]
+// F and T are slider positions (0–1000). Prints one JSON object.
+import { spawn } from 'node:child_process';
+import { createRequire } from 'node:module';
+import { dirname, join } from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+const args = process.argv.slice(2);
+const opt = (name, fallback) => { const i = args.indexOf(name); return i >= 0 ? args[i + 1] : fallback; };
+const [cli, grid] = args;
+const budget = Number(opt('--budget', 150000)), from = Number(opt('--from', 400)), to = Number(opt('--to', 600));
+const seconds = Number(opt('--seconds', 4));
+const web = join(dirname(fileURLToPath(import.meta.url)), '..', 'web');
+const { chromium } = createRequire(join(web, 'package.json'))('playwright-core');
+
+const server = spawn(cli, ['view', grid, '--port', '0', '--web', web, '--quiet'], { stdio: ['ignore', 'pipe', 'inherit'] });
+const url = await new Promise((ok, bad) => {
+  let out = '';
+  server.stdout.on('data', (d) => { out += d; const m = out.match(/http:\/\/[^\s]+\//); if (m) ok(m[0]); });
+  server.on('exit', (code) => bad(new Error(`server exited with ${code}`)));
+});
+const browser = await chromium.launch({ executablePath: process.env.CHROMIUM || '/usr/bin/chromium', headless: true,
+  args: ['--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'] });
+const median = (xs) => { const s = [...xs].sort((a, b) => a - b); return s.length ? s[Math.floor(s.length / 2)] : null; };
+const p90 = (xs) => { const s = [...xs].sort((a, b) => a - b); return s.length ? s[Math.min(s.length - 1, Math.floor(0.9 * s.length))] : null; };
+try {
+  const page = await browser.newPage({ viewport: { width: 1000, height: 700 } });
+  await page.goto(`${url}?budget=${budget}`);
+  await page.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 600000 });
+  const t0 = Date.now();
+  await page.waitForFunction(() => fetch('api/info').then((r) => r.json()).then((j) => j.levels.every((l) => l.built)), null,
+                             { timeout: 900000, polling: 500 });
+  const levelsSeconds = (Date.now() - t0) / 1000;
+  const info = await (await fetch(`${url}api/info`)).json();
+  // Warm every level's extractor once (a first extraction on a level is a fresh march), as a user's
+  // first drag would; then the measured drag.
+  for (const pass of ['warm', 'measure']) {
+    await page.evaluate(async ([a, b, s]) => {
+      const el = document.getElementById('iso');
+      const steps = Math.round(60 * s);
+      for (let i = 0; i <= steps; i++) {
+        el.value = String(Math.round(a + (b - a) * (i / steps)));
+        el.dispatchEvent(new Event('input'));
+        await new Promise((ok) => setTimeout(ok, 1000 / 60));
+      }
+    }, pass === 'warm' ? [from, to, 1] : [to, from, seconds]);
+    if (pass === 'warm') await page.waitForTimeout(2000);
+  }
+  const dragEnd = await page.evaluate(() => performance.now());
+  const during = await page.evaluate((end) => window.adaptisoSurfaces.filter((r) => r.coarse && r.at <= end + 5000), dragEnd);
+  const lastDrag = await page.evaluate(() => window.adaptisoSurfaces.length);
+  const released = await page.evaluate(() => { document.getElementById('iso').dispatchEvent(new Event('change')); return performance.now(); });
+  await page.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), lastDrag, { timeout: 120000 });
+  const settled = await page.evaluate((n) => window.adaptisoSurfaces.slice(n).find((r) => !r.coarse), lastDrag);
+  const measured = during.slice(Math.floor(during.length / 10));  // drop the first tenth (the drag's start)
+  const span = measured.length > 1 ? (measured.at(-1).at - measured[0].at) / 1000 : 0;
+  console.log(JSON.stringify({
+    grid, budget, prepared_error: info.error_bound, levels: info.levels.length, levels_seconds: levelsSeconds,
+    drag: {
+      surfaces: measured.length, per_second: span > 0 ? (measured.length - 1) / span : null,
+      levels: [...new Set(measured.map((r) => r.level))], error_median: median(measured.map((r) => r.error)),
+      triangles_median: median(measured.map((r) => r.triangles)),
+      from_input_ms: { median: median(measured.map((r) => r.fromInput)), p90: p90(measured.map((r) => r.fromInput)) },
+      from_input_drawn_ms: { median: median(measured.map((r) => r.fromInputDrawn)), p90: p90(measured.map((r) => r.fromInputDrawn)) },
+      server_ms: median(measured.map((r) => r.server)), request_ms: median(measured.map((r) => r.request)),
+      decode_ms: median(measured.map((r) => r.decode)), draw_ms: median(measured.map((r) => r.draw)),
+      bytes_per_triangle: median(measured.map((r) => r.bytes / Math.max(r.triangles, 1))),
+    },
+    rest: {
+      ms_after_release: settled.at - released, error: settled.error, level: settled.level, triangles: settled.triangles,
+      bytes_per_triangle: settled.bytes / Math.max(settled.triangles, 1), server_ms: settled.server, request_ms: settled.request,
+      decode_ms: settled.decode, draw_ms: settled.draw,
+    },
+  }));
+} finally {
+  await browser.close();
+  server.kill('SIGTERM');
+}
