@@ -10,6 +10,8 @@
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
+#include "adaptiso/simplify.hpp"
+#include "adaptiso/surface_distance.hpp"
 #include "cli_common.hpp"
 #include "options.hpp"
 
@@ -23,11 +25,19 @@ std::string output_name(const std::string& path, const std::string& token, bool 
   return (p.parent_path() / (p.stem().string() + "-" + token + p.extension().string())).string();
 }
 
-// --iso and -o of the commands that write iso-surface meshes (extract, run, mc).
+// --iso, -o, --simplify and --measure of the commands that write iso-surface meshes (extract,
+// run, mc).
 struct MeshOutputFlags {
   std::vector<std::string> isos;  // as typed: they also name the outputs
   std::string output;
+  double simplify = 0;  // voxels of the smallest spacing; 0: off
+  bool measure = false;
   void add(CLI::App* app) {
+    app->add_option("--simplify", simplify,
+                    "Simplify each mesh so that it moves at most this far (voxels of the smallest spacing; meshoptimizer, borders "
+                    "locked, kept vertices unmoved)")
+        ->check(CLI::NonNegativeNumber);
+    app->add_flag("--measure", measure, "With --simplify: measure the distance between the simplified and the extracted surface");
     app->add_option("--iso", isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
         ->required()
         ->delimiter(',');
@@ -43,6 +53,36 @@ struct MeshOutputFlags {
   }
   std::vector<double> values(bool relative, double min, double max) const { return parse_iso_values(isos, relative, min, max); }
   std::string path(std::size_t i) const { return output_name(output, isos[i], isos.size() > 1); }
+
+  // Simplifies the mesh when asked, writes it, and returns what the simplification did (JSON; null
+  // without --simplify) and the line that tells it.
+  std::pair<nlohmann::json, std::string> write(const Mesh& mesh, const std::string& path, const Vec3& spacing) const {
+    if (simplify <= 0) {
+      write_mesh(mesh, path);
+      return {nullptr, ""};
+    }
+    const double voxel = std::min({spacing[0], spacing[1], spacing[2]});
+    SimplifyStats st;
+    const Mesh simplified = simplify_mesh(mesh, simplify * voxel, &st);
+    write_mesh(simplified, path);
+    nlohmann::json j = {{"distance_voxels", simplify},
+                        {"triangles_before", st.triangles_before},
+                        {"triangles_after", st.triangles_after},
+                        {"error_estimate_voxels", st.error / voxel},
+                        {"seconds", st.seconds}};
+    std::string line = fmt::format("; simplified to {} triangles in {:.3f} s", st.triangles_after, st.seconds);
+    if (measure && simplified.triangle_count() > 0) {
+      const auto t0 = Clock::now();
+      const SurfaceDistance d = surface_distance(simplified, mesh);
+      const double mean = 0.5 * (d.a_to_b.mean + d.b_to_a.mean) / voxel;
+      j["measured"] = {{"mean_voxels", mean},
+                       {"p95_voxels", std::max(d.a_to_b.p95, d.b_to_a.p95) / voxel},
+                       {"max_voxels", d.hausdorff() / voxel},
+                       {"seconds", seconds_since(t0)}};
+      line += fmt::format(", mean distance {:.3f} voxels (max {:.3f})", mean, d.hausdorff() / voxel);
+    }
+    return {j, line};
+  }
 };
 
 // The human-readable line for one surface; `how` describes where its triangles came from.
@@ -67,7 +107,7 @@ nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const M
     const Mesh& mesh = ex.mesh();
     const std::string path = mesh_out.path(i);
     auto t0 = Clock::now();
-    write_mesh(mesh, path);
+    const auto [simplified, how] = mesh_out.write(mesh, path, grid.source.spacing);
     const double t_write = seconds_since(t0);
     results.push_back({{"iso", st.iso},
                        {"in_range", st.in_range},
@@ -82,9 +122,10 @@ nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const M
                        {"march_seconds", st.march_seconds},
                        {"write_seconds", t_write},
                        {"output", path}});
+    if (!simplified.is_null()) results.back()["simplify"] = simplified;
     if (!out.json && !out.quiet)
       print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
-                    fmt::format("from {} active tetrahedra", st.active), st.sweep_seconds + st.march_seconds, path);
+                    fmt::format("from {} active tetrahedra", st.active) + how, st.sweep_seconds + st.march_seconds, path);
   }
   return results;
 }
@@ -100,7 +141,7 @@ nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const Mes
     const Mesh mesh = query.extract(isos[i], max_error, max_displacement, &st);
     const std::string path = mesh_out.path(i);
     auto t0 = Clock::now();
-    write_mesh(mesh, path);
+    const auto [simplified, how] = mesh_out.write(mesh, path, grid.source.spacing);
     results.push_back({{"iso", st.iso},
                        {"in_range", st.in_range},
                        {"triangles", st.triangles},
@@ -114,10 +155,11 @@ nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const Mes
                        {"march_seconds", st.march_seconds},
                        {"write_seconds", seconds_since(t0)},
                        {"output", path}});
+    if (!simplified.is_null()) results.back()["simplify"] = simplified;
     if (!out.json && !out.quiet)
       print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
-                    fmt::format("at error {:.4g} (guaranteed {:.4g})", st.max_error, st.error_bound), st.walk_seconds + st.march_seconds,
-                    path);
+                    fmt::format("at error {:.4g} (guaranteed {:.4g})", st.max_error, st.error_bound) + how,
+                    st.walk_seconds + st.march_seconds, path);
   }
   return results;
 }
@@ -223,7 +265,7 @@ void add_mc(CLI::App& app) {
       Mesh m = marching_cubes(v, values[i], &st);
       const double t_mc = seconds_since(t1);
       const std::string path = mesh_out->path(i);
-      write_mesh(m, path);
+      const auto [simplified, how] = mesh_out->write(m, path, v.spacing);
       const bool in_range = values[i] >= range.min && values[i] <= range.max;
       j["surfaces"].push_back({{"iso", values[i]},
                                {"in_range", in_range},
@@ -233,9 +275,10 @@ void add_mc(CLI::App& app) {
                                {"ambiguous_faces", st.ambiguous_faces},
                                {"seconds", t_mc},
                                {"output", path}});
+      if (!simplified.is_null()) j["surfaces"].back()["simplify"] = simplified;
       if (!out->json && !out->quiet)
-        print_surface(values[i], in_range, range.min, range.max, m.triangle_count(), m.vertex_count(), "(full-resolution marching cubes)",
-                      t_mc, path);
+        print_surface(values[i], in_range, range.min, range.max, m.triangle_count(), m.vertex_count(),
+                      "(full-resolution marching cubes)" + how, t_mc, path);
     }
     if (out->json) print_json(j);
   });

@@ -30,17 +30,17 @@ class LevelsOfDetail {
 public:
   explicit LevelsOfDetail(std::shared_ptr<const PreparedGrid> fine);
 
-  std::size_t size() const { return bounds_.size(); }        // levels, level 0 included
-  double bound(std::size_t level) const;                       // the bound asked for the level (data units)
+  std::size_t size() const { return bounds_.size(); }                 // levels, level 0 included
+  double bound(std::size_t level) const;                              // the bound asked for the level (data units)
   std::shared_ptr<const PreparedGrid> grid(std::size_t level) const;  // null until built
-  std::size_t built() const;                                   // levels built, level 0 included
+  std::size_t built() const;                                          // levels built, level 0 included
 
   // Builds the missing levels, coarsest first; returns early when *stop becomes true.
   void build(const std::atomic<bool>* stop = nullptr);
 
   std::size_t level_for_error(double max_error) const;
   std::size_t level_for_budget(std::size_t triangles, std::size_t finest = 0) const;  // never finer than `finest`
-  void record(std::size_t level, std::size_t triangles);  // the triangle count of a surface at that level
+  void record(std::size_t level, std::size_t triangles);                              // the triangle count of a surface at that level
 
 private:
   std::vector<double> bounds_;

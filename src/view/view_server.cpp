@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 #include <httplib.h>
 
+#include <tbb/task_arena.h>
 #include <unistd.h>
 #include <algorithm>
 #include <atomic>
@@ -23,7 +24,6 @@
 #include <optional>
 #include <set>
 #include <thread>
-#include <tbb/task_arena.h>
 #include <unordered_map>
 
 #include "adaptiso/error.hpp"
@@ -192,8 +192,7 @@ struct Client {
 class Follower {
 public:
   Follower()
-      : arena_(tbb::task_arena::constraints{}.set_max_concurrency(1), 1, tbb::task_arena::priority::low),
-        thread_([this] { run(); }) {}
+      : arena_(tbb::task_arena::constraints{}.set_max_concurrency(1), 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
   ~Follower() {
     {
       std::lock_guard lock(mutex_);

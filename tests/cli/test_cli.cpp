@@ -322,6 +322,21 @@ TEST(Cli, DefaultErrorIsAFractionOfTheRange) {
   }
 }
 
+TEST(ExtractCli, SimplifyReportsTrianglesTimesAndTheMeasuredDistance) {
+  testutil::TempDir t("simplify");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 40 -o " + (t / "s.nrrd")).code, 0);
+  for (const std::string cmd : {"run", "mc"}) {
+    auto r = testutil::run_cli(fmt::format("{} {} --iso 700 --simplify 0.5 --measure --json -o {}", cmd, t / "s.nrrd", t / "s.ply"));
+    ASSERT_EQ(r.code, 0) << r.err;
+    const auto s = nlohmann::json::parse(r.out)["surfaces"][0]["simplify"];
+    EXPECT_LT(s["triangles_after"].get<std::size_t>(), s["triangles_before"].get<std::size_t>()) << cmd;
+    EXPECT_LE(s["measured"]["mean_voxels"].get<double>(), 0.5) << cmd;
+    EXPECT_TRUE(s.contains("seconds") && s["measured"].contains("p95_voxels")) << cmd;
+    EXPECT_EQ(read_ply(t / "s.ply").triangle_count(), s["triangles_after"].get<std::size_t>()) << cmd;
+  }
+  EXPECT_EQ(testutil::run_cli(fmt::format("mc {} --iso 700 --simplify -1 -o {}", t / "s.nrrd", t / "x.ply")).code, 2);
+}
+
 TEST(ExtractCli, RunExtractSeveralIsoValuesAndBadInput) {
   testutil::TempDir t("extract");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 50 -o " + (t / "s.nrrd")).code, 0);

@@ -1,0 +1,31 @@
+// adaptiso/simplify.hpp — an extracted mesh simplified to a stated distance, for export.
+//
+// A grid-based surface needs voxel-sized cells wherever the surface bends sharply, so even an
+// adaptive grid gives more triangles than the shape needs; an edge-collapse simplifier then
+// removes what the distance allows. This wraps meshoptimizer's simplifier (Garland & Heckbert
+// quadrics, collapses that keep the topology and the triangles' orientation) with:
+// - the target error set to `distance` (world units): meshoptimizer estimates, by its quadrics,
+//   how far the simplified surface moves from the original and stops there, so the mean symmetric
+//   distance stays below it (measured with surface_distance.hpp in the tests and by `--measure`);
+//   the estimate is not a strict bound on the largest deviation, which reached 1.4× the distance
+//   on the tests' sphere and torus;
+// - the mesh's border vertices locked (meshopt_SimplifyLockBorder), so an open surface keeps its
+//   border on the volume's box and a closed one stays closed;
+// - the kept vertices keep their positions and normals exactly (the interpolated gradients of the
+//   grid: simplification only removes vertices, it never moves one), renumbered in first-use order.
+// A distance of 0 returns the mesh unchanged. Throws OptionError("simplify") for a negative or
+// non-finite distance.
+#pragma once
+#include "adaptiso/mesh.hpp"
+
+namespace adaptiso {
+
+struct SimplifyStats {
+  std::size_t triangles_before = 0, triangles_after = 0;
+  double error = 0;    // meshoptimizer's estimate of the largest deviation, world units
+  double seconds = 0;
+};
+
+Mesh simplify_mesh(const Mesh& mesh, double distance, SimplifyStats* stats = nullptr);
+
+}  // namespace adaptiso
