@@ -315,6 +315,21 @@ async function start() {
       if (id === 'show-tets' && $(id).checked && shownIso !== null) loadTetrahedra(shownIso);
       if (id === 'show-reference' && $(id).checked && shownIso !== null) loadReference(shownIso);
     });
+  // Export: the surface at rest (the iso-value and error shown), simplified on the server.
+  const exportButton = $('export');
+  exportButton.disabled = false;
+  exportButton.addEventListener('click', () => {
+    if (shownIso === null) return;
+    const distance = Math.max(0, Number($('export-distance').value) || 0);
+    let url = `api/export?iso=${encodeURIComponent(shownIso)}&client=${client}&simplify=${distance}&format=${$('export-format').value}`;
+    if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
+    const a = document.createElement('a');
+    a.href = url;
+    a.download = '';
+    document.body.appendChild(a);
+    a.click();
+    a.remove();
+  });
   applyVisibility();
   requestSurface(initial);
 }

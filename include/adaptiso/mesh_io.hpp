@@ -14,6 +14,8 @@ namespace adaptiso {
 
 bool is_mesh_file_name(const std::string& path);             // .ply .obj .stl .glb (any case)
 void write_mesh(const Mesh& mesh, const std::string& path);  // throws InputError on an unknown extension
-Mesh read_ply(const std::string& path);                      // throws InputError on a malformed file
+// The bytes write_mesh would write for a file of that name (the viewer's downloads).
+std::string mesh_file_bytes(const Mesh& mesh, const std::string& name);
+Mesh read_ply(const std::string& path);  // throws InputError on a malformed file
 
 }  // namespace adaptiso

@@ -22,7 +22,7 @@ namespace adaptiso {
 
 struct SimplifyStats {
   std::size_t triangles_before = 0, triangles_after = 0;
-  double error = 0;    // meshoptimizer's estimate of the largest deviation, world units
+  double error = 0;  // meshoptimizer's estimate of the largest deviation, world units
   double seconds = 0;
 };
 

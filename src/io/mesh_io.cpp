@@ -181,20 +181,31 @@ bool is_mesh_file_name(const std::string& path) {
   return ext == ".ply" || ext == ".obj" || ext == ".stl" || ext == ".glb";
 }
 
-void write_mesh(const Mesh& m, const std::string& path) {
+namespace {
+
+using Writer = void (*)(const Mesh&, std::ostream&);
+
+Writer writer_for(const std::string& path) {
   const std::string ext = lower_extension(path);
-  void (*writer)(const Mesh&, std::ostream&) = nullptr;
-  if (ext == ".ply")
-    writer = write_ply;
-  else if (ext == ".obj")
-    writer = write_obj;
-  else if (ext == ".stl")
-    writer = write_stl;
-  else if (ext == ".glb")
-    writer = write_glb;
-  else
-    throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", path, ext));
+  if (ext == ".ply") return write_ply;
+  if (ext == ".obj") return write_obj;
+  if (ext == ".stl") return write_stl;
+  if (ext == ".glb") return write_glb;
+  throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", path, ext));
+}
+
+}  // namespace
+
+void write_mesh(const Mesh& m, const std::string& path) {
+  const Writer writer = writer_for(path);
   write_file_atomically(path, [&](std::ostream& o) { writer(m, o); });
+}
+
+std::string mesh_file_bytes(const Mesh& m, const std::string& name) {
+  const Writer writer = writer_for(name);
+  std::ostringstream o(std::ios::binary);
+  writer(m, o);
+  return std::move(o).str();
 }
 
 // ---- PLY reader ----

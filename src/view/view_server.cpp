@@ -31,7 +31,9 @@
 #include "adaptiso/levels_of_detail.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_codec.hpp"
+#include "adaptiso/mesh_io.hpp"
 #include "adaptiso/number.hpp"
+#include "adaptiso/simplify.hpp"
 #include "adaptiso/wireframe.hpp"
 
 namespace adaptiso {
@@ -339,6 +341,7 @@ struct ViewServer::Impl {
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
   void reference(const httplib::Request& req, httplib::Response& res);
+  void download(const httplib::Request& req, httplib::Response& res);
   void points(const httplib::Request& req, httplib::Response& res);
   void tetrahedra(const httplib::Request& req, httplib::Response& res);
   void serve_static(const httplib::Request& req, httplib::Response& res);
@@ -551,6 +554,41 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   res.set_content(std::move(body), "application/octet-stream");
 }
 
+// The surface at rest (iso, error), simplified to simplify= voxels, as a .glb or .ply file.
+void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& res) {
+  const double iso = parse_iso(req);
+  const std::string id = client_id(req);
+  const auto error = parse_optional(req, "error");
+  const double distance = parse_optional(req, "simplify").value_or(0);
+  const std::string format = req.has_param("format") ? req.get_param_value("format") : "glb";
+  if (format != "glb" && format != "ply") throw BadRequest("format must be glb or ply");
+  auto g = ready();
+  std::shared_ptr<LevelsOfDetail> lod;
+  {
+    std::lock_guard lock(state_mutex);
+    lod = levels;
+  }
+  const std::size_t level = lod && error ? lod->level_for_error(*error) : 0;
+  const auto grid = level ? lod->grid(level) : g;
+  auto slot = client(id)->level(level);
+  Mesh mesh;
+  {
+    std::lock_guard lock(slot->mutex);
+    mesh = slot->at(grid, iso);
+  }
+  const Vec3& sp = grid->grid.source.spacing;
+  SimplifyStats st;
+  const Mesh simplified = simplify_mesh(mesh, distance * std::min({sp[0], sp[1], sp[2]}), &st);
+  const std::string name = fmt::format("adaptiso-{:.6g}.{}", iso, format);
+  res.set_header("Content-Disposition", fmt::format("attachment; filename=\"{}\"", name));
+  res.set_header("X-Triangles", std::to_string(st.triangles_after));
+  res.set_header("X-Triangles-Before", std::to_string(st.triangles_before));
+  res.set_header("X-Simplify-Seconds", fmt::format("{:.6f}", st.seconds));
+  res.set_header("X-Error-Bound",
+                 fmt::format("{:.17g}", grid->stats.error_bound >= 0 ? grid->stats.error_bound : grid->stats.pl_max_error));
+  res.set_content(mesh_file_bytes(simplified, name), format == "glb" ? "model/gltf-binary" : "application/octet-stream");
+}
+
 void ViewServer::Impl::reference(const httplib::Request& req, httplib::Response& res) {
   const double iso = parse_iso(req);
   std::shared_ptr<const Volume> v;
@@ -638,6 +676,7 @@ void ViewServer::Impl::routes() {
   http.Get("/api/info", guarded(&Impl::info));
   http.Get("/api/surface", guarded(&Impl::surface));
   http.Get("/api/reference", guarded(&Impl::reference));
+  http.Get("/api/export", guarded(&Impl::download));
   http.Get("/api/points", guarded(&Impl::points));
   http.Get("/api/tetrahedra", guarded(&Impl::tetrahedra));
   http.Get("/api/.*", [](const httplib::Request& req, httplib::Response& res) {

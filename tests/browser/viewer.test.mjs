@@ -5,7 +5,7 @@
 // Exit code 77 (skipped) only when node modules or chromium are missing.
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
-import { existsSync, mkdirSync, mkdtempSync, rmSync } from 'node:fs';
+import { existsSync, mkdirSync, mkdtempSync, readFileSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { dirname, join } from 'node:path';
 import { fileURLToPath } from 'node:url';
@@ -100,7 +100,7 @@ try {
   if (!(variance > 20)) fail(`the canvas looks blank (luminance variance ${variance})`);
   // Level of detail: with a small triangle budget, dragging shows coarser surfaces with their
   // (larger) guaranteed error; releasing the slider settles on the prepared surface and error.
-  const lod = await browser.newPage({ viewport: { width: 800, height: 600 } });
+  const lod = await browser.newPage({ viewport: { width: 800, height: 600 }, acceptDownloads: true });
   lod.on('pageerror', (e) => errors.push(e.message));
   await lod.goto(`${url}?budget=${process.env.ADAPTISO_VIEW_BUDGET || 300}`);
   await lod.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
@@ -126,6 +126,12 @@ try {
   console.log(`level of detail: ${coarse.length} of ${dragged.length} dragged surfaces coarse (levels ` +
               `${[...new Set(coarse.map((r) => r.level))].join(',')}, errors up to ${Math.max(...coarse.map((r) => r.error)).toPrecision(3)}), ` +
               `settled at error ${settled.error.toPrecision(4)} with ${settled.triangles} triangles, ${(settled.bytes / Math.max(settled.triangles, 1)).toFixed(2)} bytes/triangle`);
+  // Export: the download button gives the surface on screen, simplified, as a .glb file.
+  const [download] = await Promise.all([lod.waitForEvent('download', { timeout: 30000 }), lod.click('#export')]);
+  const saved = join(tmp, 'export.glb');
+  await download.saveAs(saved);
+  const head = readFileSync(saved).subarray(0, 4).toString();
+  if (!download.suggestedFilename().endsWith('.glb') || head !== 'glTF') fail(`export gave ${download.suggestedFilename()} starting '${head}'`);
   await lod.close();
   // Toggles: kept vertices and the full-resolution reference load without errors.
   await page.check('#show-points');

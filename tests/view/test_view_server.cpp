@@ -19,6 +19,7 @@
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_codec.hpp"
+#include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
@@ -452,4 +453,28 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
   EXPECT_LT(compact->body.size() * 3, fine->body.size());
   for (const char* bad : {"error=-1", "error=abc", "budget=-5", "format=zip"})
     EXPECT_EQ(c.Get(std::string("/api/surface?iso=0.5&") + bad)->status, 400) << bad;
+}
+
+TEST(ViewServer, ExportDownloadsTheSurfaceSimplified) {
+  const auto volume = std::make_shared<Volume>(make_synthetic("sphere", 40, ScalarType::i16));
+  PrepareOptions o;
+  o.max_error = 0.01;
+  o.relative = true;
+  const auto grid = std::make_shared<const PreparedGrid>(prepare(*volume, o));
+  Running run(options());
+  run.server.set_grid(grid);
+  auto c = run.client();
+  auto full = c.Get("/api/export?iso=700&format=ply");
+  ASSERT_EQ(full->status, 200) << full->body;
+  EXPECT_NE(full->get_header_value("Content-Disposition").find("adaptiso-700.ply"), std::string::npos);
+  Extractor ex(grid);
+  ex.extract(700);
+  EXPECT_EQ(full->body, mesh_file_bytes(ex.mesh(), "x.ply"));  // unsimplified: the surface itself
+  auto simplified = c.Get("/api/export?iso=700&simplify=0.5&format=glb");
+  ASSERT_EQ(simplified->status, 200);
+  EXPECT_EQ(simplified->body.substr(0, 4), "glTF");
+  EXPECT_LT(std::stoul(simplified->get_header_value("X-Triangles")), ex.mesh().triangle_count());
+  EXPECT_EQ(simplified->get_header_value("X-Triangles-Before"), std::to_string(ex.mesh().triangle_count()));
+  for (const char* bad : {"simplify=-1", "format=stl", "simplify=x"})
+    EXPECT_EQ(c.Get(std::string("/api/export?iso=700&") + bad)->status, 400) << bad;
 }
