@@ -57,6 +57,13 @@ def run(cmd):
     return r.stdout
 
 
+def distance(exe, mesh, ref, voxel):
+    """Symmetric mean and 95th percentile distance between two meshes, in voxels (adaptiso compare)."""
+    d = json.loads(run([exe, "compare", mesh, ref, "--voxel", f"{voxel:.9g}", "--json"]))
+    return (0.5 * (d["a_to_b"]["mean_voxels"] + d["b_to_a"]["mean_voxels"]), max(d["a_to_b"]["p95_voxels"], d["b_to_a"]["p95_voxels"]),
+            d["a_triangles"])
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--build", required=True)

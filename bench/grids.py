@@ -21,7 +21,7 @@ import subprocess
 import sys
 import time
 
-from defaults import main_input, sidecar, run
+from defaults import distance, main_input, sidecar, run
 
 
 def timed(cmd):
@@ -36,12 +36,6 @@ def timed(cmd):
     if p.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)}: exit {p.returncode}")
     return out, wall, usage.ru_maxrss * 1024
-
-
-def distance(exe, mesh, ref, voxel):
-    d = json.loads(run([exe, "compare", mesh, ref, "--voxel", f"{voxel:.9g}", "--json"]))
-    return (0.5 * (d["a_to_b"]["mean_voxels"] + d["b_to_a"]["mean_voxels"]),
-            max(d["a_to_b"]["p95_voxels"], d["b_to_a"]["p95_voxels"]), d["a_triangles"])
 
 
 def prepare(exe, src, grid_path, args):

@@ -104,6 +104,14 @@ std::vector<std::array<float, 18>> corners(const std::string& body) {
   return out;
 }
 
+// A bisection grid prepared from a synthetic volume, at a relative error.
+std::shared_ptr<const PreparedGrid> bisection_grid_of(const Volume& v, double relative_error) {
+  PrepareOptions o;
+  o.max_error = relative_error;
+  o.relative = true;
+  return std::make_shared<const PreparedGrid>(prepare(v, o));
+}
+
 bool same_surface(const std::string& a, const std::string& b) {
   return a.size() == b.size() && a.compare(0, 8, b, 0, 8) == 0 && corners(a) == corners(b);
 }
@@ -394,10 +402,7 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
   // A bisection grid: /api/info lists the ladder; error= and budget= choose a coarser level, whose
   // surface is the one preparing at that level's bound gives, and the answer names its bound.
   const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 40, ScalarType::f32));
-  PrepareOptions o;
-  o.max_error = 0.002;
-  o.relative = true;
-  const auto grid = std::make_shared<const PreparedGrid>(prepare(*volume, o));
+  const auto grid = bisection_grid_of(*volume, 0.002);
   Running run(options());
   run.server.set_grid(grid);
   auto c = run.client();
@@ -424,9 +429,8 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
     EXPECT_LE(guaranteed, bound);
     EXPECT_GE(guaranteed, grid->stats.error_bound);
     // The same surface as a grid prepared at that bound.
-    PrepareOptions at = o;
+    PrepareOptions at;
     at.max_error = bound;
-    at.relative = false;
     Extractor direct(std::make_shared<const PreparedGrid>(prepare(*volume, at)));
     direct.extract(iso);
     EXPECT_TRUE(same_surface(r->body, encode_mesh(direct.mesh()))) << "level " << k;
@@ -456,11 +460,7 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
 }
 
 TEST(ViewServer, ExportDownloadsTheSurfaceSimplified) {
-  const auto volume = std::make_shared<Volume>(make_synthetic("sphere", 40, ScalarType::i16));
-  PrepareOptions o;
-  o.max_error = 0.01;
-  o.relative = true;
-  const auto grid = std::make_shared<const PreparedGrid>(prepare(*volume, o));
+  const auto grid = bisection_grid_of(make_synthetic("sphere", 40, ScalarType::i16), 0.01);
   Running run(options());
   run.server.set_grid(grid);
   auto c = run.client();

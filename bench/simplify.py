@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""Simplified exports against the peer (issue "Meshes worth exporting"): for each volume and
+iso-value, adaptiso's surface from a prepared grid simplified with --simplify D, against
+full-resolution marching cubes simplified by the same meshoptimizer simplifier (`adaptiso mc
+--simplify D`: the surface flying edges gives, up to ambiguous faces, and the simplifier the peer
+"flying edges + meshoptimizer" uses), in one run. Per row: triangles, mean / 95th percentile
+symmetric distance to the full-resolution surface (voxels of the smallest spacing, `adaptiso
+compare`), and the seconds of extraction + simplification (the tool's own timings, no file I/O).
+
+Usage: bench/simplify.py --build BUILD [--data DIR] [--work DIR] [--distances 0.1,0.25,0.5]
+                         [--error 0.02] [--out RECORDS.json] [DATASET[:ISO,...] ...]
+"""
+import argparse
+import json
+import os
+import sys
+
+from defaults import distance, main_input, run
+
+DEFAULT = ["ct_bunny_stanford:500,1600", "ct_chest_lidc2:100", "mr_brain_flair:90"]
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--build", required=True)
+    ap.add_argument("--data", default=os.environ.get("ADAPTISO_DATA", "../shared/data"))
+    ap.add_argument("--work", default="build/simplify-work")
+    ap.add_argument("--distances", default="0.1,0.25,0.5")
+    ap.add_argument("--error", type=float, default=0.02, help="the grid's relative error bound")
+    ap.add_argument("--out")
+    ap.add_argument("datasets", nargs="*")
+    a = ap.parse_args()
+    exe = os.path.join(a.build, "bin", "adaptiso")
+    os.makedirs(a.work, exist_ok=True)
+    distances = [float(x) for x in a.distances.split(",")]
+    records = []
+    print("| volume | iso | method | D | triangles | mean / p95 distance | seconds (extract + simplify) |")
+    print("|---|---:|---|---:|---:|---:|---:|")
+    for spec in a.datasets or DEFAULT:
+        name, _, isos = spec.partition(":")
+        src = main_input(a.data, name, a.work)
+        if not src:
+            print(f"skipping {name}: not in {a.data}", file=sys.stderr)
+            continue
+        voxel = min(json.loads(run([exe, "info", src, "--json"]))["spacing"])
+        grid = os.path.join(a.work, name + ".adg")
+        run([exe, "prepare", src, "--relative", "--max-error", f"{a.error:g}", "-o", grid, "--quiet"])
+        for iso in [float(x) for x in isos.split(",")]:
+            ref = os.path.join(a.work, f"{name}-{iso:g}-mc.ply")
+            mc = json.loads(run([exe, "mc", src, "--iso", f"{iso:g}", "-o", ref, "--json"]))["surfaces"][0]
+            mesh = os.path.join(a.work, f"{name}-{iso:g}.ply")
+            for d in [0.0] + distances:
+                rows = []
+                for method in ("adaptiso", "mc + meshoptimizer"):
+                    if method == "adaptiso":
+                        cmd = [exe, "extract", grid, "--iso", f"{iso:g}", "-o", mesh, "--json"]
+                    else:
+                        if d == 0:
+                            continue
+                        cmd = [exe, "mc", src, "--iso", f"{iso:g}", "-o", mesh, "--json"]
+                    if d > 0:
+                        cmd += ["--simplify", f"{d:g}"]
+                    s = json.loads(run(cmd))["surfaces"][0]
+                    simp = s.get("simplify", {})
+                    seconds = s["seconds"] + simp.get("seconds", 0)
+                    triangles = simp.get("triangles_after", s["triangles"])
+                    mean, p95, _ = distance(exe, mesh, ref, voxel)
+                    rec = {"dataset": name, "iso": iso, "method": method, "distance": d, "triangles": triangles, "mean": mean,
+                           "p95": p95, "seconds": seconds, "extract_seconds": s["seconds"], "simplify_seconds": simp.get("seconds", 0),
+                           "triangles_before": simp.get("triangles_before", s["triangles"]), "mc_triangles": mc["triangles"]}
+                    records.append(rec)
+                    print(f"| {name} | {iso:g} | {method} | {d:g} | {triangles:,} | {mean:.3f} / {p95:.3f} | {seconds:.3f} "
+                          f"({s['seconds']:.3f} + {simp.get('seconds', 0):.3f}) |", flush=True)
+            for p in (ref, mesh):
+                if os.path.exists(p):
+                    os.remove(p)
+        os.remove(grid)
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump(records, f, indent=1)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
