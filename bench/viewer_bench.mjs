@@ -39,7 +39,9 @@ try {
   const info = await (await fetch(`${url}api/info`)).json();
   // Warm every level's extractor once (a first extraction on a level is a fresh march), as a user's
   // first drag would; then the measured drag.
+  let firstMeasured = 0;
   for (const pass of ['warm', 'measure']) {
+    if (pass === 'measure') firstMeasured = await page.evaluate(() => window.adaptisoSurfaces.length);
     await page.evaluate(async ([a, b, s]) => {
       const el = document.getElementById('iso');
       const steps = Math.round(60 * s);
@@ -52,17 +54,23 @@ try {
     if (pass === 'warm') await page.waitForTimeout(2000);
   }
   const dragEnd = await page.evaluate(() => performance.now());
-  const during = await page.evaluate((end) => window.adaptisoSurfaces.filter((r) => r.coarse && r.at <= end + 5000), dragEnd);
+  await page.waitForTimeout(1000);  // the last answers of the drag arrive
+  const during = await page.evaluate(([n, end]) => window.adaptisoSurfaces.slice(n).filter((r) => r.coarse && r.at <= end + 1000),
+                                     [firstMeasured, dragEnd]);
   const lastDrag = await page.evaluate(() => window.adaptisoSurfaces.length);
   const released = await page.evaluate(() => { document.getElementById('iso').dispatchEvent(new Event('change')); return performance.now(); });
   await page.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), lastDrag, { timeout: 120000 });
   const settled = await page.evaluate((n) => window.adaptisoSurfaces.slice(n).find((r) => !r.coarse), lastDrag);
   const measured = during.slice(Math.floor(during.length / 10));  // drop the first tenth (the drag's start)
   const span = measured.length > 1 ? (measured.at(-1).at - measured[0].at) / 1000 : 0;
+  if (process.env.VIEWER_BENCH_TRACE) console.error(JSON.stringify(measured.map((r) => [Math.round(r.at), r.level, Math.round(r.request), Math.round(r.fromInput)])));
   console.log(JSON.stringify({
     grid, budget, prepared_error: info.error_bound, levels: info.levels.length, levels_seconds: levelsSeconds,
     drag: {
       surfaces: measured.length, per_second: span > 0 ? (measured.length - 1) / span : null,
+      // The steady rate, from the median interval, and the pauses (the page dropping a large mesh).
+      steady_per_second: measured.length > 2 ? 1000 / median(measured.slice(1).map((r, i) => r.at - measured[i].at)) : null,
+      pauses_over_1s: measured.slice(1).map((r, i) => r.at - measured[i].at).filter((g) => g > 1000).length,
       levels: [...new Set(measured.map((r) => r.level))], error_median: median(measured.map((r) => r.error)),
       triangles_median: median(measured.map((r) => r.triangles)),
       from_input_ms: { median: median(measured.map((r) => r.fromInput)), p90: p90(measured.map((r) => r.fromInput)) },
