@@ -3,6 +3,8 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <nlohmann/json.hpp>
@@ -320,6 +322,27 @@ TEST(Cli, DefaultErrorIsAFractionOfTheRange) {
     const auto help = testutil::run_cli(std::string(cmd) + " --help").out;
     EXPECT_NE(help.find(fmt::format("default: {:g} of the value range", kDefaultRelativeError)), std::string::npos) << cmd;
   }
+}
+
+// Work that cannot fit in memory is refused before it starts, in one line that names the setting
+// to change (ADAPTISO_MEMORY_LIMIT stands in for a small machine).
+TEST(Cli, WorkThatCannotFitIsRefusedUpFrontWithTheSettingToChange) {
+  testutil::TempDir t("memory");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 64 -o " + (t / "s.nrrd")).code, 0);
+  ::setenv("ADAPTISO_MEMORY_LIMIT", "3000000", 1);
+  const auto bisection = testutil::run_cli(fmt::format("prepare {} --max-error 0 -o {}", t / "s.nrrd", t / "b.adg"));
+  const auto delaunay = testutil::run_cli(fmt::format("prepare {} --grid delaunay --max-error 0 -o {}", t / "s.nrrd", t / "d.adg"));
+  ::unsetenv("ADAPTISO_MEMORY_LIMIT");
+  for (const auto* r : {&bisection, &delaunay}) {
+    EXPECT_EQ(r->code, 2) << r->err;
+    EXPECT_NE(r->err.find("needs about"), std::string::npos) << r->err;
+    EXPECT_NE(r->err.find("--max-error"), std::string::npos) << r->err;
+    EXPECT_EQ(std::count(r->err.begin(), r->err.end(), '\n'), 1) << r->err;
+  }
+  EXPECT_FALSE(std::filesystem::exists(t / "b.adg"));
+  EXPECT_FALSE(std::filesystem::exists(t / "d.adg"));
+  // The same work with the machine's memory goes through.
+  EXPECT_EQ(testutil::run_cli(fmt::format("prepare {} --max-error 0 --quiet -o {}", t / "s.nrrd", t / "b.adg")).code, 0);
 }
 
 TEST(ExtractCli, SimplifyReportsTrianglesTimesAndTheMeasuredDistance) {
