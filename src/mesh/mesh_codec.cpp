@@ -57,10 +57,12 @@ void put(std::string& out, const T& x) {
 std::string encode_mesh_compact(const Mesh& m) {
   const std::size_t V = m.vertex_count(), T = m.triangle_count();
   // Vertices in first-use order: the codecs compress neighbours' differences.
-  std::vector<unsigned int> remap(V);
-  const std::size_t used = meshopt_optimizeVertexFetchRemap(remap.data(), &m.triangles[0][0], 3 * T, V);
+  std::vector<unsigned int> remap(V, ~0u);  // ~0u: a vertex no triangle uses
+  // The triangles as one index array (no element to take the address of when there is none).
+  const unsigned int* triangles = reinterpret_cast<const unsigned int*>(m.triangles.data());
+  const std::size_t used = T ? meshopt_optimizeVertexFetchRemap(remap.data(), triangles, 3 * T, V) : 0;
   std::vector<unsigned int> indices(3 * T);
-  if (T) meshopt_remapIndexBuffer(indices.data(), &m.triangles[0][0], 3 * T, remap.data());
+  if (T) meshopt_remapIndexBuffer(indices.data(), triangles, 3 * T, remap.data());
   float lo[3] = {0, 0, 0}, step[3] = {1, 1, 1};
   if (V) {
     float hi[3];

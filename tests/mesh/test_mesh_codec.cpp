@@ -74,6 +74,10 @@ TEST(MeshCodec, EmptyMeshAndMalformedBuffersAreHandled) {
   const Mesh d = decode_mesh_compact(encode_mesh_compact(empty));
   EXPECT_EQ(d.triangle_count(), 0u);
   EXPECT_EQ(d.vertex_count(), 0u);
+  Mesh points;  // vertices without triangles (UBSan caught &triangles[0][0] on an empty vector)
+  points.positions = {{0, 0, 0}, {1, 2, 3}};
+  points.normals = {{0, 0, 1}, {0, 1, 0}};
+  EXPECT_EQ(decode_mesh_compact(encode_mesh_compact(points)).vertex_count(), 0u);  // unused vertices are not sent
   const std::string good = encode_mesh_compact(sphere_mesh(20));
   EXPECT_THROW(decode_mesh_compact(good.substr(0, good.size() - 5)), InputError);
   EXPECT_THROW(decode_mesh_compact("ADM0" + good.substr(4)), InputError);
