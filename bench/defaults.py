@@ -50,6 +50,17 @@ def sidecar(path):
     return isos
 
 
+def volumes(data, names, work):
+    """(name, input path, suggested iso-values) of each named shared volume that is present."""
+    for name in names:
+        src = main_input(data, name, work)
+        isos = sidecar(os.path.join(data, name + ".txt")) if src else []
+        if not isos:
+            print(f"skipping {name}: not in {data}", file=sys.stderr)
+            continue
+        yield name, src, isos
+
+
 def run(cmd):
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
@@ -79,11 +90,7 @@ def main():
     records = []
     print("| volume | relative error | prepare s | tetrahedra | iso | triangles (MC) | mean distance | p95 | max |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for name in names:
-        src = main_input(a.data, name, a.work)
-        isos = sidecar(os.path.join(a.data, name + ".txt"))
-        if not src or not isos:
-            continue
+    for name, src, isos in volumes(a.data, names, a.work):
         info = json.loads(run([exe, "info", src, "--json"]))
         voxel = min(info["spacing"])
         iso_arg = ",".join(f"{x:g}" for x in isos)

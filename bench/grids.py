@@ -21,7 +21,7 @@ import subprocess
 import sys
 import time
 
-from defaults import distance, main_input, sidecar, run
+from defaults import distance, run, volumes
 
 
 def timed(cmd):
@@ -74,12 +74,7 @@ def main():
     records = []
     print("| volume (volume MB) | rel. error | grid | asked | achieved | prepare s | peak MB | grid MB | tetrahedra | iso: triangles, mean / p95 distance |")
     print("|---|---:|---|---:|---:|---:|---:|---:|---:|---|")
-    for name in names:
-        src = main_input(a.data, name, a.work)
-        isos = sidecar(os.path.join(a.data, name + ".txt"))
-        if not src or not isos:
-            print(f"skipping {name}: not in {a.data}", file=sys.stderr)
-            continue
+    for name, src, isos in volumes(a.data, names, a.work):
         info = json.loads(run([exe, "info", src, "--json"]))
         voxel = min(info["spacing"])
         volume_mb = info.get("bytes", 0) / 1e6

@@ -377,7 +377,6 @@ relative: iso (and max_error) as fractions of the value range. Safe to call from
         o.max_error = max_error;
         o.relative = relative;
         o.max_displacement = max_displacement;
-        if (max_displacement > 0 && !max_error) o.max_error = std::numeric_limits<double>::infinity();  // the displacement alone
         o.gradients = gradient_method(gradients);
         o.method = reduce_method(method);
         o.threshold = threshold;
@@ -484,7 +483,7 @@ C-contiguous.)");
         {
           py::gil_scoped_release release;
           const ValueRange r = value_range(v);
-          o.max_error = max_error ? *max_error : relative ? kDefaultRelativeError : kDefaultRelativeError * (r.max - r.min);
+          o.max_error = max_error ? *max_error : default_max_error(r, relative);
           kept = reduce(v, r, o).kept;
         }
         py::array_t<std::int64_t> out({static_cast<py::ssize_t>(kept.size()), py::ssize_t{3}});

@@ -34,8 +34,8 @@ struct MeshOutputFlags {
   bool measure = false;
   void add(CLI::App* app) {
     app->add_option("--simplify", simplify,
-                    "Simplify each mesh so that it moves at most this far (voxels of the smallest spacing; meshoptimizer, borders "
-                    "locked, kept vertices unmoved)")
+                    "Simplify each mesh so that it moves about this far (voxels of the smallest spacing; meshoptimizer's error "
+                    "estimate, borders locked, kept vertices unmoved)")
         ->check(CLI::NonNegativeNumber);
     app->add_flag("--measure", measure, "With --simplify: measure the distance between the simplified and the extracted surface");
     app->add_option("--iso", isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")

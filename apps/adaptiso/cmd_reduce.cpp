@@ -27,8 +27,7 @@ void add_reduce(CLI::App& app) {
     auto t0 = Clock::now();
     ReduceOptions o = rf->options();
     const ValueRange range = value_range(v);
-    if (rf->max_error->count() == 0)  // the same default bound as prepare, run and view
-      o.max_error = o.relative ? kDefaultRelativeError : kDefaultRelativeError * (range.max - range.min);
+    if (rf->max_error->count() == 0) o.max_error = default_max_error(range, o.relative);  // as prepare, run and view
     ReduceResult r = reduce(v, range, o, tp.callback());
     double secs = seconds_since(t0);
     tp.finish();

@@ -2,8 +2,6 @@
 
 #include <fmt/format.h>
 
-#include <limits>
-
 namespace adaptiso::cli {
 
 void ReduceFlags::add(CLI::App* app) {
@@ -61,8 +59,6 @@ PrepareOptions PrepareFlags::options(const std::string& source_path) const {
   p.tree_depth = tree_depth;
   p.grid = grid == "delaunay" ? GridKind::delaunay : GridKind::bisection;
   p.max_displacement = max_displacement;
-  // The displacement alone, unless an error bound is given too.
-  if (max_displacement > 0 && reduce.max_error->count() == 0) p.max_error = std::numeric_limits<double>::infinity();
   p.verify = verify;
   p.source_name = source_path;
   return p;

@@ -51,7 +51,8 @@ enum class GradientMethod {
 struct PrepareOptions {
   GridKind grid = GridKind::bisection;
   // The error bound of the grid (max norm). Unset: kDefaultRelativeError of the value range,
-  // whatever `relative` says. +∞ (bisection grid): no error criterion.
+  // whatever `relative` says, or no error criterion when max_displacement is given (the
+  // displacement alone). +∞ (bisection grid): no error criterion.
   std::optional<double> max_error;
   bool relative = false;        // max_error and threshold relative to the value range / largest gradient
   double max_displacement = 0;  // bisection: voxels an iso-surface may move, to first order (0: not used)
@@ -70,11 +71,15 @@ struct PrepareOptions {
   std::string source_name;  // informational: the source's file name (folders are dropped)
 };
 
+// The default bound for a volume with this value range, in the unit `relative` implies: a fraction
+// of the range, or data units (the reduction alone, in the command line and Python, uses it too).
+double default_max_error(const ValueRange& range, bool relative);
+
 // The error bound that PrepareOptions asks for, in data units, for a volume with this value range.
 double absolute_max_error(const PrepareOptions& options, const ValueRange& range);
 
-// The reduction options that PrepareOptions implies (the threshold absolute or relative as given,
-// the error bound absolute).
+// The reduction options that PrepareOptions implies (the threshold as given, the error bound in
+// the same unit: relative to the range with `relative`).
 ReduceOptions reduce_options(const PrepareOptions& options, const ValueRange& range);
 
 struct StageStats {

@@ -592,22 +592,21 @@ BisectionErrors bisection_errors(const Volume& v, const ValueRange& range, bool 
 namespace detail {
 namespace {
 
-// The grid of a traversal's leaves inside the box. The vertices they use are marked among
-// `space` candidates (the candidate of a lattice voxel: key(voxel)) a byte each (a relaxed atomic
-// byte store is a plain store; a bit would need a locked read-modify-write), numbered in candidate
-// order, size(count) sizes the arrays and fill(candidate, id) gives each vertex its data
-// (out.grid.values at least); then the
-// tetrahedra are written with their final numbers, and each split diamond gets the span of the
-// values beneath it. Both walks cut the hierarchy 12 splits below the roots into subtrees run in
-// parallel and placed in depth-first order, so the grid is the same for any thread count.
-template <class Rule, class Key, class Size, class Fill>
-void assemble(const Lattice& lat, const Rule& rule, std::size_t space, Key key, Size size, Fill fill, BisectionGrid& out,
+// The grid of a traversal's leaves inside the box. The vertices they use are marked among the
+// `voxels` voxels a byte each (a relaxed atomic byte store is a plain store; a bit would need a
+// locked read-modify-write), numbered in voxel order, size(count) sizes the arrays and
+// fill(voxel, id) gives each vertex its data (out.grid.values at least); then the tetrahedra are
+// written with their final numbers, and each split diamond gets the span of the values beneath
+// it. Both walks cut the hierarchy 12 splits below the roots into subtrees run in parallel and
+// placed in depth-first order, so the grid is the same for any thread count.
+template <class Rule, class Size, class Fill>
+void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size size, Fill fill, BisectionGrid& out,
               const Progress& progress) {
   const Traversal<Rule> walk(lat, rule);
   const Frontier top = walk.frontier(12);
   const std::vector<Tet>& roots = top.roots;
   std::vector<std::uint8_t> used;
-  assign_big(used, space, std::uint8_t{0});
+  assign_big(used, voxels, std::uint8_t{0});
   std::vector<std::uint64_t> leaves(roots.size() + 1, 0);
   report(progress, "select", 0);
   tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
@@ -616,14 +615,15 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t space, Key key, 
         roots[f],
         [&](const Tet& t, std::int64_t) {
           ++count;
-          for (const Coord& c : t) std::atomic_ref<std::uint8_t>(used[key(lat.index(c))]).store(1, std::memory_order_relaxed);
+          for (const Coord& c : t)
+            std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
           return ValueSpan{};
         },
         [](std::int64_t, const Tet&, const ValueSpan&) {});
     leaves[f + 1] = count;
   });
   for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
-  VertexNumbers numbers;  // over the candidates
+  VertexNumbers numbers;  // over the voxels
   numbers.bits.assign((used.size() + 63) / 64, 0);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 4096), [&](const auto& r) {
     for (std::size_t w = r.begin(); w < r.end(); ++w) {
@@ -653,7 +653,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t space, Key key, 
   auto& spans = out.hierarchy.value_span;
   spans.assign(vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
   auto merge = [&](std::int64_t voxel, const ValueSpan& s) {
-    auto& span = spans[numbers.id(static_cast<std::int64_t>(key(voxel)))];
+    auto& span = spans[numbers.id(voxel)];
     atomic_min(span[0], down(s.lo));
     atomic_max(span[1], up(s.hi));
   };
@@ -666,7 +666,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t space, Key key, 
           auto& q = g.tets[at++];
           ValueSpan s;
           for (int k = 0; k < 4; ++k) {
-            q[k] = numbers.id(static_cast<std::int64_t>(key(lat.index(t[k]))));
+            q[k] = numbers.id(lat.index(t[k]));
             s.lo = std::min(s.lo, g.values[q[k]]);
             s.hi = std::max(s.hi, g.values[q[k]]);
           }
@@ -714,7 +714,6 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   g.source.max_error = o.max_error;
   auto& h = out.hierarchy;
   visit_values(v, [&]<class T>(std::span<const T> values) {
-    auto voxel_of = [](std::int64_t voxel) { return static_cast<std::size_t>(voxel); };
     auto size = [&](std::uint64_t n) {
       resize_big(g.ijk, n);
       resize_big(g.values, n);
@@ -729,7 +728,7 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
       h.error_code[id] = errors.code[i];
       if (displacement) h.displacement_code[id] = errors.displacement_code[i];
     };
-    assemble(lat, rule, static_cast<std::size_t>(v.voxel_count()), voxel_of, size, fill, out, progress);
+    assemble(lat, rule, static_cast<std::size_t>(v.voxel_count()), size, fill, out, progress);
   });
   h.error_threshold = threshold;
   if (displacement) {
@@ -750,12 +749,15 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
   const bool displacement = !fh.displacement_code.empty();
   if (o.max_displacement > 0 && !displacement)
     throw OptionError("max_displacement", "this grid was prepared without the displacement criterion");
+  auto voxel_of = [&](const std::array<std::uint32_t, 3>& p) {
+    return static_cast<std::size_t>(
+        lat.index({static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])}));
+  };
   // The fine grid's vertices by voxel: its vertices are numbered in ascending voxel order.
   VertexNumbers fine_numbers;
   assign_big(fine_numbers.bits, static_cast<std::size_t>((lat.nxy * (lat.X[2] + 1) + 63) / 64), std::uint64_t{0});
   for (const auto& p : fine.ijk) {
-    const auto i = static_cast<std::uint64_t>(
-        lat.index({static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])}));
+    const std::size_t i = voxel_of(p);
     fine_numbers.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
   }
   fine_numbers.count();
@@ -777,9 +779,7 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
   if (displacement) assign_big(moves, voxels, std::uint8_t{0});
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, fine.vertex_count(), 1 << 16), [&](const auto& r) {
     for (std::size_t f = r.begin(); f < r.end(); ++f) {
-      const auto& p = fine.ijk[f];
-      const auto i = static_cast<std::size_t>(
-          lat.index({static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])}));
+      const std::size_t i = voxel_of(fine.ijk[f]);
       code[i] = fh.error_code[f];
       if (displacement) moves[i] = fh.displacement_code[f];
     }
@@ -788,7 +788,6 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
   TetGrid& g = out.grid;
   g.source = fine.source;
   g.source.max_error = std::max(o.max_error, fh.codes.error(fh.error_threshold));
-  auto voxel_of = [](std::int64_t voxel) { return static_cast<std::size_t>(voxel); };
   auto size = [&](std::uint64_t n) {
     resize_big(g.ijk, n);
     resize_big(g.values, n);
@@ -804,13 +803,13 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
     h.error_code[id] = fh.error_code[f];
     if (displacement) h.displacement_code[id] = fh.displacement_code[f];
   };
-  assemble(lat, rule, voxels, voxel_of, size, fill, out, progress);
+  assemble(lat, rule, voxels, size, fill, out, progress);
   out.error_bound = fh.codes.error(h.error_threshold);
   return out;
 }
 
 BisectionGrid bisection_grid(const Volume& v, const ValueRange& range, const BisectionOptions& options, const Progress& progress) {
-  if (!(options.max_error >= 0)) throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", options.max_error));
+  detail::check_bounds(options);  // before the error hierarchy, not after it
   return bisection_select(v, range, bisection_errors(v, range, options.max_displacement > 0, progress), options, progress);
 }
 

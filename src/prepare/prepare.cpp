@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 
 #include "adaptiso/bisection.hpp"
@@ -64,10 +65,13 @@ void check_options(const PrepareOptions& o) {
 
 }  // namespace
 
+double default_max_error(const ValueRange& range, bool relative) {
+  return relative ? kDefaultRelativeError : kDefaultRelativeError * (range.max - range.min);
+}
+
 double absolute_max_error(const PrepareOptions& o, const ValueRange& range) {
-  const double span = range.max - range.min;
-  if (!o.max_error) return kDefaultRelativeError * span;
-  return o.relative ? *o.max_error * span : *o.max_error;
+  if (!o.max_error) return o.max_displacement > 0 ? std::numeric_limits<double>::infinity() : default_max_error(range, false);
+  return o.relative ? *o.max_error * (range.max - range.min) : *o.max_error;
 }
 
 ReduceOptions reduce_options(const PrepareOptions& o, const ValueRange& range) {

@@ -154,6 +154,19 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
   return {{"min", h.min}, {"max", h.max}, {"counts", h.counts}, {"of", of}};
 }
 
+// The error of a grid's surfaces, data units: guaranteed on a bisection grid, measured on a
+// Delaunay grid.
+double surface_error(const PrepareStats& s) { return s.error_bound >= 0 ? s.error_bound : s.pl_max_error; }
+
+// The grid being served and its levels of detail, taken together (set_grid replaces both).
+struct Served {
+  std::shared_ptr<const PreparedGrid> grid;
+  std::shared_ptr<LevelsOfDetail> levels;  // bisection grids only
+  // The coarsest level within error= (the prepared grid without it, or without levels).
+  std::size_t level_for(const std::optional<double>& error) const { return levels && error ? levels->level_for_error(*error) : 0; }
+  std::shared_ptr<const PreparedGrid> at(std::size_t level) const { return level ? levels->grid(level) : grid; }
+};
+
 // One incremental Extractor of a page at one level of detail, with its own lock, so a request for
 // a coarse level never waits behind a long extraction at a fine one.
 struct LevelExtractor {
@@ -334,7 +347,8 @@ struct ViewServer::Impl {
 
   std::shared_ptr<Client> client(const std::string& id);
   void build_levels(std::shared_ptr<LevelsOfDetail> lod);
-  std::shared_ptr<const PreparedGrid> ready();  // throws NotReady while preparing
+  Served served_now();  // throws NotReady while preparing
+  std::shared_ptr<const PreparedGrid> ready() { return served_now().grid; }
 
   void routes();
   bool host_allowed(const httplib::Request& req) const;
@@ -364,12 +378,12 @@ std::shared_ptr<Client> ViewServer::Impl::client(const std::string& id) {
   return c;
 }
 
-std::shared_ptr<const PreparedGrid> ViewServer::Impl::ready() {
+Served ViewServer::Impl::served_now() {
   std::lock_guard lock(state_mutex);
   if (!grid)
     throw NotReady(failure.empty() ? fmt::format("the grid is not ready yet ({} {:.0f} %)", stage, fraction * 100)
                                    : "preparation failed: " + failure);
-  return grid;
+  return {grid, levels};
 }
 
 ViewServer::ViewServer(ViewOptions options) : impl_(std::make_unique<Impl>()) {
@@ -495,7 +509,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
                 {"facts", nlohmann::json::parse(to_json(grid->stats))}});
       // The error of the prepared surface, and the coarser levels offered while dragging.
       const auto& st = grid->stats;
-      j["error_bound"] = st.error_bound >= 0 ? st.error_bound : st.pl_max_error;
+      j["error_bound"] = surface_error(st);
       j["error_guaranteed"] = st.error_bound >= 0;
       nlohmann::json ladder = nlohmann::json::array();
       if (levels)
@@ -513,31 +527,23 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const auto error = parse_optional(req, "error");
   const auto budget = parse_optional(req, "budget");
   const bool compact = compact_format(req);
-  auto g = ready();
-  std::shared_ptr<LevelsOfDetail> lod;
-  {
-    std::lock_guard lock(state_mutex);
-    lod = levels;
-  }
-  // The level: the coarsest within error= (the prepared grid by default), then as fine as the
-  // triangle budget allows.
-  std::size_t level = 0;
-  if (lod && error) level = lod->level_for_error(*error);
-  if (lod && budget) level = lod->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), level);
-  const std::size_t rest = lod && error ? lod->level_for_error(*error) : 0;  // the level shown when the slider rests
-  const auto grid = level ? lod->grid(level) : g;
+  const Served s = served_now();
+  // The level shown when the slider rests: the coarsest within error=; while dragging, as fine as
+  // the triangle budget allows but no finer.
+  const std::size_t rest = s.level_for(error);
+  const std::size_t level = s.levels && budget ? s.levels->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), rest) : rest;
+  const auto grid = s.at(level);
   auto c = client(id);
   auto slot = c->level(level);
   std::unique_lock lock(slot->mutex);  // one extraction at a time per page and level; others run freely
   ExtractStats st;
   slot->at(grid, iso, &st);
-  if (lod) lod->record(level, st.triangles);
-  if (level != rest) follower.follow(c->level(rest), rest ? lod->grid(rest) : g, iso);
+  if (s.levels) s.levels->record(level, st.triangles);
+  if (level != rest) follower.follow(c->level(rest), s.at(rest), iso);
   const Extractor* ex = slot->extractor.get();
   const auto t0 = std::chrono::steady_clock::now();
   std::string body = compact ? encode_mesh_compact(ex->mesh()) : encode_mesh(ex->mesh());
   const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  const auto& stats = grid->stats;
   res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.sweep_seconds + st.march_seconds));
   res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));
   res.set_header("X-Triangles", std::to_string(st.triangles));
@@ -547,8 +553,8 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   res.set_header("X-In-Range", st.in_range ? "1" : "0");
   res.set_header("X-Level", std::to_string(level));
   // The error of what is returned: guaranteed (bisection) or measured (Delaunay), data units.
-  res.set_header("X-Error-Bound", fmt::format("{:.17g}", stats.error_bound >= 0 ? stats.error_bound : stats.pl_max_error));
-  res.set_header("X-Error-Guaranteed", stats.error_bound >= 0 ? "1" : "0");
+  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(grid->stats)));
+  res.set_header("X-Error-Guaranteed", grid->stats.error_bound >= 0 ? "1" : "0");
   res.set_header("X-Encoding", compact ? "compact" : "plain");
   res.set_header("Cache-Control", "no-store");
   res.set_content(std::move(body), "application/octet-stream");
@@ -562,14 +568,9 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   const double distance = parse_optional(req, "simplify").value_or(0);
   const std::string format = req.has_param("format") ? req.get_param_value("format") : "glb";
   if (format != "glb" && format != "ply") throw BadRequest("format must be glb or ply");
-  auto g = ready();
-  std::shared_ptr<LevelsOfDetail> lod;
-  {
-    std::lock_guard lock(state_mutex);
-    lod = levels;
-  }
-  const std::size_t level = lod && error ? lod->level_for_error(*error) : 0;
-  const auto grid = level ? lod->grid(level) : g;
+  const Served s = served_now();
+  const std::size_t level = s.level_for(error);
+  const auto grid = s.at(level);
   auto slot = client(id)->level(level);
   Mesh mesh;
   {
@@ -584,8 +585,7 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   res.set_header("X-Triangles", std::to_string(st.triangles_after));
   res.set_header("X-Triangles-Before", std::to_string(st.triangles_before));
   res.set_header("X-Simplify-Seconds", fmt::format("{:.6f}", st.seconds));
-  res.set_header("X-Error-Bound",
-                 fmt::format("{:.17g}", grid->stats.error_bound >= 0 ? grid->stats.error_bound : grid->stats.pl_max_error));
+  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(grid->stats)));
   res.set_content(mesh_file_bytes(simplified, name), format == "glb" ? "model/gltf-binary" : "application/octet-stream");
 }
 
