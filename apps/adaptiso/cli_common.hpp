@@ -8,11 +8,19 @@
 #include <chrono>
 #include <string>
 
+#include "adaptiso/number.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/progress.hpp"
 #include "adaptiso/volume_io.hpp"
 
 namespace adaptiso::cli {
+
+// For every floating-point option: CLI11 would take "nan" and "inf" as numbers. Subnormals such
+// as 1e-320 are finite and pass.
+inline CLI::Validator finite_number() {
+  return CLI::Validator([](std::string& s) -> std::string { return parse_finite(s) ? "" : "'" + s + "' is not a finite number"; },
+                        "FINITE");
+}
 
 struct VolumeInput {
   std::string path;
@@ -52,8 +60,10 @@ double seconds_since(std::chrono::steady_clock::time_point t0);
 std::string error_summary(const PrepareStats& stats);
 nlohmann::json volume_json(const Volume& v, const ValueRange& range);
 
-// Parses "--iso" values (comma-separated numbers); relative ones map [0,1] onto [min, max].
-std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, double min, double max);
+// Parses "--iso" values (comma-separated numbers); relative ones map [0,1] onto [min, max], the
+// value range of `source` (named in the message when the scaled value overflows).
+std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, double min, double max,
+                                     const std::string& source);
 
 // The command-line flag of a library option named in an OptionError ("max_error" → "--max-error").
 std::string flag_for(const std::string& option);

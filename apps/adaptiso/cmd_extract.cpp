@@ -36,7 +36,7 @@ struct MeshOutputFlags {
     app->add_option("--simplify", simplify,
                     "Simplify each mesh so that it moves about this far (voxels of the smallest spacing; meshoptimizer's error "
                     "estimate, borders locked, kept vertices unmoved)")
-        ->check(CLI::NonNegativeNumber);
+        ->check(finite_number() & CLI::NonNegativeNumber);
     app->add_flag("--measure", measure, "With --simplify: measure the distance between the simplified and the extracted surface");
     app->add_option("--iso", isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
         ->required()
@@ -51,7 +51,9 @@ struct MeshOutputFlags {
       throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", output,
                                    std::filesystem::path(output).extension().string()));
   }
-  std::vector<double> values(bool relative, double min, double max) const { return parse_iso_values(isos, relative, min, max); }
+  std::vector<double> values(bool relative, double min, double max, const std::string& source) const {
+    return parse_iso_values(isos, relative, min, max, source);
+  }
   std::string path(std::size_t i) const { return output_name(output, isos[i], isos.size() > 1); }
 
   // Simplifies the mesh when asked, writes it, and returns what the simplification did (JSON; null
@@ -179,8 +181,10 @@ void add_extract(CLI::App& app) {
   cmd->add_flag("--relative", *relative, "Iso-values (and --max-error) as fractions of the value range [min, max]");
   cmd->add_option("--max-error", *max_error,
                   "Bisection grids: extract at this coarser error (at least the prepared one) from the grid's hierarchy, without "
-                  "preparing again");
-  cmd->add_option("--max-displacement", *max_displacement, "Bisection grids prepared with it: a coarser displacement bound (voxels)");
+                  "preparing again")
+      ->check(finite_number());
+  cmd->add_option("--max-displacement", *max_displacement, "Bisection grids prepared with it: a coarser displacement bound (voxels)")
+      ->check(finite_number());
   out->add(cmd);
   cmd->callback([=] {
     mesh_out->check();
@@ -188,10 +192,13 @@ void add_extract(CLI::App& app) {
     auto p = std::make_shared<const PreparedGrid>(load_grid(*input));
     const TetGrid& grid = p->grid;
     const double t_load = seconds_since(t0);
-    auto values = mesh_out->values(*relative, grid.source.min, grid.source.max);
+    auto values = mesh_out->values(*relative, grid.source.min, grid.source.max, *input);
     nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
     if (*max_error >= 0 || *max_displacement > 0) {
       const double e = *max_error < 0 ? 0 : *relative ? *max_error * (grid.source.max - grid.source.min) : *max_error;
+      if (!std::isfinite(e))
+        throw InputError(fmt::format("--max-error with --relative: the value range [{:g}, {:g}] of {} is too wide to scale",
+                                     grid.source.min, grid.source.max, *input));
       j["surfaces"] = query_all(p, *mesh_out, values, e, *max_displacement, *out);
     } else {
       j["surfaces"] = extract_all(p, *mesh_out, values, *out);
@@ -220,7 +227,7 @@ void add_run(CLI::App& app) {
     auto range = value_range(v);
     // Parse before the long preprocessing so a typo fails at once.
     const PrepareOptions options = pf->options(in->path);
-    auto values = mesh_out->values(options.relative, range.min, range.max);
+    auto values = mesh_out->values(options.relative, range.min, range.max, in->path);
     TerminalProgress tp(!out->quiet && !out->json);
     auto p = std::make_shared<const PreparedGrid>(prepare(v, range, options, tp.callback()));
     tp.finish();
@@ -257,7 +264,7 @@ void add_mc(CLI::App& app) {
     Volume v = in->load();
     const double t_load = seconds_since(t0);
     auto range = value_range(v);
-    auto values = mesh_out->values(*relative, range.min, range.max);
+    auto values = mesh_out->values(*relative, range.min, range.max, in->path);
     nlohmann::json j = {{"voxels", v.voxel_count()}, {"load_seconds", t_load}, {"surfaces", nlohmann::json::array()}};
     for (std::size_t i = 0; i < values.size(); ++i) {
       auto t1 = Clock::now();

@@ -1,5 +1,7 @@
 #include "options.hpp"
 
+#include "cli_common.hpp"
+
 #include <fmt/format.h>
 
 namespace adaptiso::cli {
@@ -9,11 +11,12 @@ void ReduceFlags::add(CLI::App* app) {
       "Max-norm error bound (data units; fraction of the range with --relative); default: {:g} of the value range", kDefaultRelativeError);
   app->add_option("--method", method, "Delaunay grid (and reduce): reconstruction | structural | both")
       ->check(CLI::IsMember({"reconstruction", "structural", "both"}));
-  max_error = app->add_option("--max-error", o.max_error, max_error_help);
+  max_error = app->add_option("--max-error", o.max_error, max_error_help)->check(finite_number());
   app->add_option("--threshold", o.threshold,
-                  "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)");
+                  "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)")
+      ->check(finite_number());
   app->add_option("--gradient", gradient, "Structural: central | canny")->check(CLI::IsMember({"central", "canny"}));
-  app->add_option("--sigma", o.sigma, "Canny: Gaussian sigma in voxels");
+  app->add_option("--sigma", o.sigma, "Canny: Gaussian sigma in voxels")->check(finite_number());
   app->add_option("--kernel", o.kernel, "Canny: kernel size (odd; default 2*ceil(3 sigma)+1)");
   app->add_flag("--relative", o.relative, "Error and iso-values as fractions of the value range, threshold of the largest gradient");
 }
@@ -32,7 +35,8 @@ void PrepareFlags::add(CLI::App* app) {
       ->check(CLI::IsMember({"bisection", "delaunay"}));
   reduce.add(app);
   app->add_option("--max-displacement", max_displacement,
-                  "Bisection: also bound how far, to first order, an iso-surface may move (voxels; 0: off)");
+                  "Bisection: also bound how far, to first order, an iso-surface may move (voxels; 0: off)")
+      ->check(finite_number());
   app->add_flag("--verify", verify, "Bisection: measure the reconstruction error voxel by voxel and check the guarantee");
   app->add_option("--gradients", gradients, "Vertex gradients: auto | lsq (least squares, the paper's) | central (central differences)")
       ->check(CLI::IsMember({"auto", "lsq", "central"}));

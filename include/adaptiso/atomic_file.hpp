@@ -7,9 +7,13 @@
 
 namespace adaptiso {
 
-// Calls write(stream) on a temporary file in the target's folder, flushes, then renames it to
-// `path`. On any exception (or a stream error) the temporary file is removed and InputError (for
-// an unwritable path) or the original exception propagates.
+// Calls write(stream) on a temporary file in the target's folder, flushes and fsyncs it, then
+// renames it to `path`. A symbolic link is written through (its target is replaced, the link
+// stays); an existing file keeps its permission bits; anything at `path` that is not a regular file
+// (a folder, device, FIFO) is refused with InputError rather than replaced. On any exception (or a
+// stream error) the temporary file is removed and InputError (for an unwritable path) or the
+// original exception propagates; SIGINT, SIGTERM and SIGHUP remove it too when they would
+// otherwise kill the process (their handlers are left alone when the host installed its own).
 void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write);
 
 }  // namespace adaptiso

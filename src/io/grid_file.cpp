@@ -13,6 +13,7 @@
 
 #include "adaptiso/atomic_file.hpp"
 #include "util/big_array.hpp"
+#include "volume/io_util.hpp"
 
 namespace adaptiso {
 namespace {
@@ -126,6 +127,7 @@ void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) 
 }
 
 PreparedGrid load_grid(const std::string& path) {
+  detail::file_size_or_throw(path);  // a FIFO or device would block or never end
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
   const std::uint64_t size = static_cast<std::uint64_t>(in.tellg());

@@ -17,6 +17,7 @@
 
 #include "adaptiso/atomic_file.hpp"
 #include "adaptiso/error.hpp"
+#include "volume/io_util.hpp"
 
 namespace adaptiso {
 namespace {
@@ -265,6 +266,7 @@ private:
 }  // namespace
 
 Mesh read_ply(const std::string& path) {
+  detail::file_size_or_throw(path);  // a FIFO or device would block or never end
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw InputError(fmt::format("{}: cannot open mesh file", path));
   const std::uint64_t size = static_cast<std::uint64_t>(in.tellg());

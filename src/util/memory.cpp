@@ -2,6 +2,7 @@
 #include "util/memory.hpp"
 
 #include <fmt/format.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -12,13 +13,27 @@
 
 namespace adaptiso::detail {
 
-std::uint64_t available_memory() {
-  // A cap a user (or a test) sets for adaptiso, in bytes: a shared machine, a container.
-  if (const char* cap = std::getenv("ADAPTISO_MEMORY_LIMIT")) {
-    char* end = nullptr;
-    const unsigned long long v = std::strtoull(cap, &end, 10);
-    if (end != cap && *end == '\0') return v;
+namespace {
+
+// The address space left under `ulimit -v` (RLIMIT_AS): a cap the machine's free memory knows
+// nothing of, and the one a container or a careful user sets.
+std::uint64_t address_space_left() {
+  struct rlimit lim {};
+  if (getrlimit(RLIMIT_AS, &lim) != 0 || lim.rlim_cur == RLIM_INFINITY) return ~std::uint64_t{0};
+  std::ifstream status("/proc/self/status");
+  std::uint64_t used_kb = 0;
+  for (std::string key; status >> key;) {
+    if (key == "VmSize:") {
+      status >> used_kb;
+      break;
+    }
+    status.ignore(256, '\n');
   }
+  const std::uint64_t used = used_kb * 1024;
+  return lim.rlim_cur > used ? lim.rlim_cur - used : 0;
+}
+
+std::uint64_t system_memory() {
   std::ifstream meminfo("/proc/meminfo");
   for (std::string key; meminfo >> key;) {
     std::uint64_t kb = 0;
@@ -28,6 +43,18 @@ std::uint64_t available_memory() {
   }
   const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
   return pages > 0 && page > 0 ? static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page) : ~std::uint64_t{0};
+}
+
+}  // namespace
+
+std::uint64_t available_memory() {
+  // A cap a user (or a test) sets for adaptiso, in bytes: a shared machine, a container.
+  if (const char* cap = std::getenv("ADAPTISO_MEMORY_LIMIT")) {
+    char* end = nullptr;
+    const unsigned long long v = std::strtoull(cap, &end, 10);
+    if (end != cap && *end == '\0') return v;
+  }
+  return std::min(system_memory(), address_space_left());
 }
 
 namespace {

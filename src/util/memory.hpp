@@ -6,8 +6,9 @@
 
 namespace adaptiso::detail {
 
-// Memory the system can give this process now (Linux: MemAvailable; elsewhere the physical
-// memory), or the cap set in the environment as ADAPTISO_MEMORY_LIMIT (bytes).
+// Memory the system can give this process now (Linux: MemAvailable, and no more than the address
+// space `ulimit -v` leaves; elsewhere the physical memory), or the cap set in the environment as
+// ADAPTISO_MEMORY_LIMIT (bytes).
 std::uint64_t available_memory();
 
 // Throws OptionError(option, "<what> needs about X GB, Y GB are available; <advice>") when `bytes`

@@ -1,6 +1,7 @@
 // The viewer's HTTP server (see view_server.hpp). Handlers only parse parameters, call the
 // library and encode the answer; the work (extraction, wireframes, histograms) is library code.
 #include "adaptiso/view_server.hpp"
+#include "view/request.hpp"
 
 #include <fmt/format.h>
 #include <httplib.h>
@@ -53,48 +54,17 @@ std::string encode_mesh(const Mesh& m) {
 
 namespace {
 
-// A malformed request: 400 with the message.
-struct BadRequest : std::runtime_error {
-  using std::runtime_error::runtime_error;
-};
+using detail::BadRequest;
+using detail::client_id;
+using detail::compact_format;
+using detail::export_format;
+using detail::parse_iso;
+using detail::parse_optional;
+
 // The grid is not there yet (or its preparation failed): 503 with the message.
 struct NotReady : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
-
-double parse_iso(const httplib::Request& req) {
-  if (!req.has_param("iso")) throw BadRequest("missing parameter iso");
-  const std::string s = req.get_param_value("iso");
-  auto x = parse_finite(s);
-  if (!x) throw BadRequest(fmt::format("iso must be a finite number, not '{}'", s.substr(0, 40)));
-  return *x;
-}
-
-// An optional non-negative number parameter (error=, budget=).
-std::optional<double> parse_optional(const httplib::Request& req, const char* name) {
-  if (!req.has_param(name)) return std::nullopt;
-  const std::string s = req.get_param_value(name);
-  auto x = parse_finite(s);
-  if (!x || *x < 0) throw BadRequest(fmt::format("{} must be a non-negative number, not '{}'", name, s.substr(0, 40)));
-  return x;
-}
-
-// The body's encoding: format=plain (the default) or format=compact (mesh_codec.hpp).
-bool compact_format(const httplib::Request& req) {
-  if (!req.has_param("format")) return false;
-  const std::string f = req.get_param_value("format");
-  if (f != "plain" && f != "compact") throw BadRequest("format must be plain or compact");
-  return f == "compact";
-}
-
-std::string client_id(const httplib::Request& req) {
-  if (!req.has_param("client")) return "default";
-  std::string c = req.get_param_value("client");
-  if (c.empty() || c.size() > 64 ||
-      !std::all_of(c.begin(), c.end(), [](char ch) { return std::isalnum(static_cast<unsigned char>(ch)) || ch == '-' || ch == '_'; }))
-    throw BadRequest("client must be 1-64 letters, digits, '-' or '_'");
-  return c;
-}
 
 // The page's files: web_root/served.txt lists them (one relative path a line, # comments); the
 // page itself is always among them. Nothing else in the folder is served (web/node_modules
@@ -522,11 +492,11 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
 }
 
 void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& res) {
-  const double iso = parse_iso(req);
-  const std::string id = client_id(req);
-  const auto error = parse_optional(req, "error");
-  const auto budget = parse_optional(req, "budget");
-  const bool compact = compact_format(req);
+  const double iso = parse_iso(req.params);
+  const std::string id = client_id(req.params);
+  const auto error = parse_optional(req.params, "error");
+  const auto budget = parse_optional(req.params, "budget");
+  const bool compact = compact_format(req.params);
   const Served s = served_now();
   // The level shown when the slider rests: the coarsest within error=; while dragging, as fine as
   // the triangle budget allows but no finer.
@@ -562,12 +532,11 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
 
 // The surface at rest (iso, error), simplified to simplify= voxels, as a .glb or .ply file.
 void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& res) {
-  const double iso = parse_iso(req);
-  const std::string id = client_id(req);
-  const auto error = parse_optional(req, "error");
-  const double distance = parse_optional(req, "simplify").value_or(0);
-  const std::string format = req.has_param("format") ? req.get_param_value("format") : "glb";
-  if (format != "glb" && format != "ply") throw BadRequest("format must be glb or ply");
+  const double iso = parse_iso(req.params);
+  const std::string id = client_id(req.params);
+  const auto error = parse_optional(req.params, "error");
+  const double distance = parse_optional(req.params, "simplify").value_or(0);
+  const std::string format = export_format(req.params);
   const Served s = served_now();
   const std::size_t level = s.level_for(error);
   const auto grid = s.at(level);
@@ -590,7 +559,7 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
 }
 
 void ViewServer::Impl::reference(const httplib::Request& req, httplib::Response& res) {
-  const double iso = parse_iso(req);
+  const double iso = parse_iso(req.params);
   std::shared_ptr<const Volume> v;
   {
     std::lock_guard lock(state_mutex);
@@ -618,7 +587,7 @@ void ViewServer::Impl::tetrahedra(const httplib::Request& req, httplib::Response
   const TetGrid& grid = p->grid;
   std::vector<std::uint32_t> tets;
   if (req.has_param("iso")) {
-    query_active(p->index, grid, parse_iso(req), tets);
+    query_active(p->index, grid, parse_iso(req.params), tets);
   } else {
     if (grid.tet_count() * 3 > kMaxWireframeEdges)
       throw BadRequest("the grid has too many edges to send; give iso= for the active tetrahedra");

@@ -18,10 +18,27 @@ std::vector<unsigned char> read_bytes(const std::string& path, std::uint64_t off
 std::string read_text(const std::string& path, std::uint64_t max_bytes);
 
 // zlib or gzip stream (auto-detected) into exactly `expected` bytes; InputError naming `what`
-// if the stream is corrupt, ends early, or holds more data than expected.
-void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected, const std::string& what);
+// if the stream is corrupt, ends early (a gzip stream must end with its CRC and length), or holds
+// more data than expected (allow_trailing: the rest is decoded, checked and dropped).
+void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected, const std::string& what,
+                   bool allow_trailing = false);
+// The first (at most) max_out bytes a zlib/gzip stream decodes to; fewer when it ends or breaks.
+std::vector<unsigned char> inflate_prefix(const unsigned char* src, std::size_t n, std::size_t max_out);
+// The same as inflate_exact for a bzip2 stream.
+void bunzip2_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected, const std::string& what);
+// Exactly `count` finite numbers separated by whitespace or commas (text-encoded data).
+std::vector<double> parse_values(std::string_view text, std::size_t count, const std::string& what);
 // The largest number of bytes a deflate stream of `compressed` bytes can expand to.
 inline std::uint64_t max_inflated_size(std::uint64_t compressed) { return compressed * 1040 + 1024; }
+
+// The whole number a header field holds; InputError naming `what` when it is not one or lies
+// outside [lo, hi] (a cast of 1e300 to an integer would be undefined).
+std::int64_t whole_number(double x, double lo, double hi, const std::string& what);
+
+// "name%03d.raw min max [step]" (MetaImage, NRRD): one file per slice. The pattern comes from the
+// file, so it is never used as a printf format: exactly one %d (optionally %0Nd, N ≤ 12) is
+// accepted, the range must name at most `slices` files, and the names are built by hand.
+std::vector<std::string> numbered_files(const std::string& pattern_and_range, std::int64_t slices, const std::string& what);
 
 void byteswap(unsigned char* data, std::size_t element_size, std::size_t count);
 bool host_is_little_endian();

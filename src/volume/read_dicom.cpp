@@ -16,6 +16,7 @@
 #include <set>
 
 #include "adaptiso/volume_io.hpp"
+#include "dicom_check.hpp"
 #include "io_util.hpp"
 
 namespace adaptiso {
@@ -55,18 +56,34 @@ struct Slice {
 }  // namespace
 
 Volume read_dicom_folder(const std::string& path) {
-  gdcm::Trace::WarningOff();  // GDCM prints a warning per tolerated quirk (e.g. padding after Pixel Data)
+  // GDCM prints a line per tolerated quirk or error; adaptiso's one-line messages say what matters.
+  gdcm::Trace::WarningOff();
   gdcm::Trace::DebugOff();
+  gdcm::Trace::ErrorOff();
   namespace fs = std::filesystem;
-  std::vector<std::string> files;
-  if (fs::is_directory(path)) {
-    for (const auto& e : fs::directory_iterator(path))
-      if (e.is_regular_file()) files.push_back(e.path().string());
-    if (files.empty()) throw InputError(fmt::format("{}: folder is empty (expected the DICOM files of one series)", path));
+  std::vector<std::string> candidates;
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) {
+    // error_code forms throughout: a symlink loop or an unreadable entry is skipped, not fatal.
+    for (fs::directory_iterator it(path, ec), end; !ec && it != end; it.increment(ec))
+      if (it->is_regular_file(ec) && !ec) candidates.push_back(it->path().string());
+    if (ec) throw InputError(fmt::format("{}: cannot list the folder ({})", path, ec.message()));
+    if (candidates.empty()) throw InputError(fmt::format("{}: folder is empty (expected the DICOM files of one series)", path));
   } else {
-    detail::file_size_or_throw(path);
-    files.push_back(path);
+    candidates.push_back(path);
   }
+  // Every file is walked before GDCM reads it (GDCM aborts on some corrupt files). A file that
+  // says it is DICOM must be whole; one that does not and fails the walk is not DICOM (a README).
+  std::vector<std::string> files;
+  for (const auto& f : candidates) {
+    const bool claims = detail::has_dicom_magic(f);
+    try {
+      if (detail::check_dicom_file(f).has_pixels) files.push_back(f);
+    } catch (const InputError&) {
+      if (claims || candidates.size() == 1) throw;
+    }
+  }
+  if (files.empty()) throw InputError(fmt::format("{}: holds no DICOM images", path));
   std::sort(files.begin(), files.end());
   const gdcm::Tag t_series(0x0020, 0x000e), t_ipp(0x0020, 0x0032), t_iop(0x0020, 0x0037);
   gdcm::Scanner scanner;

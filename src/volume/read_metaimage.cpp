@@ -71,7 +71,8 @@ Volume read_metaimage(const std::string& path) {
     auto it = kv.find(k);
     return it == kv.end() ? std::string{} : it->second;
   };
-  int ndims = kv.count("NDims") ? static_cast<int>(parse_number_list(get("NDims"), 1, path + ": NDims")[0]) : 3;
+  const auto ndims =
+      kv.count("NDims") ? detail::whole_number(parse_number_list(get("NDims"), 1, path + ": NDims")[0], 0, 100, path + ": NDims") : 3;
   if (ndims != 2 && ndims != 3) throw InputError(fmt::format("{}: NDims = {}; adaptiso reads 2D slices and 3D volumes", path, ndims));
   if (get("DimSize").empty()) throw InputError(fmt::format("{}: MetaImage header has no DimSize", path));
   auto ds = parse_number_list(get("DimSize"), ndims, path + ": DimSize");
@@ -88,7 +89,9 @@ Volume read_metaimage(const std::string& path) {
   const std::size_t bytes = checked_volume_bytes(dims, scalar_size(*type), path);
   const bool msb = is_true(get("ElementByteOrderMSB")) || is_true(get("BinaryDataByteOrderMSB"));
   const bool compressed = is_true(get("CompressedData"));
-  std::int64_t header_size = get("HeaderSize").empty() ? 0 : static_cast<std::int64_t>(parse_number_list(get("HeaderSize"), 1, path)[0]);
+  const std::int64_t header_size =
+      get("HeaderSize").empty() ? 0
+                                : detail::whole_number(parse_number_list(get("HeaderSize"), 1, path)[0], -1, 1e18, path + ": HeaderSize");
 
   // Data sources: LOCAL, one file, a LIST, or "format min max step".
   fs::path dir = fs::path(path).parent_path();
@@ -101,18 +104,7 @@ Volume read_metaimage(const std::string& path) {
   } else if (edf.rfind("LIST", 0) == 0) {
     for (auto& f : list_files) files.push_back(resolve(f));
   } else if (edf.find('%') != std::string::npos) {
-    auto sp = edf.find(' ');
-    if (sp == std::string::npos) throw InputError(fmt::format("{}: ElementDataFile format needs 'min max step'", path));
-    auto nums = parse_number_list(edf.substr(sp + 1), -1, path + ": ElementDataFile");
-    if (nums.size() < 2) throw InputError(fmt::format("{}: ElementDataFile format needs 'min max step'", path));
-    int lo = static_cast<int>(nums[0]), hi = static_cast<int>(nums[1]), st = nums.size() > 2 ? static_cast<int>(nums[2]) : 1;
-    if (st <= 0 || hi < lo || (hi - lo) / st > 1000000) throw InputError(fmt::format("{}: ElementDataFile range is invalid", path));
-    std::string fmtstr = edf.substr(0, sp);
-    for (int i = lo; i <= hi; i += st) {
-      char buf[4096];
-      std::snprintf(buf, sizeof buf, fmtstr.c_str(), i);
-      files.push_back(resolve(buf));
-    }
+    for (const auto& f : detail::numbered_files(edf, dims[ndims - 1], path + ": ElementDataFile")) files.push_back(resolve(f));
   } else {
     files.push_back(resolve(edf));
   }

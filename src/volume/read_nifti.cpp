@@ -5,6 +5,7 @@
 
 #include <fmt/format.h>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <mutex>
@@ -38,13 +39,84 @@ std::optional<ScalarType> from_nifti(int dt) {
       return std::nullopt;
   }
 }
+// The image's bytes, from the .nii after vox_offset or from the .img, gzip'ed or not; the gzip
+// stream must be whole (its length and CRC trailer checked).
+std::vector<unsigned char> image_bytes(const nifti_image& nim, std::size_t bytes, const std::string& path) {
+  const std::string img = nim.iname ? nim.iname : path;
+  const std::uint64_t on_disk = detail::file_size_or_throw(img);
+  if (nim.iname_offset < 0) throw InputError(fmt::format("{}: vox_offset is negative", path));
+  const auto offset = static_cast<std::uint64_t>(nim.iname_offset);
+  if (!detail::lower(img).ends_with(".gz")) {
+    if (offset > on_disk) throw InputError(fmt::format("{}: vox_offset {} is past the end of the file ({} bytes)", path, offset, on_disk));
+    return detail::read_bytes(img, offset, bytes);  // throws when the file is truncated
+  }
+  if (offset > detail::max_inflated_size(on_disk) || bytes > detail::max_inflated_size(on_disk) - offset)
+    throw InputError(fmt::format("{}: header says {} bytes of data but the compressed file can hold at most {}", path, bytes,
+                                 detail::max_inflated_size(on_disk)));
+  const auto compressed = detail::read_bytes(img, 0, on_disk);
+  std::vector<unsigned char> all(offset + bytes);
+  detail::inflate_exact(compressed.data(), compressed.size(), all.data(), all.size(), img, /*allow_trailing=*/true);
+  return std::vector<unsigned char>(all.begin() + static_cast<long>(offset), all.end());
+}
+
+// nifticlib recurses without end on a NIfTI-2 header cut short, prints its own errors on others,
+// and trusts the rest: the header's size, magic, dimensions and type are checked here first.
+void check_header(const std::string& path, std::uint64_t size) {
+  const bool gz = detail::lower(path).ends_with(".gz");
+  std::vector<unsigned char> h = detail::read_bytes(path, 0, std::min<std::uint64_t>(size, gz ? 1 << 16 : 540));
+  if (gz) h = detail::inflate_prefix(h.data(), h.size(), 540);
+  auto fail = [&](const std::string& why) { throw InputError(fmt::format("{}: not a valid NIfTI file ({})", path, why)); };
+  if (h.size() < 4) fail("shorter than its header");
+  std::int32_t sizeof_hdr;
+  std::memcpy(&sizeof_hdr, h.data(), 4);
+  const bool swap = sizeof_hdr != 348 && sizeof_hdr != 540;
+  if (swap) detail::byteswap(reinterpret_cast<unsigned char*>(&sizeof_hdr), 4, 1);
+  if (sizeof_hdr != 348 && sizeof_hdr != 540) fail(fmt::format("header size {} is neither 348 nor 540", sizeof_hdr));
+  if (h.size() < static_cast<std::size_t>(sizeof_hdr)) fail(fmt::format("the file ends inside its {}-byte header", sizeof_hdr));
+  auto get = [&](std::size_t at, auto value) {
+    std::memcpy(&value, &h[at], sizeof value);
+    if (swap) detail::byteswap(reinterpret_cast<unsigned char*>(&value), sizeof value, 1);
+    return static_cast<std::int64_t>(value);
+  };
+  const bool v2 = sizeof_hdr == 540;
+  const std::string magic(reinterpret_cast<const char*>(&h[v2 ? 4 : 344]), 4);
+  const bool analyze = !v2 && magic == std::string(4, '\0') && detail::lower(path).ends_with(".hdr");
+  if (!analyze && magic != (v2 ? std::string("n+2\0", 4) : std::string("n+1\0", 4)) &&
+      magic != (v2 ? std::string("ni2\0", 4) : std::string("ni1\0", 4)))
+    fail("bad magic");
+  const std::int64_t datatype = v2 ? get(12, std::int16_t{}) : get(70, std::int16_t{});
+  if (!from_nifti(static_cast<int>(datatype)))
+    throw InputError(fmt::format("{}: NIfTI datatype {} is not supported (8/16/32-bit integers, float32, float64)", path, datatype));
+  const std::int64_t ndim = v2 ? get(16, std::int64_t{}) : get(40, std::int16_t{});
+  if (ndim < 1 || ndim > 7) fail(fmt::format("dim[0] = {}", ndim));
+  for (int a = 1; a <= ndim; ++a) {
+    const std::int64_t d =
+        v2 ? get(16 + 8 * static_cast<std::size_t>(a), std::int64_t{}) : get(40 + 2 * static_cast<std::size_t>(a), std::int16_t{});
+    if (d < 1) fail(fmt::format("dim[{}] = {}", a, d));
+  }
+}
+
+// nifticlib looks for the .img beside a .hdr by opening candidates; a FIFO there would block it.
+void refuse_special_image_files(const std::string& path) {
+  namespace fs = std::filesystem;
+  const std::string l = detail::lower(path);
+  if (!l.ends_with(".hdr") && !l.ends_with(".hdr.gz")) return;
+  const std::string stem = path.substr(0, path.size() - (l.ends_with(".gz") ? 7 : 4));
+  for (const char* ext : {".img", ".img.gz", ".IMG", ".IMG.gz"}) {
+    std::error_code ec;
+    const auto st = fs::status(stem + ext, ec);
+    if (fs::exists(st)) detail::file_size_or_throw(stem + ext);  // refuses what is not a regular file
+  }
+}
+
 struct NimFree {
   void operator()(nifti_image* p) const { nifti_image_free(p); }
 };
 }  // namespace
 
 Volume read_nifti(const std::string& path) {
-  detail::file_size_or_throw(path);
+  check_header(path, detail::file_size_or_throw(path));
+  refuse_special_image_files(path);
   std::lock_guard lock(nifti_mutex);
   nifti_set_debug_level(0);
   std::unique_ptr<nifti_image, NimFree> nim(nifti_image_read(path.c_str(), 0));
@@ -57,23 +129,15 @@ Volume read_nifti(const std::string& path) {
       throw InputError(
           fmt::format("{}: NIfTI has {} dimensions with size > 1 beyond x,y,z; adaptiso reads 3D scalar volumes", path, nim->dim[0]));
   Dims dims{nim->nx, nim->ny, nim->dim[0] >= 3 ? nim->nz : 1};
-  std::size_t bytes = checked_volume_bytes(dims, scalar_size(*type), path);
-  // Bound the allocation by what the image file can hold.
-  std::string img = nim->iname ? nim->iname : path;
-  std::uint64_t on_disk = detail::file_size_or_throw(img);
-  bool gz = img.size() > 3 && img.ends_with(".gz");
-  std::uint64_t offset = static_cast<std::uint64_t>(std::max<std::int64_t>(nim->iname_offset, 0));
-  std::uint64_t avail = gz ? detail::max_inflated_size(on_disk) : (on_disk > offset ? on_disk - offset : 0);
-  if (bytes > avail)
-    throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the file holds only {} bytes", path, dims[0], dims[1], dims[2],
-                                 scalar_name(*type), bytes, avail));
-  if (nifti_image_load(nim.get()) != 0 || !nim->data) throw InputError(fmt::format("{}: NIfTI data is truncated or unreadable", path));
-
+  const std::size_t es = scalar_size(*type);
+  const std::size_t bytes = checked_volume_bytes(dims, es, path);
   Volume v;
   v.dims = dims;
   v.type = *type;
-  const auto* src = static_cast<const unsigned char*>(nim->data);
-  v.bytes.assign(src, src + bytes);
+  v.bytes = image_bytes(*nim, bytes, path);
+  // nifti_image_load would turn NaN/Inf into 0 silently; reading the bytes ourselves keeps them
+  // for check_finite to refuse, as for every other format.
+  if (es > 1 && nim->byteorder != nifti_short_order()) detail::byteswap(v.bytes.data(), es, bytes / es);
   check_finite(v, path);
 
   const double slope = nim->scl_slope, inter = nim->scl_inter;

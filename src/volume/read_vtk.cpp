@@ -102,6 +102,23 @@ Tag find_tag(const std::string& xml, const std::string& tag, std::size_t from, s
   return t;
 }
 
+// The compression header (block count, block size, last block's size) must describe exactly
+// `bytes`, computed without wrapping: sizes from the file are hostile until checked.
+void check_block_layout(std::uint64_t nb, std::uint64_t bs, std::uint64_t last, std::uint64_t max_blocks, std::uint64_t bytes,
+                        const std::string& path) {
+  auto corrupt = [&](const char* why) { throw InputError(fmt::format("{}: compression header is corrupt ({})", path, why)); };
+  if (nb > max_blocks) corrupt("more blocks than the data can hold");
+  if (nb == 0) {
+    if (bytes != 0) corrupt("no blocks");
+    return;
+  }
+  if (bs == 0) corrupt("block size 0");
+  if (last > bs) corrupt("last block larger than the block size");
+  std::uint64_t total = 0;
+  if (__builtin_mul_overflow(nb - 1, bs, &total) || __builtin_add_overflow(total, last ? last : bs, &total)) corrupt("sizes overflow");
+  if (total != bytes) throw InputError(fmt::format("{}: compressed array holds {} bytes, expected {}", path, total, bytes));
+}
+
 }  // namespace
 
 Volume read_vti(const std::string& path) {
@@ -200,9 +217,7 @@ Volume read_vti(const std::string& path) {
     }
     if (n < 3 * hs) throw InputError(fmt::format("{}: compression header is truncated", path));
     std::uint64_t nb = read_uint(p), bs = read_uint(p + hs), last = read_uint(p + 2 * hs);
-    if (nb > n / hs) throw InputError(fmt::format("{}: compression header is corrupt", path));
-    std::uint64_t total = nb == 0 ? 0 : (nb - 1) * bs + (last ? last : bs);
-    if (total != bytes) throw InputError(fmt::format("{}: compressed array holds {} bytes, expected {}", path, total, bytes));
+    check_block_layout(nb, bs, last, n / hs, bytes, path);
     std::size_t off = (3 + nb) * hs;
     if (off > n) throw InputError(fmt::format("{}: compression header is truncated", path));
     v.bytes.resize(bytes);
@@ -211,6 +226,7 @@ Volume read_vti(const std::string& path) {
       std::uint64_t cs = read_uint(p + (3 + b) * hs);
       std::uint64_t want_out = (b + 1 == nb && last) ? last : bs;
       if (cs > n - off) throw InputError(fmt::format("{}: compressed block {} is truncated", path, b));
+      if (want_out > bytes - out) throw InputError(fmt::format("{}: compressed block {} runs past the array", path, b));
       detail::inflate_exact(p + off, cs, v.bytes.data() + out, want_out, path);
       off += cs;
       out += want_out;
@@ -219,9 +235,8 @@ Volume read_vti(const std::string& path) {
 
   if (format == "ascii") {
     if (arr_close == std::string::npos) throw InputError(fmt::format("{}: unterminated DataArray", path));
-    auto nums = parse_number_list(std::string_view(text).substr(arr.end, arr_close - arr.end), -1, path);
-    if (nums.size() != static_cast<std::size_t>(v.voxel_count()))
-      throw InputError(fmt::format("{}: ascii array has {} values, expected {}", path, nums.size(), v.voxel_count()));
+    auto nums =
+        detail::parse_values(std::string_view(text).substr(arr.end, arr_close - arr.end), static_cast<std::size_t>(v.voxel_count()), path);
     v.bytes.assign(bytes, 0);
     for (std::size_t i = 0; i < nums.size(); ++i) v.set(static_cast<std::int64_t>(i), nums[i]);
   } else if (format == "binary") {
@@ -265,7 +280,7 @@ Volume read_legacy_vtk(const std::string& path) {
     std::size_t e = pos;
     while (e < head.size() && head[e] != '\n') ++e;
     std::string l(head.begin() + static_cast<long>(pos), head.begin() + static_cast<long>(e));
-    pos = e + 1;
+    pos = std::min(e + 1, head.size());  // the last line may lack its newline
     return detail::trim(l);
   };
   auto l0 = next_line();
@@ -332,9 +347,13 @@ Volume read_legacy_vtk(const std::string& path) {
   } else {
     if (bytes > fsize * es) throw InputError(fmt::format("{}: file too short for {} values", path, v.voxel_count()));
     std::string t = detail::read_text(path, fsize);
+    // Other attributes may follow the scalars: read the first voxel_count values.
     auto nums = parse_number_list(std::string_view(t).substr(pos), -1, path);
     if (nums.size() < static_cast<std::size_t>(v.voxel_count()))
       throw InputError(fmt::format("{}: file is truncated: {} of {} values", path, nums.size(), v.voxel_count()));
+    nums.resize(static_cast<std::size_t>(v.voxel_count()));
+    for (std::size_t i = 0; i < nums.size(); ++i)
+      if (!std::isfinite(nums[i])) throw InputError(fmt::format("{}: value {} is not finite", path, i));
     v.bytes.assign(bytes, 0);
     for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, nums[static_cast<std::size_t>(i)]);
   }

@@ -1,5 +1,6 @@
 // Built-in volumes (see synthetic.hpp); the sphere follows Lürig & Ertl §3.
 #include "adaptiso/synthetic.hpp"
+#include "util/memory.hpp"
 
 #include <tbb/parallel_for.h>
 
@@ -17,6 +18,8 @@ ScalarType synthetic_default_type(const std::string& name) { return name == "sph
 
 Volume make_synthetic(const std::string& name, std::int64_t n, ScalarType type) {
   if (n < 2 || n > 4096) throw OptionError("size", fmt::format("{} must be between 2 and 4096", n));
+  const auto bytes = static_cast<std::uint64_t>(n) * n * n * scalar_size(type);
+  detail::check_memory(bytes, fmt::format("a {}³ {} volume", n, scalar_name(type)), "size", "give a smaller size");
   Volume v = make_volume({n, n, n}, type);
   const bool is_int = type != ScalarType::f32 && type != ScalarType::f64;
   const double c = (n - 1) / 2.0;

@@ -99,7 +99,7 @@ void Volume::set(std::int64_t linear, double v) {
   visit_values(*this, [&]<class T>(std::span<const T>) {
     T* p = reinterpret_cast<T*>(bytes.data()) + linear;
     if constexpr (std::is_integral_v<T>) {
-      double r = std::round(v);
+      double r = std::isnan(v) ? 0.0 : std::round(v);  // a cast of NaN to an integer is undefined
       r = std::clamp(r, static_cast<double>(std::numeric_limits<T>::lowest()), static_cast<double>(std::numeric_limits<T>::max()));
       *p = static_cast<T>(r);
     } else {

@@ -2,6 +2,8 @@
 // fields, outputs named per iso-value, nothing written on failure.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cstdlib>
@@ -9,6 +11,7 @@
 #include <functional>
 #include <nlohmann/json.hpp>
 
+#include "adaptiso/grid_file.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/volume_io.hpp"
 #include "data_sets.hpp"
@@ -462,5 +465,106 @@ TEST(Cli, TheSameInputAndOptionsGiveTheSameBytes) {
         EXPECT_EQ(testutil::read_bytes(t / (std::string(grid) + "0.ply")), testutil::read_bytes(t / (std::string(grid) + "1.ply"))) << grid;
         EXPECT_EQ(testutil::read_bytes(t / (std::string(grid) + "0.adg")), testutil::read_bytes(t / (std::string(grid) + "1.adg"))) << grid;
       }
+    }
+}
+
+// ---------------- Hostile arguments and outputs that never destroy (issue 21) ----------------
+
+TEST(HostileArguments, GenerateTooLargeForMemoryIsRefusedUpFrontNamingSize) {
+  TempDir t("hostile");
+  // Whatever this machine has, 16 GB do not fit a 1 GB cap.
+  std::string cmd = "ADAPTISO_MEMORY_LIMIT=1000000000 " + std::string(ADAPTISO_CLI) + " generate sphere --size 2000 -o " + (t / "s.nrrd") +
+                    " > " + (t / "out") + " 2> " + (t / "err");
+  const int rc = std::system(cmd.c_str());
+  ASSERT_TRUE(WIFEXITED(rc));
+  EXPECT_EQ(WEXITSTATUS(rc), 2);
+  const std::string err = testutil::read_bytes(t / "err");
+  EXPECT_NE(err.find("--size"), std::string::npos) << err;
+  EXPECT_NE(err.find("GB"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(t / "s.nrrd"));
+}
+
+TEST(HostileArguments, OverlongOutputPathIsExit2NotInternalError) {
+  TempDir t("hostile");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "s.nrrd")).code, 0);
+  const auto r = testutil::run_cli("generate sphere --size 8 -o " + (t / std::string(5000, 'x')) + ".nrrd");
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_EQ(r.err.find("internal error"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+}
+
+TEST(HostileArguments, IsoWithANewlineGivesOneLine) {
+  TempDir t("hostile");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "s.nrrd")).code, 0);
+  const auto r = testutil::run_cli("mc " + (t / "s.nrrd") + " --iso \"$(printf '5\\n00')\" -o " + (t / "m.ply"));
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+}
+
+TEST(HostileArguments, SubnormalIsoIsAcceptedAndNanVoxelIsRefused) {
+  TempDir t("hostile");
+  ASSERT_EQ(testutil::run_cli("generate linear --size 8 -o " + (t / "s.nrrd")).code, 0);
+  EXPECT_EQ(testutil::run_cli("mc " + (t / "s.nrrd") + " --iso 1e-320 --quiet -o " + (t / "m.ply")).code, 0);
+  const auto r = testutil::run_cli("compare " + (t / "m.ply") + " " + (t / "m.ply") + " --voxel nan");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("--voxel"), std::string::npos) << r.err;
+  EXPECT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error inf -o " + (t / "g.adg")).code, 2);
+}
+
+TEST(HostileArguments, GridRangeOfPlusMinus1e308WithRelativeNamesTheFileAndOption) {
+  TempDir t("hostile");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --quiet -o " + (t / "g.adg")).code, 0);
+  PreparedGrid p = load_grid(t / "g.adg");
+  p.grid.source.min = -1e308;
+  p.grid.source.max = 1e308;
+  save_grid(p, t / "wide.adg");
+  const auto r = testutil::run_cli("extract " + (t / "wide.adg") + " --relative --iso 0.5 -o " + (t / "m.ply"));
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("wide.adg"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("--iso"), std::string::npos) << r.err;
+}
+
+TEST(OutputsNeverDestroy, FifoOrFolderAtTheOutputIsRefusedNotReplaced) {
+  TempDir t("hostile");
+  ASSERT_EQ(mkfifo((t / "fifo.nrrd").c_str(), 0600), 0);
+  std::filesystem::create_directory(t / "dir.nrrd");
+  for (const char* name : {"fifo.nrrd", "dir.nrrd"}) {
+    const auto r = testutil::run_cli("generate sphere --size 8 -o " + (t / name));
+    EXPECT_EQ(r.code, 2) << r.err;
+    EXPECT_NE(r.err.find("not a regular file"), std::string::npos) << r.err;
+  }
+  EXPECT_TRUE(std::filesystem::is_fifo(t / "fifo.nrrd"));
+  EXPECT_TRUE(std::filesystem::is_directory(t / "dir.nrrd"));
+  if (geteuid() == 0 && std::filesystem::exists("/dev/full")) {  // the device the probe replaced
+    EXPECT_EQ(testutil::run_cli("generate sphere --size 8 -o /dev/full").code, 2);
+    EXPECT_TRUE(std::filesystem::is_character_file("/dev/full"));
+  }
+}
+
+TEST(OutputsNeverDestroy, SymlinkIsWrittenThroughAndModeIsKept) {
+  TempDir t("hostile");
+  testutil::write_bytes(t / "target.nrrd", "old");
+  ASSERT_EQ(chmod((t / "target.nrrd").c_str(), 0600), 0);
+  std::filesystem::create_symlink("target.nrrd", t.path / "link.nrrd");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "link.nrrd")).code, 0);
+  EXPECT_TRUE(std::filesystem::is_symlink(t.path / "link.nrrd"));
+  EXPECT_GT(std::filesystem::file_size(t / "target.nrrd"), 100u);
+  struct stat st {};
+  ASSERT_EQ(stat((t / "target.nrrd").c_str(), &st), 0);
+  EXPECT_EQ(st.st_mode & 0777, 0600u);
+}
+
+TEST(OutputsNeverDestroy, InterruptedWritesLeaveNoTemporaryFiles) {
+  TempDir t("hostile");
+  // SIGINT and SIGTERM at several moments of a write of about 100 MB: whenever they land, no
+  // hidden temporary file may stay behind.
+  for (const char* sig : {"INT", "TERM"})
+    for (double delay : {0.2, 0.5, 1.0}) {
+      const std::string cmd = fmt::format("{} generate noise --size 300 --type float32 -o {} & p=$!; sleep {}; kill -{} $p; wait $p",
+                                          ADAPTISO_CLI, t / "n.nrrd", delay, sig);
+      std::system(cmd.c_str());
+      for (const auto& e : std::filesystem::directory_iterator(t.path))
+        EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << sig << " after " << delay << " s: " << e.path();
     }
 }

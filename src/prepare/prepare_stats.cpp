@@ -1,0 +1,75 @@
+// PrepareStats as JSON (see prepare.hpp): what prepare measured, stored in grid files and printed
+// by --json. Apart from prepare.cpp so the grid file loader (and its fuzz target) needs no
+// grid builder.
+#include <limits>
+#include <nlohmann/json.hpp>
+
+#include "adaptiso/prepare.hpp"
+
+namespace adaptiso {
+
+double PrepareStats::seconds(const std::string& stage) const {
+  for (const auto& s : stages)
+    if (s.name == stage) return s.seconds;
+  return 0;
+}
+
+std::string to_json(const PrepareStats& s) {
+  nlohmann::json seconds = nlohmann::json::object(), peak = nlohmann::json::object();
+  for (const auto& st : s.stages) {
+    seconds[st.name] = st.seconds;
+    peak[st.name] = st.peak_bytes;
+  }
+  nlohmann::json j = {{"grid", s.grid},
+                      {"voxels", s.voxels},
+                      {"kept", s.kept},
+                      {"ratio", s.voxels ? static_cast<double>(s.kept) / static_cast<double>(s.voxels) : 0.0},
+                      {"tetrahedra", s.tetrahedra},
+                      {"max_error", s.max_error},
+                      {"threshold", s.threshold},
+                      {"index_depth", s.index_depth},
+                      {"grid_bytes_per_vertex", s.grid_bytes_per_vertex},
+                      {"seconds", seconds},
+                      {"peak_bytes", peak}};
+  if (s.error_bound >= 0) j["error_bound"] = s.error_bound;
+  if (s.max_displacement > 0) j["max_displacement"] = s.max_displacement;
+  if (s.pl_max_error >= 0) {
+    j["pl_max_error"] = s.pl_max_error;
+    j["pl_rms_error"] = s.pl_rms_error;
+  }
+  return j.dump();
+}
+
+PrepareStats prepare_stats_from_json(const std::string& text) {
+  PrepareStats s;
+  const auto j = nlohmann::json::parse(text, nullptr, false);
+  if (j.is_discarded() || !j.is_object()) return s;
+  auto get = [&](const char* key, auto& out) {
+    if (auto it = j.find(key); it != j.end() && (it->is_number() || it->is_boolean())) out = it->get<std::decay_t<decltype(out)>>();
+  };
+  if (auto it = j.find("grid"); it != j.end() && it->is_string()) s.grid = it->get<std::string>();
+  get("voxels", s.voxels);
+  get("kept", s.kept);
+  get("tetrahedra", s.tetrahedra);
+  get("max_error", s.max_error);
+  if (auto it = j.find("max_error"); it != j.end() && it->is_null())
+    s.max_error = std::numeric_limits<double>::infinity();  // no error criterion
+  get("threshold", s.threshold);
+  get("error_bound", s.error_bound);
+  get("max_displacement", s.max_displacement);
+  get("pl_max_error", s.pl_max_error);
+  get("pl_rms_error", s.pl_rms_error);
+  get("index_depth", s.index_depth);
+  get("grid_bytes_per_vertex", s.grid_bytes_per_vertex);
+  if (auto it = j.find("seconds"); it != j.end() && it->is_object())
+    for (auto st = it->begin(); st != it->end(); ++st) {
+      if (!st->is_number()) continue;
+      StageStats stage{st.key(), st->get<double>(), 0};
+      if (auto p = j.find("peak_bytes"); p != j.end() && p->is_object() && p->contains(st.key()) && (*p)[st.key()].is_number_unsigned())
+        stage.peak_bytes = (*p)[st.key()].get<std::uint64_t>();
+      s.stages.push_back(stage);
+    }
+  return s;
+}
+
+}  // namespace adaptiso

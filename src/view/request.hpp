@@ -1,0 +1,30 @@
+// Internal: the viewer's request parameters, parsed and checked before a handler uses them. Kept
+// apart from the server so a fuzzer can drive them with any query string (fuzz/fuzz_request.cpp).
+#pragma once
+#include <map>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+namespace adaptiso::detail {
+
+// A malformed request: the server answers 400 with the message.
+struct BadRequest : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+// The decoded query parameters (httplib::Params is this multimap; the first value of a name counts).
+using QueryParams = std::multimap<std::string, std::string>;
+
+// iso=: a finite number, required.
+double parse_iso(const QueryParams& params);
+// An optional non-negative number parameter (error=, budget=, simplify=).
+std::optional<double> parse_optional(const QueryParams& params, const char* name);
+// format=plain (the default) or format=compact (mesh_codec.hpp) for /api/surface.
+bool compact_format(const QueryParams& params);
+// format=glb (the default) or format=ply for /api/export.
+std::string export_format(const QueryParams& params);
+// client=: 1-64 letters, digits, '-' or '_'; "default" when absent.
+std::string client_id(const QueryParams& params);
+
+}  // namespace adaptiso::detail
