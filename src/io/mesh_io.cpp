@@ -320,8 +320,9 @@ Mesh read_ply(const std::string& path) {
       for (std::uint64_t i = 0; i < e.count; ++i) {
         for (std::size_t k = 0; k < e.props.size(); ++k) {
           if (!e.props[k].count_type.empty()) {
-            auto n = static_cast<std::uint64_t>(r.read(e.props[k].count_type));
-            if (n > 1000) fail("list too long");
+            const double count = r.read(e.props[k].count_type);
+            if (!(count >= 0 && count <= 1000)) fail("bad list length");  // checked before the cast: 1e28 has no integer
+            const auto n = static_cast<std::uint64_t>(count);
             for (std::uint64_t q = 0; q < n; ++q) r.read(e.props[k].type);
             rec[k] = 0;
           } else {

