@@ -176,6 +176,10 @@ DicomSummary check_dicom_file(const std::string& file) {
   if (!s.has_pixels) return s;  // a DICOMDIR or report: not an image, the caller skips it
   if ((s.has_intercept || s.slope) && !(s.slope && *s.slope != 0 && std::isfinite(*s.slope)))
     throw InputError(fmt::format("{}: DICOM RescaleIntercept without a usable RescaleSlope (it must be a non-zero number)", file));
+  // GDCM asserts on other sample counts; adaptiso reads grey-scale images of whole bytes.
+  if (s.samples != 1) throw InputError(fmt::format("{}: {} samples per pixel; adaptiso reads grey-scale images", file, s.samples));
+  if (s.bits_allocated != 8 && s.bits_allocated != 16 && s.bits_allocated != 32 && s.bits_allocated != 64)
+    throw InputError(fmt::format("{}: BitsAllocated {} is not supported (8, 16, 32 or 64)", file, s.bits_allocated));
   const std::uint64_t image =
       std::uint64_t{s.rows} * s.columns * s.frames * std::max<std::uint32_t>(s.samples, 1) * ((s.bits_allocated + 7) / 8);
   if (image == 0)

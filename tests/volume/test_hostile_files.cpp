@@ -357,3 +357,13 @@ TEST(HostilePly, ListCountBeyondAnyIntegerIsRefusedNotCast) {
                         "property float z\nend_header\n7.5e28 1 2 3\n");
   EXPECT_THROW(read_ply(t / "m.ply"), InputError);
 }
+
+TEST(HostileDicom, SamplesPerPixelOtherThanOneIsRefusedNotAGdcmAssert) {
+  TempDir t("hostile");
+  std::string b = minimal_dicom("", "");
+  const auto at = b.find(std::string("\x28\x00\x02\x00US\x02\x00", 8));
+  ASSERT_NE(at, std::string::npos);
+  b[at + 8] = 7;  // SamplesPerPixel 7
+  testutil::write_bytes(t / "s.dcm", b);
+  expect_refused(t / "s.dcm", "s.dcm", "samples per pixel");
+}
