@@ -87,7 +87,7 @@ struct NrrdHeader {
 std::vector<std::string> header_lines(const std::vector<unsigned char>& head, bool whole_file, std::uint64_t& data_offset,
                                       const std::string& path) {
   std::vector<std::string> lines;
-  std::size_t pos = 0;
+  std::size_t pos = 0, number = 0;
   while (true) {
     if (pos >= head.size()) {
       if (!whole_file) throw InputError(fmt::format("{}: NRRD header has no blank line within its first MiB", path));
@@ -103,12 +103,16 @@ std::vector<std::string> header_lines(const std::vector<unsigned char>& head, bo
       data_offset = std::min(pos, head.size());
       return lines;
     }
-    if (line.size() > kMaxLineChars)
-      throw InputError(fmt::format("{}: NRRD header line {} is longer than {} characters", path, lines.size() + 1, kMaxLineChars));
+    ++number;
     for (char c : line)
       if (static_cast<unsigned char>(c) < 0x20 && c != '\t')
-        throw InputError(
-            fmt::format("{}: NRRD header line {} holds a control character (binary data in the header?)", path, lines.size() + 1));
+        throw InputError(fmt::format("{}: NRRD header line {} holds a control character (binary data in the header?)", path, number));
+    // Comments and key:=value pairs (Slicer writes long ones) mean nothing to adaptiso: teem never
+    // sees them, so they need no length limit.
+    const auto colon = line.find(':');
+    if (line.starts_with("#") || (colon != std::string::npos && colon + 1 < line.size() && line[colon + 1] == '=')) continue;
+    if (line.size() > kMaxLineChars)
+      throw InputError(fmt::format("{}: NRRD header line {} is longer than {} characters", path, number, kMaxLineChars));
     lines.push_back(std::move(line));
   }
 }

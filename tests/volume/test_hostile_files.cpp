@@ -115,6 +115,15 @@ TEST(HostileNrrd, LongHeaderLinesAreRefusedBeforeTeem) {
   expect_refused(t / "df.nhdr", "df.nhdr", "longer than");
 }
 
+TEST(HostileNrrd, LongCommentsAndKeyValuePairsStillRead) {
+  TempDir t("hostile");
+  const Volume ref = testutil::pattern_volume({8, 8, 8}, ScalarType::i16);
+  testutil::write_bytes(t / "kv.nrrd", nrrd_header("# " + std::string(3000, 'c') +
+                                                   "\nSegmentation_ConversionParameters:=" + std::string(3000, 'v') + "\n\n") +
+                                           testutil::bytes_of(ref));
+  expect_same(read_volume(t / "kv.nrrd"), ref);
+}
+
 TEST(HostileNrrd, WideOrForeignDataFilePatternIsRefused) {
   TempDir t("hostile");
   for (const char* p : {"x%5000d 1 8 1", "x%s 1 8 1", "x%n%d 1 8 1"}) {
