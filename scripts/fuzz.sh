@@ -51,6 +51,8 @@ run_one() {
   mkdir -p "$BUILD/corpus/$t"
   local args=("$BUILD/corpus/$t" "$BUILD/seeds/$t" -max_total_time="$SECS" -timeout=10 -rss_limit_mb=2560 -malloc_limit_mb=1024
               -artifact_prefix="$BUILD/artifacts/$t-" -print_final_stats=1)
+  # A fixed seed (ADAPTISO_FUZZ_SEED) makes a short run repeat the same inputs, as CI needs.
+  [ -z "${ADAPTISO_FUZZ_SEED:-}" ] || args+=(-seed="$ADAPTISO_FUZZ_SEED")
   [ -z "$d" ] || args+=(-dict="$ROOT/fuzz/dict/$d.dict")
   # Each run in its own folder: the targets write their inputs to temporary files there.
   local work rc=0

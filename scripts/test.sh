@@ -21,4 +21,4 @@ export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktra
 export LSAN_OPTIONS=suppressions=$(pwd)/tests/lsan.supp:print_suppressions=0
 (cd build/asan && ctest --output-on-failure --no-tests=error -j "$JOBS" --timeout 1800)
 echo "== fuzzing (a short run of every target; scripts/fuzz.sh SECONDS for a longer one)"
-./scripts/fuzz.sh "${ADAPTISO_FUZZ_SECONDS:-15}"
+ADAPTISO_FUZZ_SEED=${ADAPTISO_FUZZ_SEED:-1} ./scripts/fuzz.sh "${ADAPTISO_FUZZ_SECONDS:-15}"

@@ -54,6 +54,48 @@ bool known_vr(const std::string& vr) {
   return std::any_of(std::begin(names), std::end(names), [&](const char* n) { return vr == n; });
 }
 
+// The VR GDCM expects of the elements it reads into typed attributes; it asserts on any other.
+const char* expected_vr(std::uint16_t group, std::uint16_t element) {
+  const std::uint32_t tag = static_cast<std::uint32_t>(group) << 16 | element;
+  switch (tag) {
+    case 0x00020002:
+    case 0x00020003:
+    case 0x00020010:
+    case 0x00080016:
+    case 0x00080018:
+    case 0x0020000d:
+    case 0x0020000e:
+      return "UI";
+    case 0x00080060:
+    case 0x00280004:
+      return "CS";
+    case 0x00180050:
+    case 0x00180088:
+    case 0x00200032:
+    case 0x00200037:
+    case 0x00280030:
+    case 0x00281050:
+    case 0x00281051:
+    case 0x00281052:
+    case 0x00281053:
+      return "DS";
+    case 0x00200013:
+    case 0x00280008:
+      return "IS";
+    case 0x00280002:
+    case 0x00280006:
+    case 0x00280010:
+    case 0x00280011:
+    case 0x00280100:
+    case 0x00280101:
+    case 0x00280102:
+    case 0x00280103:
+      return "US";
+    default:
+      return nullptr;
+  }
+}
+
 bool long_vr(const std::string& vr) {
   static const char* names[] = {"OB", "OD", "OF", "OL", "OV", "OW", "SQ", "SV", "UC", "UN", "UR", "UT", "UV"};
   return std::any_of(std::begin(names), std::end(names), [&](const char* n) { return vr == n; });
@@ -69,6 +111,8 @@ Element read_element(const Reader& r, std::size_t at) {
     e.vr.assign(reinterpret_cast<const char*>(&r.b[at + 4]), 2);
     // GDCM guesses (and can loop) when an explicit-VR file holds an unknown VR; refuse it first.
     if (!known_vr(e.vr)) r.fail(fmt::format("element ({:04x},{:04x}) has no valid VR", e.group, e.element), at);
+    if (const char* vr = expected_vr(e.group, e.element); vr && e.vr != vr)
+      r.fail(fmt::format("element ({:04x},{:04x}) has VR {}, not {}", e.group, e.element, e.vr, vr), at);
     if (long_vr(e.vr)) {
       e.length = r.u32(at + 8);
       e.value = at + 12;

@@ -376,3 +376,17 @@ TEST(HostileDicom, SamplesPerPixelOtherThanOneIsRefusedNotAGdcmAssert) {
   testutil::write_bytes(t / "s.dcm", b);
   expect_refused(t / "s.dcm", "s.dcm", "samples per pixel");
 }
+
+TEST(HostileDicom, RescaleSlopeWithAnotherVrIsRefusedNotAGdcmAssert) {
+  TempDir t("hostile");
+  std::string b = minimal_dicom("0", "1");
+  const auto at =
+      b.find(std::string("\x28\x00\x53\x10"
+                         "DS",
+                         6));
+  ASSERT_NE(at, std::string::npos);
+  b[at + 4] = 'L';
+  b[at + 5] = 'O';
+  testutil::write_bytes(t / "vr.dcm", b);
+  expect_refused(t / "vr.dcm", "vr.dcm", "has VR LO, not DS");
+}
