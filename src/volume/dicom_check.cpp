@@ -5,6 +5,9 @@
 #include "dicom_check.hpp"
 
 #include <fmt/format.h>
+#include <gdcmDicts.h>
+#include <gdcmGlobal.h>
+#include <gdcmVR.h>
 
 #include <algorithm>
 #include <cmath>
@@ -113,6 +116,12 @@ Element read_element(const Reader& r, std::size_t at) {
     if (!known_vr(e.vr)) r.fail(fmt::format("element ({:04x},{:04x}) has no valid VR", e.group, e.element), at);
     if (const char* vr = expected_vr(e.group, e.element); vr && e.vr != vr)
       r.fail(fmt::format("element ({:04x},{:04x}) has VR {}, not {}", e.group, e.element, e.vr, vr), at);
+    // GDCM asserts when an element it reads as a typed attribute has a VR its dictionary does not
+    // allow; every public element is held to that dictionary.
+    const gdcm::VR dict = gdcm::Global::GetInstance().GetDicts().GetDictEntry(gdcm::Tag(e.group, e.element)).GetVR();
+    const gdcm::VR file = gdcm::VR::GetVRType(e.vr.c_str());
+    if (dict != gdcm::VR::INVALID && dict != gdcm::VR::UN && file != gdcm::VR::UN && !dict.Compatible(file))
+      r.fail(fmt::format("element ({:04x},{:04x}) has VR {}, not {}", e.group, e.element, e.vr, gdcm::VR::GetVRString(dict)), at);
     if (long_vr(e.vr)) {
       e.length = r.u32(at + 8);
       e.value = at + 12;
