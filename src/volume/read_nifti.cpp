@@ -56,7 +56,8 @@ std::vector<unsigned char> image_bytes(const nifti_image& nim, std::size_t bytes
   const auto compressed = detail::read_bytes(img, 0, on_disk);
   std::vector<unsigned char> all(offset + bytes);
   detail::inflate_exact(compressed.data(), compressed.size(), all.data(), all.size(), img, /*allow_trailing=*/true);
-  return std::vector<unsigned char>(all.begin() + static_cast<long>(offset), all.end());
+  all.erase(all.begin(), all.begin() + static_cast<long>(offset));  // the header: no second copy of the data
+  return all;
 }
 
 // nifticlib recurses without end on a NIfTI-2 header cut short, prints its own errors on others,

