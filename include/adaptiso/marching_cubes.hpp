@@ -9,8 +9,10 @@
 // The case table is generated, not typed in: on each cube face the contour joins the face's cut
 // edges, and on a face with two diagonal corners above the iso-value the contour cuts those two
 // corners off (above corners are separated). Both cubes sharing a face decide it the same way, so
-// the surface has no cracks. The classic table (VTK's) decides ambiguous faces per cube instead,
-// so triangle counts can differ from VTK's in cubes with an ambiguous face; nowhere else.
+// the surface has no cracks. Each closed contour is fanned from its lowest-numbered edge. The
+// classic table (scikit-image's method="lorensen") groups the cut edges of all 254 configurations
+// into the same pieces (tested), so triangle counts and vertices agree; it triangulates a piece of
+// 5 to 7 cut edges per case instead, which moves the area of a noisy surface by about 0.5 %.
 #pragma once
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/volume.hpp"

@@ -134,6 +134,38 @@ def test_marching_cubes_matches_scikit_image_on_a_smooth_field():
         assert len(ours) == 4 and ours[3].shape == (ours[0].shape[0],)
 
 
+def surface_pieces(verts, faces):
+    """The surface's connected pieces, each as the sorted tuple of its vertices' rounded positions."""
+    parent = list(range(len(verts)))
+
+    def find(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a, b, c in faces.astype(np.int64):
+        parent[find(b)] = find(a)
+        parent[find(c)] = find(a)
+    pieces = {}
+    for i, p in enumerate(np.round(verts * 2) / 2):
+        pieces.setdefault(find(i), []).append(tuple(p))
+    return sorted(tuple(sorted(p)) for p in pieces.values())
+
+
+def test_marching_cubes_connects_every_cube_configuration_as_scikit_image():
+    # All 254 cut configurations of one cube, corners 0 or 1 at level 0.5: the same triangle count
+    # and the same cut edges grouped into the same surface pieces as the classic table (ambiguous
+    # faces included). Only the triangulation of a piece with 5 to 7 cut edges may differ.
+    skimage = pytest.importorskip("skimage.measure")
+    for mask in range(1, 255):
+        a = np.array([(mask >> c) & 1 for c in range(8)], dtype=np.float32).reshape(2, 2, 2)
+        ours = adaptiso.marching_cubes(a, 0.5)
+        theirs = skimage.marching_cubes(a, 0.5, method="lorensen")
+        assert ours[1].shape == theirs[1].shape, mask
+        assert surface_pieces(ours[0], ours[1]) == surface_pieces(theirs[0], theirs[1]), mask
+
+
 @pytest.mark.skipif(not os.path.isdir(DATA), reason=f"no shared data at {DATA}")
 def test_marching_cubes_matches_scikit_image_on_a_real_volume():
     skimage = pytest.importorskip("skimage.measure")
@@ -144,10 +176,14 @@ def test_marching_cubes_matches_scikit_image_on_a_real_volume():
     spacing = tuple(v.spacing[::-1])
     ours = adaptiso.marching_cubes(v.array, 200.5, spacing=spacing)
     theirs = skimage.marching_cubes(v.array, 200.5, spacing=spacing, method="lorensen")
-    # The same triangle count and vertices; cubes with an ambiguous face are split by one
-    # consistent rule here and per cube by the classic table, which moves the area by < 1 %.
+    # The same triangle count and the same vertices, up to the 1/1024 of an edge that keeps a
+    # vertex off the corners here.
     assert ours[1].shape == theirs[1].shape
-    assert np.allclose(np.sort(ours[0], axis=0), np.sort(theirs[0], axis=0), atol=1e-3)
+    o, t = ours[0][np.lexsort(ours[0].T)], theirs[0][np.lexsort(theirs[0].T)]
+    assert o.shape == t.shape and np.abs(o - t).max() < max(spacing) / 512
+    # Pieces with 5 to 7 cut edges are fanned from one corner here and triangulated per case by the
+    # classic table there, which moves the area of this noisy surface by about 0.6 % (both lie 2.5 to
+    # 3 % above the area of the trilinear interpolant's surface: docs/RESULTS.md).
     assert abs(area(ours[0], ours[1]) / area(theirs[0], theirs[1]) - 1) < 0.01
 
 
