@@ -2,7 +2,7 @@
 """Simplified exports against the peer (issue "Meshes worth exporting"): for each volume and
 iso-value, adaptiso's surface from a prepared grid simplified with --simplify D, against
 full-resolution marching cubes simplified by the same meshoptimizer simplifier (`adaptiso mc
---simplify D`: the surface flying edges gives, up to how 5- to 7-edge pieces are triangulated,
+--simplify D`: the surface flying edges gives, up to how 4- to 7-edge pieces are triangulated,
 and the simplifier the peer "flying edges + meshoptimizer" uses), in one run. Per row: triangles, mean / 95th percentile
 symmetric distance to the full-resolution surface (voxels of the smallest spacing, `adaptiso
 compare`), and the seconds of extraction + simplification (the tool's own timings, no file I/O).

@@ -9,6 +9,16 @@ const params = new URLSearchParams(location.search);
 // While the iso slider is dragged the server picks the level of detail that fits this many
 // triangles (?budget=N); the surface at the chosen error follows when the slider rests.
 const budget = Number(params.get('budget')) || 150000;
+// The page's starting state can come from the address too (scripts/figures.sh draws the paper's
+// figures this way): ?iso=V (data units), &error=E (data units, at rest), &show=surface,points,
+// tets,reference, &reference=side|overlay, &camera=X,Y,Z (direction from the centre to the eye),
+// &up=X,Y,Z (the screen's up, default +z), &panel=hide. Once the first surface and every layer asked for are drawn, <body data-ready="1">.
+const startIso = params.has('iso') ? Number(params.get('iso')) : NaN;
+const startError = params.has('error') ? Number(params.get('error')) : NaN;
+const startShow = params.has('show') ? params.get('show').split(',') : null;
+const startCamera = (params.get('camera') || '').split(',').map(Number);
+const startUp = (params.get('up') || '').split(',').map(Number);
+const givenVector = (v) => v.length === 3 && v.every(Number.isFinite) && v.some((c) => c !== 0);
 // Every surface shown, with its timings, for scripts and the browser benchmark.
 const record = (window.adaptisoSurfaces = []);
 const canvas = $('view');
@@ -185,8 +195,11 @@ async function pump() {
                   request: t1 - t0, server: 1000 * stats.extract, decode: t2 - t1, draw: t3 - t2, fromInput: t2 - input,
                   fromInputDrawn: t3 - input, at: t3 });
     updateStats();
-    if ($('show-tets').checked) loadTetrahedra(iso);
-    if ($('show-reference').checked) loadReference(iso);
+    const layers = [];
+    if ($('show-tets').checked) layers.push(loadTetrahedra(iso));
+    if ($('show-reference').checked) layers.push(loadReference(iso));
+    await Promise.all(layers);
+    document.body.dataset.ready = '1';
   } catch (e) {
     showStatus(`error: ${e.message}`);
   } finally {
@@ -238,8 +251,10 @@ function applyVisibility() {
   reference.visible = $('show-reference').checked;
   const side = $('reference-mode').value === 'side';
   reference.position.set(side ? sideOffset : 0, 0, 0);
-  referenceMaterial.opacity = side ? 1 : 0.55;
-  referenceMaterial.transparent = !side;
+  // Overlaid on the surface it is see-through; beside it, or alone, it is solid.
+  const solid = side || !surface.visible;
+  referenceMaterial.opacity = solid ? 1 : 0.55;
+  referenceMaterial.transparent = !solid;
 }
 
 function drawHistogram(h) {
@@ -254,8 +269,9 @@ function drawHistogram(h) {
 function frame(box) {
   const center = box.getCenter(new THREE.Vector3()), size = box.getSize(new THREE.Vector3()).length();
   controls.target.copy(center);
-  camera.position.copy(center).add(new THREE.Vector3(0.6, -0.9, 0.7).normalize().multiplyScalar(size * 1.3));
-  camera.up.set(0, 0, 1);
+  const eye = givenVector(startCamera) ? new THREE.Vector3(...startCamera) : new THREE.Vector3(0.6, -0.9, 0.7);
+  camera.position.copy(center).add(eye.normalize().multiplyScalar(size * 1.3));
+  camera.up.copy(givenVector(startUp) ? new THREE.Vector3(...startUp).normalize() : new THREE.Vector3(0, 0, 1));
   camera.near = size / 1000; camera.far = size * 100;
   camera.updateProjectionMatrix();
   sideOffset = box.getSize(new THREE.Vector3()).x * 1.15;
@@ -291,8 +307,8 @@ async function start() {
   const slider = $('iso'), field = $('iso-value');
   slider.disabled = field.disabled = false;
   field.step = String((info.max - info.min) / 1000 || 1);
-  const initial = info.min + 0.5 * (info.max - info.min);
-  slider.value = String(Math.round(Number(slider.max) * 0.5));
+  const initial = Number.isFinite(startIso) ? startIso : info.min + 0.5 * (info.max - info.min);
+  slider.value = String(Math.round(Number(slider.max) * (initial - info.min) / ((info.max - info.min) || 1)));
   field.value = String(initial);
   // Dragging sends input events (coarse surfaces within the budget); releasing sends change (the
   // surface at the chosen error).
@@ -300,6 +316,10 @@ async function start() {
   slider.addEventListener('change', () => requestSurface(isoFromSlider(), false));
   const errorSlider = $('error');
   errorSlider.disabled = !(info.levels.length > 1);
+  if (Number.isFinite(startError) && !errorSlider.disabled && startError > info.error_bound) {
+    const lo = info.error_bound, hi = info.max - info.min;
+    errorSlider.value = String(Math.round(Number(errorSlider.max) * Math.min(1, Math.log(startError / lo) / Math.log(hi / lo))));
+  }
   showError();
   errorSlider.addEventListener('input', () => { showError(); if (shownIso !== null) requestSurface(shownIso, false); });
   field.addEventListener('change', () => {
@@ -330,7 +350,20 @@ async function start() {
     a.click();
     a.remove();
   });
+  if (startShow) {
+    for (const layer of ['surface', 'points', 'tets', 'reference'])
+      $(`show-${layer}`).checked = startShow.includes(layer) && !$(`show-${layer}`).disabled;
+    if (params.get('reference') === 'side' || params.get('reference') === 'overlay') $('reference-mode').value = params.get('reference');
+  }
+  if (params.get('panel') === 'hide') $('panel').style.display = 'none';
+  if (startShow && $('show-reference').checked && $('reference-mode').value === 'side') {
+    // Frame both: the surface and the reference beside it.
+    const offset = sideOffset;
+    frame(box.clone().union(box.clone().translate(new THREE.Vector3(offset, 0, 0))));
+    sideOffset = offset;
+  }
   applyVisibility();
+  if ($('show-points').checked) await loadPoints();
   requestSurface(initial);
 }
 

@@ -12,7 +12,7 @@
 // the surface has no cracks. Each closed contour is fanned from its lowest-numbered edge. The
 // classic table (scikit-image's method="lorensen") groups the cut edges of all 254 configurations
 // into the same pieces (tested), so triangle counts and vertices agree; it triangulates a piece of
-// 5 to 7 cut edges per case instead, which moves the area of a noisy surface by about 0.5 %.
+// 4 to 7 cut edges per case instead, which moves the area of a noisy surface by about 0.5 %.
 #pragma once
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/volume.hpp"

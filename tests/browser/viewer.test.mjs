@@ -133,6 +133,20 @@ try {
   const head = readFileSync(saved).subarray(0, 4).toString();
   if (!download.suggestedFilename().endsWith('.glb') || head !== 'glTF') fail(`export gave ${download.suggestedFilename()} starting '${head}'`);
   await lod.close();
+  // State from the address (scripts/figures.sh draws the paper's figures this way): the iso-value,
+  // the layers and a hidden panel, and body[data-ready] once every layer is drawn.
+  const wantedIso = info.min + 0.7 * (info.max - info.min);
+  const still = await browser.newPage({ viewport: { width: 400, height: 300 } });
+  still.on('pageerror', (e) => errors.push(e.message));
+  await still.goto(`${url}?${new URLSearchParams({ iso: String(wantedIso), show: 'surface,tets,points', panel: 'hide', camera: '1,0,0', up: '0,1,0' })}`);
+  await still.waitForSelector('body[data-ready="1"]', { timeout: 60000 });
+  const state = await still.evaluate(() => ({
+    iso: Number(document.getElementById('stats').dataset.iso), panel: getComputedStyle(document.getElementById('panel')).display,
+    layers: ['surface', 'points', 'tets', 'reference'].map((l) => document.getElementById(`show-${l}`).checked),
+    active: Number(/active tetrahedra: (\d+)/.exec(document.getElementById('stats').textContent)[1]) }));
+  if (state.iso !== wantedIso || state.panel !== 'none' || state.layers.join() !== 'true,true,true,false' || !(state.active > 0))
+    fail(`the page did not take its state from the address: ${JSON.stringify(state)}`);
+  await still.close();
   // Toggles: kept vertices and the full-resolution reference load without errors.
   await page.check('#show-points');
   await page.check('#show-reference');
