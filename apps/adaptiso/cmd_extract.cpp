@@ -71,6 +71,7 @@ struct MeshOutputFlags {
                         {"triangles_before", st.triangles_before},
                         {"triangles_after", st.triangles_after},
                         {"error_estimate_voxels", st.error / voxel},
+                        {"chunks", st.chunks},
                         {"seconds", st.seconds}};
     std::string line = fmt::format("; simplified to {} triangles in {:.3f} s", st.triangles_after, st.seconds);
     if (measure && simplified.triangle_count() > 0) {

@@ -13,6 +13,11 @@
 //   border on the volume's box and a closed one stays closed;
 // - the kept vertices keep their positions and normals exactly (the interpolated gradients of the
 //   grid: simplification only removes vertices, it never moves one), renumbered in first-use order.
+// - a large mesh cut into spatial chunks of at most `chunk_triangles` triangles, simplified in
+//   parallel (meshoptimizer's simplifier runs on one thread), with the cuts locked like borders;
+//   then the band of triangles around the cuts is simplified once more, to half the distance (its
+//   errors add to the first pass's). The chunks depend on the mesh alone: the output is the same
+//   for any thread count. A chunk size of at least the triangle count gives one pass.
 // A distance of 0 returns the mesh unchanged. Throws OptionError("simplify") for a negative or
 // non-finite distance.
 #pragma once
@@ -22,10 +27,16 @@ namespace adaptiso {
 
 struct SimplifyStats {
   std::size_t triangles_before = 0, triangles_after = 0;
-  double error = 0;  // meshoptimizer's estimate of the largest deviation, world units
+  double error = 0;  // meshoptimizer's estimate of the largest deviation, world units (both passes)
   double seconds = 0;
+  std::size_t chunks = 0;  // simplified in parallel
 };
 
-Mesh simplify_mesh(const Mesh& mesh, double distance, SimplifyStats* stats = nullptr);
+// Chunks of this many triangles keep 2 cores busy on a 512³ scan's surface and cost few
+// triangles along the cuts (bench/simplify.py).
+inline constexpr std::size_t kSimplifyChunkTriangles = 250000;
+
+Mesh simplify_mesh(const Mesh& mesh, double distance, SimplifyStats* stats = nullptr,
+                   std::size_t chunk_triangles = kSimplifyChunkTriangles);
 
 }  // namespace adaptiso

@@ -3,6 +3,7 @@
 // of the analytic one, lose triangles as the distance grows; open surfaces keep their border on
 // the volume's box.
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include <cmath>
 #include <functional>
@@ -61,34 +62,38 @@ TEST(Simplify, ClosedSurfacesStayClosedManifoldAndWithinTheDistance) {
   const std::vector<Case> cases = {
       {"sphere", 700, 2, [&](double x, double y, double z) { return std::hypot(x - c, y - c, z - c) - R; }},
       {"torus", 500, 0, [&](double x, double y, double z) { return std::hypot(std::hypot(x - c, y - c) - Rm, z - c) - rm; }}};
-  for (const auto& k : cases) {
-    const Volume v = make_synthetic(k.name, n, ScalarType::f32);
-    const Mesh m = extracted(v, k.iso);
-    const auto [base_mean, base_max] = analytic(m, k.distance);
-    std::size_t previous = m.triangle_count();
-    for (double d : {0.1, 0.25, 0.5, 1.0}) {
-      SimplifyStats st;
-      const Mesh s = simplify_mesh(m, d, &st);
-      const auto census = testutil::edge_census(s, v.dims, v.spacing);
-      EXPECT_EQ(census.boundary, 0u) << k.name << " D " << d;
-      EXPECT_EQ(census.nonmanifold, 0u) << k.name << " D " << d;
-      EXPECT_EQ(census.misoriented, 0u) << k.name << " D " << d;
-      EXPECT_EQ(census.degenerate, 0u) << k.name << " D " << d;
-      EXPECT_EQ(census.euler, k.euler) << k.name << " D " << d;
-      EXPECT_EQ(st.triangles_after, s.triangle_count());
-      EXPECT_LT(s.triangle_count(), previous) << k.name << " D " << d;
-      previous = s.triangle_count();
-      // The mean distance to the analytic surface grows by at most D. meshoptimizer's error is a
-      // quadric estimate, not a strict bound on the largest deviation: that grew by up to 1.37 D.
-      const auto [mean, max] = analytic(s, k.distance);
-      EXPECT_LE(mean, base_mean + d) << k.name << " D " << d;
-      EXPECT_LE(max, base_max + 1.5 * d) << k.name << " D " << d;
-      const SurfaceDistance sd = surface_distance(s, m);
-      EXPECT_LE(0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), d) << k.name << " D " << d;
-      EXPECT_EQ(s.normals.size(), s.vertex_count());
+  // One pass over the whole mesh, and the same mesh cut into chunks simplified in parallel.
+  for (const std::size_t chunk : {kSimplifyChunkTriangles, std::size_t{1500}})
+    for (const auto& k : cases) {
+      const Volume v = make_synthetic(k.name, n, ScalarType::f32);
+      const Mesh m = extracted(v, k.iso);
+      SCOPED_TRACE(::testing::Message() << "chunks of " << chunk << " triangles, " << m.triangle_count() << " in all");
+      const auto [base_mean, base_max] = analytic(m, k.distance);
+      std::size_t previous = m.triangle_count();
+      for (double d : {0.1, 0.25, 0.5, 1.0}) {
+        SimplifyStats st;
+        const Mesh s = simplify_mesh(m, d, &st, chunk);
+        EXPECT_EQ(st.chunks > 1, chunk < m.triangle_count());
+        const auto census = testutil::edge_census(s, v.dims, v.spacing);
+        EXPECT_EQ(census.boundary, 0u) << k.name << " D " << d;
+        EXPECT_EQ(census.nonmanifold, 0u) << k.name << " D " << d;
+        EXPECT_EQ(census.misoriented, 0u) << k.name << " D " << d;
+        EXPECT_EQ(census.degenerate, 0u) << k.name << " D " << d;
+        EXPECT_EQ(census.euler, k.euler) << k.name << " D " << d;
+        EXPECT_EQ(st.triangles_after, s.triangle_count());
+        EXPECT_LT(s.triangle_count(), previous) << k.name << " D " << d;
+        previous = s.triangle_count();
+        // The mean distance to the analytic surface grows by at most D. meshoptimizer's error is a
+        // quadric estimate, not a strict bound on the largest deviation: that grew by up to 1.37 D.
+        const auto [mean, max] = analytic(s, k.distance);
+        EXPECT_LE(mean, base_mean + d) << k.name << " D " << d;
+        EXPECT_LE(max, base_max + 1.5 * d) << k.name << " D " << d;
+        const SurfaceDistance sd = surface_distance(s, m);
+        EXPECT_LE(0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), d) << k.name << " D " << d;
+        EXPECT_EQ(s.normals.size(), s.vertex_count());
+      }
+      EXPECT_LT(previous, m.triangle_count() / 4) << k.name;
     }
-    EXPECT_LT(previous, m.triangle_count() / 4) << k.name;
-  }
 }
 
 TEST(Simplify, OpenSurfaceKeepsItsBorderOnTheBox) {
@@ -107,6 +112,19 @@ TEST(Simplify, OpenSurfaceKeepsItsBorderOnTheBox) {
     for (int a = 0; a < 3; ++a) on_box |= p[a] == 0.0f || p[a] == float(v.dims[a] - 1);
     if (on_box) EXPECT_TRUE(kept.count(p)) << "a border vertex moved";
   }
+}
+
+TEST(Simplify, ChunkedOutputIsTheSameForAnyThreadCount) {
+  const Mesh m = extracted(make_synthetic("torus", 40, ScalarType::f32), 500);
+  const Mesh many = simplify_mesh(m, 0.25, nullptr, 1000);
+  Mesh one;
+  {
+    tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
+    one = simplify_mesh(m, 0.25, nullptr, 1000);
+  }
+  EXPECT_EQ(many.triangles, one.triangles);
+  EXPECT_EQ(many.positions, one.positions);
+  EXPECT_EQ(many.normals, one.normals);
 }
 
 TEST(Simplify, ZeroDistanceIsTheMeshAndBadDistancesAreRefused) {

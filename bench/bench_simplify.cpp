@@ -1,0 +1,57 @@
+// Chunked parallel simplification (simplify.hpp) against one pass over the whole mesh, in one run.
+// Usage: bench_simplify MESH.ply DISTANCE[,DISTANCE...] [CHUNK,...]   (distance in the mesh's units;
+// chunk sizes in triangles, 0 = one pass; default 0,250000,125000). Prints one JSON object per
+// (distance, chunk size): the median of 3 runs in seconds, triangles after, chunks, and the ratio
+// of time and triangles against the one-pass run of the same distance.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <limits>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "adaptiso/mesh_io.hpp"
+#include "adaptiso/simplify.hpp"
+#include "adaptiso/surface_distance.hpp"
+
+using namespace adaptiso;
+
+static std::vector<double> parse_list(const char* s) {
+  std::vector<double> out;
+  std::stringstream ss(s);
+  for (std::string tok; std::getline(ss, tok, ',');) out.push_back(std::stod(tok));
+  return out;
+}
+
+int main(int argc, char** argv) {
+  if (argc < 3) {
+    std::fprintf(stderr, "usage: bench_simplify MESH.ply DISTANCE[,DISTANCE...] [CHUNK,...]\n");
+    return 2;
+  }
+  const Mesh mesh = read_ply(argv[1]);
+  const std::vector<double> chunks = argc > 3 ? parse_list(argv[3]) : std::vector<double>{0, 250000, 125000};
+  for (double d : parse_list(argv[2])) {
+    double one_pass_seconds = 0, one_pass_triangles = 0;
+    for (double c : chunks) {
+      const std::size_t size = c > 0 ? static_cast<std::size_t>(c) : std::numeric_limits<std::size_t>::max();
+      std::vector<double> t;
+      SimplifyStats st;
+      Mesh simplified;
+      for (int r = 0; r < 3; ++r) {
+        const auto t0 = std::chrono::steady_clock::now();
+        simplified = simplify_mesh(mesh, d, &st, size);
+        t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      }
+      std::sort(t.begin(), t.end());
+      const SurfaceDistance sd = surface_distance(simplified, mesh);
+      if (c == 0) one_pass_seconds = t[1], one_pass_triangles = static_cast<double>(st.triangles_after);
+      std::printf("{\"distance\": %g, \"chunk_triangles\": %g, \"chunks\": %zu, \"triangles_before\": %zu, \"triangles_after\": %zu, "
+                  "\"mean_distance\": %.5f, \"seconds\": %.4f, \"time_vs_one_pass\": %.3f, \"triangles_vs_one_pass\": %.4f}\n",
+                  d, c, st.chunks, st.triangles_before, st.triangles_after, 0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), t[1], one_pass_seconds > 0 ? t[1] / one_pass_seconds : 0.0,
+                  one_pass_triangles > 0 ? static_cast<double>(st.triangles_after) / one_pass_triangles : 0.0);
+      std::fflush(stdout);
+    }
+  }
+  return 0;
+}
