@@ -1,6 +1,7 @@
 // Chunked parallel simplification (simplify.hpp) against one pass over the whole mesh, in one run.
-// Usage: bench_simplify MESH.ply DISTANCE[,DISTANCE...] [CHUNK,...]   (distance in the mesh's units;
-// chunk sizes in triangles, 0 = one pass; default 0,250000,125000). Prints one JSON object per
+// Usage: bench_simplify MESH.ply DISTANCE[,DISTANCE...] [CHUNK,... [OUT.ply]]   (distance in the
+// mesh's units; chunk sizes in triangles, 0 = one pass; default 0,1000000,250000; OUT.ply receives
+// the last simplified mesh: bench/simplify.py times the peer's one-pass simplification this way). Prints one JSON object per
 // (distance, chunk size): the median of 3 runs in seconds, triangles after, chunks, and the ratio
 // of time and triangles against the one-pass run of the same distance.
 #include <algorithm>
@@ -30,7 +31,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   const Mesh mesh = read_ply(argv[1]);
-  const std::vector<double> chunks = argc > 3 ? parse_list(argv[3]) : std::vector<double>{0, 250000, 125000};
+  const std::vector<double> chunks = argc > 3 ? parse_list(argv[3]) : std::vector<double>{0, 1000000, 250000};
   for (double d : parse_list(argv[2])) {
     double one_pass_seconds = 0, one_pass_triangles = 0;
     for (double c : chunks) {
@@ -51,6 +52,7 @@ int main(int argc, char** argv) {
                   d, c, st.chunks, st.triangles_before, st.triangles_after, 0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), t[1], one_pass_seconds > 0 ? t[1] / one_pass_seconds : 0.0,
                   one_pass_triangles > 0 ? static_cast<double>(st.triangles_after) / one_pass_triangles : 0.0);
       std::fflush(stdout);
+      if (argc > 4) write_mesh(simplified, argv[4]);
     }
   }
   return 0;

@@ -1,11 +1,13 @@
 #!/usr/bin/env python3
 """Simplified exports against the peer (issue "Meshes worth exporting"): for each volume and
-iso-value, adaptiso's surface from a prepared grid simplified with --simplify D, against
-full-resolution marching cubes simplified by the same meshoptimizer simplifier (`adaptiso mc
---simplify D`: the surface flying edges gives, up to how 4- to 7-edge pieces are triangulated,
-and the simplifier the peer "flying edges + meshoptimizer" uses), in one run. Per row: triangles, mean / 95th percentile
-symmetric distance to the full-resolution surface (voxels of the smallest spacing, `adaptiso
-compare`), and the seconds of extraction + simplification (the tool's own timings, no file I/O).
+iso-value, adaptiso's surface from a prepared grid simplified with --simplify D (chunks in
+parallel, simplify.hpp), against full-resolution marching cubes (the surface flying edges gives, up
+to how 4- to 7-edge pieces are triangulated) simplified by meshoptimizer in one pass over the whole
+mesh, as the peer "flying edges + meshoptimizer" does (`bench_simplify MESH D 0`, median of 3),
+and against `adaptiso mc --simplify D` (the same surface, our chunked simplification), in one run.
+Per row: triangles, mean / 95th percentile symmetric distance to the full-resolution surface
+(voxels of the smallest spacing, `adaptiso compare`), and the seconds of extraction +
+simplification (the tools' own timings, no file I/O).
 
 Usage: bench/simplify.py --build BUILD [--data DIR] [--work DIR] [--distances 0.1,0.25,0.5]
                          [--error 0.02] [--out RECORDS.json] [DATASET[:ISO,...] ...]
@@ -31,6 +33,7 @@ def main():
     ap.add_argument("datasets", nargs="*")
     a = ap.parse_args()
     exe = os.path.join(a.build, "bin", "adaptiso")
+    bench = os.path.join(a.build, "bin", "bench_simplify")
     os.makedirs(a.work, exist_ok=True)
     distances = [float(x) for x in a.distances.split(",")]
     records = []
@@ -50,18 +53,21 @@ def main():
             mc = json.loads(run([exe, "mc", src, "--iso", f"{iso:g}", "-o", ref, "--json"]))["surfaces"][0]
             mesh = os.path.join(a.work, f"{name}-{iso:g}.ply")
             for d in [0.0] + distances:
-                rows = []
-                for method in ("adaptiso", "mc + meshoptimizer"):
+                for method in ("adaptiso", "mc + meshoptimizer (one pass)", "mc + adaptiso's chunked simplify"):
                     if method == "adaptiso":
                         cmd = [exe, "extract", grid, "--iso", f"{iso:g}", "-o", mesh, "--json"]
                     else:
                         if d == 0:
                             continue
                         cmd = [exe, "mc", src, "--iso", f"{iso:g}", "-o", mesh, "--json"]
-                    if d > 0:
+                    if d > 0 and method != "mc + meshoptimizer (one pass)":
                         cmd += ["--simplify", f"{d:g}"]
                     s = json.loads(run(cmd))["surfaces"][0]
                     simp = s.get("simplify", {})
+                    if method == "mc + meshoptimizer (one pass)":
+                        one = json.loads(run([bench, ref, repr(d * voxel), "0", mesh]).splitlines()[-1])
+                        simp = {"seconds": one["seconds"], "triangles_after": one["triangles_after"],
+                                "triangles_before": one["triangles_before"]}
                     seconds = s["seconds"] + simp.get("seconds", 0)
                     triangles = simp.get("triangles_after", s["triangles"])
                     mean, p95, _ = distance(exe, mesh, ref, voxel)
