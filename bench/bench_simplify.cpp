@@ -47,10 +47,12 @@ int main(int argc, char** argv) {
       std::sort(t.begin(), t.end());
       const SurfaceDistance sd = surface_distance(simplified, mesh);
       if (c == 0) one_pass_seconds = t[1], one_pass_triangles = static_cast<double>(st.triangles_after);
-      std::printf("{\"distance\": %g, \"chunk_triangles\": %g, \"chunks\": %zu, \"triangles_before\": %zu, \"triangles_after\": %zu, "
-                  "\"mean_distance\": %.5f, \"seconds\": %.4f, \"time_vs_one_pass\": %.3f, \"triangles_vs_one_pass\": %.4f}\n",
-                  d, c, st.chunks, st.triangles_before, st.triangles_after, 0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), t[1], one_pass_seconds > 0 ? t[1] / one_pass_seconds : 0.0,
-                  one_pass_triangles > 0 ? static_cast<double>(st.triangles_after) / one_pass_triangles : 0.0);
+      std::printf(
+          "{\"distance\": %g, \"chunk_triangles\": %g, \"chunks\": %zu, \"triangles_before\": %zu, \"triangles_after\": %zu, "
+          "\"mean_distance\": %.5f, \"seconds\": %.4f, \"time_vs_one_pass\": %.3f, \"triangles_vs_one_pass\": %.4f}\n",
+          d, c, st.chunks, st.triangles_before, st.triangles_after, 0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), t[1],
+          one_pass_seconds > 0 ? t[1] / one_pass_seconds : 0.0,
+          one_pass_triangles > 0 ? static_cast<double>(st.triangles_after) / one_pass_triangles : 0.0);
       std::fflush(stdout);
       if (argc > 4) write_mesh(simplified, argv[4]);
     }
