@@ -356,6 +356,28 @@ TEST(HostileDicom, ElementRunningPastTheEndAfterThePixelDataIsRefusedNotAGdcmAss
   expect_refused(t / "tail.dcm", "tail.dcm", "runs past the end");
 }
 
+TEST(HostileDicom, FourToSevenZeroBytesAfterThePixelDataAreRefusedNotAGdcmAssert) {
+  // Found by fuzz_dicom (10-minute run): GDCM reads the tag (0000,0000) from the padding and then
+  // asserts on the missing VR and length.
+  TempDir t("hostile");
+  const std::string b = minimal_dicom("0", "1");
+  for (std::size_t n : {0, 1, 3, 8, 12, 16, 64}) {
+    SCOPED_TRACE(n);
+    testutil::write_bytes(t / "pad.dcm", b + std::string(n, '\0'));
+    try {
+      EXPECT_EQ(read_volume(t / "pad.dcm").voxel_count(), 64);
+    } catch (const InputError& e) {
+      // 12 to 15 bytes GDCM itself declines to read: a clean error is as good.
+      EXPECT_NE(std::string(e.what()).find("pad.dcm"), std::string::npos) << e.what();
+    }
+  }
+  for (std::size_t n : {4, 5, 6, 7}) {
+    SCOPED_TRACE(n);
+    testutil::write_bytes(t / "pad.dcm", b + std::string(n, '\0'));
+    expect_refused(t / "pad.dcm", "pad.dcm", "zero bytes after the pixel data");
+  }
+}
+
 TEST(HostilePly, ListCountBeyondAnyIntegerIsRefusedNotCast) {
   TempDir t("hostile");
   testutil::write_bytes(t / "m.ply",
