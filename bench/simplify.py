@@ -10,7 +10,7 @@ Per row: triangles, mean / 95th percentile symmetric distance to the full-resolu
 simplification (the tools' own timings, no file I/O).
 
 Usage: bench/simplify.py --build BUILD [--data DIR] [--work DIR] [--distances 0.1,0.25,0.5]
-                         [--error 0.02] [--out RECORDS.json] [DATASET[:ISO,...] ...]
+                         [--error 0.02] [--out RECORDS.json] [--plot PNG] [DATASET[:ISO,...] ...]
 """
 import argparse
 import json
@@ -30,6 +30,7 @@ def main():
     ap.add_argument("--distances", default="0.1,0.25,0.5")
     ap.add_argument("--error", type=float, default=0.02, help="the grid's relative error bound")
     ap.add_argument("--out")
+    ap.add_argument("--plot", help="PNG: mean distance against triangles, one panel per volume and iso-value")
     ap.add_argument("datasets", nargs="*")
     a = ap.parse_args()
     exe = os.path.join(a.build, "bin", "adaptiso")
@@ -84,6 +85,34 @@ def main():
     if a.out:
         with open(a.out, "w") as f:
             json.dump(records, f, indent=1)
+    if a.plot and records:
+        plot(records, a.plot)
+
+
+def plot(records, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    cases = sorted({(r["dataset"], r["iso"]) for r in records}, key=lambda c: (c[0], c[1]))
+    fig, axes = plt.subplots(1, len(cases), figsize=(4.2 * len(cases), 4), squeeze=False)
+    for ax, (name, iso) in zip(axes[0], cases):
+        rows = [r for r in records if r["dataset"] == name and r["iso"] == iso]
+        for method, style in (("adaptiso", "s-"), ("mc + meshoptimizer (one pass)", "o-"), ("mc + adaptiso's chunked simplify", "^--")):
+            pts = sorted((r["triangles"], max(r["mean"], 1e-3), r["distance"]) for r in rows if r["method"] == method)
+            if not pts:
+                continue
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], style, label=method)
+            for t, m, d in pts:
+                ax.annotate(f"D={d:g}", (t, m), fontsize=6, textcoords="offset points", xytext=(3, 3))
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("triangles")
+        ax.set_ylabel("mean distance to full resolution (voxels)")
+        ax.set_title(f"{name}, iso {iso:g}", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
 
 
 if __name__ == "__main__":
