@@ -5,7 +5,7 @@
 // side, until a chunk holds at most `chunk_triangles`), and the chunks are simplified in parallel.
 // A chunk's cut edges are borders to meshoptimizer, and borders are locked, so the chunks still
 // fit together exactly and a closed surface stays closed. The vertices along the cuts stay in that
-// pass (on the bunny at 0.5 voxels they would leave 1.8× the triangles of one pass), so a second,
+// pass (16 chunks of the bunny at 0.5 voxels left 1.8× the triangles of one pass), so a second,
 // serial pass simplifies the seam band: the triangles that touch a cut vertex, with the band's own
 // border locked. The cuts depend on the mesh alone, never on the thread count, so the output is
 // the same for any number of threads.
@@ -103,8 +103,8 @@ std::vector<std::uint32_t> simplify_seams(const Mesh& m, const std::vector<std::
                 indices.begin() + static_cast<std::ptrdiff_t>(t + 3));
   }
   if (band.empty()) return indices;
-  // The band's triangles went through the first pass already, and errors of the two passes add
-  // up: half the distance here keeps the band within 1.5 times it, as the rest.
+  // The band's triangles went through the first pass already, and the two passes' errors add up:
+  // half the distance here keeps the band's estimate within 1.5 times the distance.
   const ChunkResult r = simplify_part(m, std::move(band), 0.5 * distance);
   error += static_cast<double>(r.relative_error) * r.scale;
   rest.insert(rest.end(), r.indices.begin(), r.indices.end());
