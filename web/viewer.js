@@ -12,7 +12,8 @@ const budget = Number(params.get('budget')) || 150000;
 // The page's starting state can come from the address too (scripts/figures.sh draws the paper's
 // figures this way): ?iso=V (data units), &error=E (data units, at rest), &show=surface,points,
 // tets,reference, &reference=side|overlay, &camera=X,Y,Z (direction from the centre to the eye),
-// &up=X,Y,Z (the screen's up, default +z), &panel=hide. Once the first surface and every layer asked for are drawn, <body data-ready="1">.
+// &up=X,Y,Z (the screen's up, default +z), &panel=hide. Once the first surface and every layer
+// asked for are drawn, <body data-ready="1">.
 const startIso = params.has('iso') ? Number(params.get('iso')) : NaN;
 const startError = params.has('error') ? Number(params.get('error')) : NaN;
 const startShow = params.has('show') ? params.get('show').split(',') : null;
@@ -316,8 +317,8 @@ async function start() {
   slider.addEventListener('change', () => requestSurface(isoFromSlider(), false));
   const errorSlider = $('error');
   errorSlider.disabled = !(info.levels.length > 1);
-  if (Number.isFinite(startError) && !errorSlider.disabled && startError > info.error_bound) {
-    const lo = info.error_bound, hi = info.max - info.min;
+  const lo = info.error_bound, hi = info.max - info.min;
+  if (Number.isFinite(startError) && !errorSlider.disabled && startError > lo && hi > lo) {
     errorSlider.value = String(Math.round(Number(errorSlider.max) * Math.min(1, Math.log(startError / lo) / Math.log(hi / lo))));
   }
   showError();
@@ -350,20 +351,19 @@ async function start() {
     a.click();
     a.remove();
   });
-  if (startShow) {
+  if (startShow)
     for (const layer of ['surface', 'points', 'tets', 'reference'])
       $(`show-${layer}`).checked = startShow.includes(layer) && !$(`show-${layer}`).disabled;
-    if (params.get('reference') === 'side' || params.get('reference') === 'overlay') $('reference-mode').value = params.get('reference');
-  }
+  if (params.get('reference') === 'side' || params.get('reference') === 'overlay') $('reference-mode').value = params.get('reference');
   if (params.get('panel') === 'hide') $('panel').style.display = 'none';
-  if (startShow && $('show-reference').checked && $('reference-mode').value === 'side') {
+  if ($('show-reference').checked && $('reference-mode').value === 'side') {
     // Frame both: the surface and the reference beside it.
     const offset = sideOffset;
     frame(box.clone().union(box.clone().translate(new THREE.Vector3(offset, 0, 0))));
     sideOffset = offset;
   }
   applyVisibility();
-  if ($('show-points').checked) await loadPoints();
+  if ($('show-points').checked) await loadPoints().catch((e) => showStatus(`kept vertices: ${e.message}`));
   requestSurface(initial);
 }
 
