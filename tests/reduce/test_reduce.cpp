@@ -230,7 +230,9 @@ TEST(Reconstruction, GuaranteeOnRealData) {
       auto r = reduce(v, o);
       double found = verify_reconstruction(v, r);
       EXPECT_LE(found, r.max_error + error_tolerance(v, r.max_error)) << f << " " << rel;
-      if (rel > 0) EXPECT_LT(r.kept.size(), static_cast<std::size_t>(v.voxel_count())) << f;
+      if (rel > 0) {
+        EXPECT_LT(r.kept.size(), static_cast<std::size_t>(v.voxel_count())) << f;
+      }
     }
   }
 }
