@@ -8,35 +8,19 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <sstream>
 #include <string>
 #include <vector>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "bench_util.hpp"
 #include "extract/march_detail.hpp"  // the fresh march with reused buffers, as the Extractor runs it
 
 using namespace adaptiso;
 using Clock = std::chrono::steady_clock;
 
-template <class F>
-static double median_time(F f, int reps = 5) {
-  std::vector<double> t;
-  for (int r = 0; r < reps; ++r) {
-    auto t0 = Clock::now();
-    f();
-    t.push_back(std::chrono::duration<double>(Clock::now() - t0).count());
-  }
-  std::sort(t.begin(), t.end());
-  return t[t.size() / 2];
-}
-
-static std::vector<double> parse_list(const char* s) {
-  std::vector<double> out;
-  std::stringstream ss(s);
-  for (std::string tok; std::getline(ss, tok, ',');) out.push_back(std::stod(tok));
-  return out;
-}
+using bench::median_time;
+using bench::parse_list;
 
 int main(int argc, char** argv) {
   if (argc < 3) {

@@ -1,33 +1,26 @@
 // Chunked parallel simplification (simplify.hpp) against one pass over the whole mesh, in one run.
 // Usage: bench_simplify MESH.ply DISTANCE[,DISTANCE...] [CHUNK,... [OUT.ply]]   (distance in the
-// mesh's units; chunk sizes in triangles, 0 = one pass; default 0,1000000,250000; OUT.ply receives
-// the last simplified mesh: bench/simplify.py times the peer's one-pass simplification this way). Prints one JSON object per
-// (distance, chunk size): the median of 3 runs in seconds, triangles after, chunks, and the ratio
-// of time and triangles against the one-pass run of the same distance.
-#include <algorithm>
-#include <chrono>
+// mesh's units; chunk sizes in triangles, 0 = one pass; default 0,1000000,250000). Prints one JSON
+// object per (distance, chunk size): the median of 3 runs in seconds, triangles after, chunks, the
+// mean symmetric distance to the unsimplified mesh (surface_distance.hpp), and the ratio of time
+// and triangles against the one-pass run of the same distance. OUT.ply receives the last
+// simplified mesh: bench/simplify.py times the peer's one-pass simplification this way.
 #include <cstdio>
 #include <limits>
-#include <sstream>
-#include <string>
 #include <vector>
 
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/simplify.hpp"
 #include "adaptiso/surface_distance.hpp"
+#include "bench_util.hpp"
 
 using namespace adaptiso;
 
-static std::vector<double> parse_list(const char* s) {
-  std::vector<double> out;
-  std::stringstream ss(s);
-  for (std::string tok; std::getline(ss, tok, ',');) out.push_back(std::stod(tok));
-  return out;
-}
+using bench::parse_list;
 
 int main(int argc, char** argv) {
   if (argc < 3) {
-    std::fprintf(stderr, "usage: bench_simplify MESH.ply DISTANCE[,DISTANCE...] [CHUNK,...]\n");
+    std::fprintf(stderr, "usage: bench_simplify MESH.ply DISTANCE[,DISTANCE...] [CHUNK,... [OUT.ply]]\n");
     return 2;
   }
   const Mesh mesh = read_ply(argv[1]);
@@ -36,22 +29,16 @@ int main(int argc, char** argv) {
     double one_pass_seconds = 0, one_pass_triangles = 0;
     for (double c : chunks) {
       const std::size_t size = c > 0 ? static_cast<std::size_t>(c) : std::numeric_limits<std::size_t>::max();
-      std::vector<double> t;
       SimplifyStats st;
       Mesh simplified;
-      for (int r = 0; r < 3; ++r) {
-        const auto t0 = std::chrono::steady_clock::now();
-        simplified = simplify_mesh(mesh, d, &st, size);
-        t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-      }
-      std::sort(t.begin(), t.end());
+      const double seconds = bench::median_time([&] { simplified = simplify_mesh(mesh, d, &st, size); }, 3);
       const SurfaceDistance sd = surface_distance(simplified, mesh);
-      if (c == 0) one_pass_seconds = t[1], one_pass_triangles = static_cast<double>(st.triangles_after);
+      if (c == 0) one_pass_seconds = seconds, one_pass_triangles = static_cast<double>(st.triangles_after);
       std::printf(
           "{\"distance\": %g, \"chunk_triangles\": %g, \"chunks\": %zu, \"triangles_before\": %zu, \"triangles_after\": %zu, "
           "\"mean_distance\": %.5f, \"seconds\": %.4f, \"time_vs_one_pass\": %.3f, \"triangles_vs_one_pass\": %.4f}\n",
-          d, c, st.chunks, st.triangles_before, st.triangles_after, 0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), t[1],
-          one_pass_seconds > 0 ? t[1] / one_pass_seconds : 0.0,
+          d, c, st.chunks, st.triangles_before, st.triangles_after, 0.5 * (sd.a_to_b.mean + sd.b_to_a.mean), seconds,
+          one_pass_seconds > 0 ? seconds / one_pass_seconds : 0.0,
           one_pass_triangles > 0 ? static_cast<double>(st.triangles_after) / one_pass_triangles : 0.0);
       std::fflush(stdout);
       if (argc > 4) write_mesh(simplified, argv[4]);
