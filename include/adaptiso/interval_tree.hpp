@@ -4,11 +4,13 @@
 // A tetrahedron with value range [tmin, tmax] is *active* at iso-value c when tmin < c <= tmax
 // (a vertex equal to c counts as above it, the one rule used everywhere). Constant tetrahedra are
 // never active and are left out. The tree is binary with a fixed depth over the value range; each
-// node has a split value chosen as the median of the midpoints of the tetrahedra that reach it (so
-// the tree is as balanced as the data allows), and a tetrahedron lives in the shallowest node whose
+// node has a split value chosen as the median of the midpoints of the tetrahedra that reach it (of
+// an evenly spaced sample of 65,536 of them where more than 2^20 reach it; so the tree is as
+// balanced as the data allows), and a tetrahedron lives in the shallowest node whose
 // split it straddles (tmin < split < tmax), i.e. the smallest node whose interval covers it; leaves
 // keep the rest. Each node's tetrahedra appear twice: in `by_min` sorted by tmin and in `by_max`
-// sorted by tmax (ties by id), in the same [begin, end) range of both arrays.
+// sorted by tmax (ties in an order fixed by the build: the same for any thread count), in the
+// same [begin, end) range of both arrays.
 //
 // The tree is immutable and shared; a SweepState holds one client's position in it (the paper's
 // per-node positions of the iso-value in both lists and the per-tetrahedron flags, indexed by

@@ -19,7 +19,9 @@ namespace adaptiso {
 namespace {
 
 constexpr char kMagic[16] = {'A', 'D', 'A', 'P', 'T', 'I', 'S', 'O', '-', 'G', 'R', 'I', 'D', 0, 0, 0};
-constexpr std::uint32_t kVersion = 3;
+// Version 4: the index lists' equal keys may come in any order (earlier ones: by tetrahedron id),
+// so a build that reads 3 does not call a version 4 file corrupt. The layout is version 3's.
+constexpr std::uint32_t kVersion = 4;
 constexpr std::uint64_t kHeaderV1 = 48, kHeader = 64;
 constexpr std::uint32_t kHasIndex = 1, kHasHierarchy = 2, kHasDisplacement = 4;
 constexpr std::uint64_t kHierarchyHeader = 40;  // i32 root size, u8 thresholds ×2, u16 reserved, f64 ×4

@@ -2,9 +2,11 @@
 // brute-force scan agree on random grids full of ties; the tree is balanced and its validator
 // refuses damage.
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include <algorithm>
 #include <iterator>
+#include <map>
 #include <random>
 
 #include "adaptiso/interval_tree.hpp"
@@ -34,4 +36,86 @@ TEST(IntervalTree, IsBalancedAndHoldsEachTetInItsSmallestNode) {
   bad = tree;
   bad.by_max.pop_back();
   EXPECT_THROW(validate_interval_tree(bad, g, "t"), InputError);
+}
+
+// Nodes of more than 65,536 entries are sorted by a radix sort on the key alone (equal keys keep
+// the build's order). Against a brute-force reference on a grid full of ties: every node holds the
+// tetrahedra whose smallest node it is, each list is sorted by its key, and the tree is the same
+// for one thread and for all.
+TEST(IntervalTree, LargeNodesFullOfTiesAreSortedAndTheSameForAnyThreadCount) {
+  TetGrid g;
+  std::mt19937 rng(7);
+  g.values.resize(1000);
+  for (auto& v : g.values) v = static_cast<double>(rng() % 16);  // 16 distinct values: ties everywhere
+  g.ijk.resize(g.values.size());
+  g.tets.resize(400000);
+  for (auto& t : g.tets)
+    for (auto& q : t) q = static_cast<std::uint32_t>(rng() % g.values.size());
+  const IntervalTree tree = build_interval_tree(g, 2);
+  ASSERT_GT(tree.nodes[0].end - tree.nodes[0].begin, 65536u) << "the root must take the radix sort";
+  EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
+  auto range = [&](std::uint32_t t) {
+    const auto& q = g.tets[t];
+    double lo = g.values[q[0]], hi = lo;
+    for (auto v : q) lo = std::min(lo, g.values[v]), hi = std::max(hi, g.values[v]);
+    return std::pair{lo, hi};
+  };
+  // The reference: descend from the root by the splits until a split is straddled or a leaf met.
+  std::map<std::size_t, std::vector<std::uint32_t>> expected;
+  for (std::uint32_t t = 0; t < g.tets.size(); ++t) {
+    const auto [lo, hi] = range(t);
+    if (!(lo < hi)) continue;
+    std::size_t i = 0;
+    while (!tree.is_leaf(i) && !(lo < tree.nodes[i].split && hi > tree.nodes[i].split))
+      i = hi <= tree.nodes[i].split ? 2 * i + 1 : 2 * i + 2;
+    expected[i].push_back(t);
+  }
+  for (std::size_t i = 0; i < tree.nodes.size(); ++i) {
+    const auto& n = tree.nodes[i];
+    for (const auto* list : {&tree.by_min, &tree.by_max}) {
+      std::vector<std::uint32_t> got(list->begin() + static_cast<std::ptrdiff_t>(n.begin),
+                                     list->begin() + static_cast<std::ptrdiff_t>(n.end));
+      const bool by_min = list == &tree.by_min;
+      for (std::size_t k = 1; k < got.size(); ++k) {
+        const auto a = range(got[k - 1]), b = range(got[k]);
+        ASSERT_LE(by_min ? a.first : a.second, by_min ? b.first : b.second) << "node " << i << " entry " << k;
+      }
+      std::sort(got.begin(), got.end());
+      EXPECT_EQ(got, expected[i]) << "node " << i;
+    }
+  }
+  // One thread builds the same tree.
+  IntervalTree one;
+  {
+    tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
+    one = build_interval_tree(g, 2);
+  }
+  EXPECT_EQ(one.by_min, tree.by_min);
+  EXPECT_EQ(one.by_max, tree.by_max);
+  // The validator still refuses a list out of order: the root's smallest and largest minimum swapped.
+  IntervalTree bad = tree;
+  std::swap(bad.by_min[tree.nodes[0].begin], bad.by_min[tree.nodes[0].end - 1]);
+  EXPECT_THROW(validate_interval_tree(bad, g, "t"), InputError);
+}
+
+// Above 2^20 tetrahedra a node's split is the median of an evenly spaced sample: the root of 1.5 M
+// random tetrahedra still splits the rest nearly in half, and the tree is valid.
+TEST(IntervalTree, SampledSplitOfAHugeNodeStaysNearTheMedian) {
+  TetGrid g;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> value(0, 1000);
+  g.values.resize(200000);
+  for (auto& v : g.values) v = value(rng);
+  g.ijk.resize(g.values.size());
+  g.tets.resize(1500000);
+  for (auto& t : g.tets) {
+    // Small value ranges, like a fine grid: four vertices close in the value order.
+    const auto base = static_cast<std::uint32_t>(rng() % (g.values.size() - 8));
+    for (auto& q : t) q = base + static_cast<std::uint32_t>(rng() % 8);
+  }
+  std::sort(g.values.begin(), g.values.end());
+  const IntervalTree tree = build_interval_tree(g, 6);
+  EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
+  const std::uint64_t left = tree.nodes[2].begin - tree.nodes[1].begin, total = tree.entries() - tree.nodes[0].end;
+  EXPECT_LE(std::max(left, total - left), total / 2 + total / 50) << left << " of " << total;
 }
