@@ -2,7 +2,8 @@
 //
 // Layout (little-endian):
 //   0   char[16]  magic "ADAPTISO-GRID\0\0\0"
-//   16  u32       version (3; versions 1 and 2 are still read)
+//   16  u32       version (4; versions 1 to 3 are still read. 4 has 3's layout; its index lists
+//                 may hold equal keys in any order, where older ones sorted them by id)
 //   20  u32       flags (bit 0: the extraction index follows the tetrahedra; bit 1: the bisection
 //                 hierarchy follows [version 3]; bit 2: with the displacement criterion)
 //   24  u64       M, bytes of metadata
