@@ -604,7 +604,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
               const Progress& progress) {
   const Traversal<Rule> walk(lat, rule);
   const Frontier top = walk.frontier(12);
-  const std::vector<Tet>& roots = top.roots;
+  const std::vector<Subtree>& roots = top.roots;
   std::vector<std::uint8_t> used;
   assign_big(used, voxels, std::uint8_t{0});
   std::vector<std::uint64_t> leaves(roots.size() + 1, 0);

@@ -18,6 +18,7 @@
 #include "adaptiso/volume_io.hpp"
 #include "data_sets.hpp"
 #include "grid/diamond.hpp"
+#include "grid/traversal.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
@@ -312,6 +313,51 @@ TEST(Bisection, DiamondParentsAndChildrenMatchTheHierarchyBuiltTetByTet) {
           const auto [p, q] = detail::refinement_edge(d);
           EXPECT_EQ((Coord{(p[0] + q[0]) / 2, (p[1] + q[1]) / 2, (p[2] + q[2]) / 2}), c);
         }
+  }
+}
+
+TEST(Bisection, MaubachOrderNamesTheLongestEdgeAtEveryNode) {
+  // The walk finds a tetrahedron's refinement edge from Maubach's vertex order instead of edge
+  // lengths. Against brute force, at every node of the hierarchies of cubes of side 2 to 32: the
+  // edge it names is the unique longest one, and the halves' orders follow.
+  using detail::Coord;
+  using detail::Order;
+  using detail::Tet;
+  for (int k = 1; k <= 5; ++k) {
+    const std::int32_t S = 1 << k;
+    std::vector<std::pair<Tet, Order>> stack;
+    const auto roots = detail::root_tetrahedra(S);
+    for (int r = 0; r < 6; ++r) stack.push_back({roots[static_cast<std::size_t>(r)], detail::root_order(r)});
+    std::size_t nodes = 0;
+    while (!stack.empty()) {
+      auto [t, o] = stack.back();
+      stack.pop_back();
+      std::int64_t best = -1;
+      int bi = 0, bj = 0;
+      for (int i = 0; i < 4; ++i)
+        for (int j = i + 1; j < 4; ++j) {
+          std::int64_t len = 0;
+          for (int a = 0; a < 3; ++a) len += std::int64_t(t[i][a] - t[j][a]) * (t[i][a] - t[j][a]);
+          if (len > best) best = len, bi = i, bj = j;
+        }
+      const bool lattice = (t[bi][0] + t[bj][0]) % 2 == 0 && (t[bi][1] + t[bj][1]) % 2 == 0 && (t[bi][2] + t[bj][2]) % 2 == 0;
+      Coord m;
+      int i = -1, j = -1;
+      ASSERT_EQ(detail::refinement(t, o, m, i, j), lattice);
+      if (!lattice) continue;
+      ++nodes;
+      ASSERT_EQ(i, bi);
+      ASSERT_EQ(j, bj);
+      ASSERT_EQ(m, (Coord{(t[bi][0] + t[bj][0]) / 2, (t[bi][1] + t[bj][1]) / 2, (t[bi][2] + t[bj][2]) / 2}));
+      Order oa, ob;
+      detail::half_orders(o, j, oa, ob);
+      Tet a = t, b = t;
+      a[j] = m;
+      b[i] = m;
+      stack.push_back({a, oa});
+      stack.push_back({b, ob});
+    }
+    EXPECT_GT(nodes, std::size_t(6) << (3 * k - 1)) << "every level was visited";
   }
 }
 
