@@ -66,31 +66,68 @@ struct Order {
   std::uint8_t k = 3;
 };
 
-inline Order root_order(int root) { return root < 3 ? Order{} : Order{{0, 2, 1, 3}, 3}; }  // root_tetrahedra swaps 1 and 2
+// The walk carries an order as one of its 72 states (24 slot permutations × 3 tags), and a table
+// made at compile time gives each state's refinement slots and its halves' states: a lookup a node.
+namespace order_table {
+constexpr int index(const Order& o) {
+  int rank = 0;  // the permutation's lexicographic rank (Lehmer code)
+  for (int a = 0; a < 4; ++a) {
+    int smaller = 0;
+    for (int b = a + 1; b < 4; ++b) smaller += o.slot[static_cast<std::size_t>(b)] < o.slot[static_cast<std::size_t>(a)];
+    rank = rank * (4 - a) + smaller;
+  }
+  return rank * 3 + (o.k - 1);
+}
+struct Entry {
+  std::uint8_t i = 0, j = 0, at_j = 0, at_i = 0;  // refinement slots i < j; the halves' states
+};
+constexpr std::array<Entry, 72> make() {
+  std::array<Entry, 72> table{};
+  std::array<std::uint8_t, 4> slot{0, 1, 2, 3};
+  do {
+    for (std::uint8_t k = 1; k <= 3; ++k) {
+      const Order o{slot, k};
+      const std::uint8_t p = o.slot[0], q = o.slot[k], next = k > 1 ? static_cast<std::uint8_t>(k - 1) : std::uint8_t{3};
+      Order keeps{o.slot, next}, drops{o.slot, next};
+      for (int n = 0; n < k; ++n) drops.slot[static_cast<std::size_t>(n)] = o.slot[static_cast<std::size_t>(n + 1)];
+      drops.slot[k] = o.slot[0];
+      Entry& e = table[static_cast<std::size_t>(index(o))];
+      e.i = std::min(p, q);
+      e.j = std::max(p, q);
+      const bool j_is_xk = e.j == q;  // the half whose slot j takes the midpoint keeps x0 when j held xk
+      e.at_j = static_cast<std::uint8_t>(index(j_is_xk ? keeps : drops));
+      e.at_i = static_cast<std::uint8_t>(index(j_is_xk ? drops : keeps));
+    }
+  } while (std::next_permutation(slot.begin(), slot.end()));
+  return table;
+}
+inline constexpr std::array<Entry, 72> kTable = make();
+}  // namespace order_table
+
+using OrderState = std::uint8_t;
+
+inline OrderState root_order(int root) {  // root_tetrahedra swaps slots 1 and 2 of the odd ones
+  return static_cast<OrderState>(order_table::index(root < 3 ? Order{} : Order{{0, 2, 1, 3}, 3}));
+}
 
 // The refinement edge's slots i < j and its midpoint m, or false when m is not a lattice point
 // (a unit tetrahedron: a leaf of the hierarchy).
-inline bool refinement(const Tet& t, const Order& o, Coord& m, int& i, int& j) {
-  const int p = o.slot[0], q = o.slot[o.k];
+inline bool refinement(const Tet& t, OrderState o, Coord& m, int& i, int& j) {
+  const auto& e = order_table::kTable[o];
+  i = e.i;
+  j = e.j;
   for (int a = 0; a < 3; ++a) {
-    const std::int32_t sum = t[p][a] + t[q][a];
+    const std::int32_t sum = t[static_cast<std::size_t>(i)][a] + t[static_cast<std::size_t>(j)][a];
     if (sum & 1) return false;
     m[a] = sum / 2;
   }
-  i = std::min(p, q);
-  j = std::max(p, q);
   return true;
 }
 
-// The orders of the halves: the one whose slot j took the midpoint, and the one whose slot i did.
-inline void half_orders(const Order& o, int j, Order& at_j, Order& at_i) {
-  const std::uint8_t k = o.k > 1 ? static_cast<std::uint8_t>(o.k - 1) : std::uint8_t{3};
-  Order keeps{o.slot, k}, drops{o.slot, k};
-  for (int n = 0; n < o.k; ++n) drops.slot[static_cast<std::size_t>(n)] = o.slot[static_cast<std::size_t>(n + 1)];
-  drops.slot[o.k] = o.slot[0];
-  const bool j_is_xk = j == o.slot[o.k];
-  at_j = j_is_xk ? keeps : drops;
-  at_i = j_is_xk ? drops : keeps;
+// The states of the halves: the one whose slot j took the midpoint, and the one whose slot i did.
+inline void half_orders(OrderState o, OrderState& at_j, OrderState& at_i) {
+  at_j = order_table::kTable[o].at_j;
+  at_i = order_table::kTable[o].at_i;
 }
 
 // The values under a subtree (of its leaves' vertices), combined upwards.
@@ -107,7 +144,7 @@ struct ValueSpan {
 // subtrees below it (children before parents, so spans combine in one pass).
 struct Subtree {
   Tet tet;
-  Order order;
+  OrderState order;
 };
 struct Frontier {
   std::vector<Subtree> roots;
@@ -157,7 +194,7 @@ private:
   const Rule& rule_;
 
   template <class Leaf, class Split>
-  ValueSpan visit(const Tet& t, const Order& o, Leaf& leaf, Split& split) const {
+  ValueSpan visit(const Tet& t, OrderState o, Leaf& leaf, Split& split) const {
     if (inside(t)) return visit_inside(t, o, leaf, split);
     if (outside(t)) return {};
     Coord m;
@@ -166,8 +203,8 @@ private:
     Tet a = t, b = t;
     a[j] = m;  // replacing an end by the midpoint keeps the orientation
     b[i] = m;
-    Order oa, ob;
-    half_orders(o, j, oa, ob);
+    OrderState oa, ob;
+    half_orders(o, oa, ob);
     ValueSpan s = visit(a, oa, leaf, split);
     s.add(visit(b, ob, leaf, split));
     return s;
@@ -175,7 +212,7 @@ private:
 
   // Inside the box, so are the halves: no more checks against it.
   template <class Leaf, class Split>
-  ValueSpan visit_inside(const Tet& t, const Order& o, Leaf& leaf, Split& split) const {
+  ValueSpan visit_inside(const Tet& t, OrderState o, Leaf& leaf, Split& split) const {
     Coord m;
     int i, j;
     if (!refinement(t, o, m, i, j)) return leaf(t, std::int64_t{-1});
@@ -186,15 +223,15 @@ private:
     Tet a = t, b = t;
     a[j] = m;
     b[i] = m;
-    Order oa, ob;
-    half_orders(o, j, oa, ob);
+    OrderState oa, ob;
+    half_orders(o, oa, ob);
     ValueSpan s = visit_inside(a, oa, leaf, split);
     s.add(visit_inside(b, ob, leaf, split));
     split(voxel, t, s);
     return s;
   }
 
-  void collect(const Tet& t, const Order& o, int depth, Frontier& f) const {
+  void collect(const Tet& t, OrderState o, int depth, Frontier& f) const {
     if (outside(t)) return;
     Coord m;
     int i, j;
@@ -211,8 +248,8 @@ private:
     Tet a = t, b = t;
     a[j] = m;
     b[i] = m;
-    Order oa, ob;
-    half_orders(o, j, oa, ob);
+    OrderState oa, ob;
+    half_orders(o, oa, ob);
     collect(a, oa, depth - 1, f);
     collect(b, ob, depth - 1, f);
     if (in) f.splits.push_back({lat_.index(m), t, first, f.roots.size()});

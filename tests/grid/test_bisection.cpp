@@ -321,11 +321,11 @@ TEST(Bisection, MaubachOrderNamesTheLongestEdgeAtEveryNode) {
   // lengths. Against brute force, at every node of the hierarchies of cubes of side 2 to 32: the
   // edge it names is the unique longest one, and the halves' orders follow.
   using detail::Coord;
-  using detail::Order;
+  using detail::OrderState;
   using detail::Tet;
   for (int k = 1; k <= 5; ++k) {
     const std::int32_t S = 1 << k;
-    std::vector<std::pair<Tet, Order>> stack;
+    std::vector<std::pair<Tet, OrderState>> stack;
     const auto roots = detail::root_tetrahedra(S);
     for (int r = 0; r < 6; ++r) stack.push_back({roots[static_cast<std::size_t>(r)], detail::root_order(r)});
     std::size_t nodes = 0;
@@ -349,8 +349,8 @@ TEST(Bisection, MaubachOrderNamesTheLongestEdgeAtEveryNode) {
       ASSERT_EQ(i, bi);
       ASSERT_EQ(j, bj);
       ASSERT_EQ(m, (Coord{(t[bi][0] + t[bj][0]) / 2, (t[bi][1] + t[bj][1]) / 2, (t[bi][2] + t[bj][2]) / 2}));
-      Order oa, ob;
-      detail::half_orders(o, j, oa, ob);
+      OrderState oa, ob;
+      detail::half_orders(o, oa, ob);
       Tet a = t, b = t;
       a[j] = m;
       b[i] = m;
