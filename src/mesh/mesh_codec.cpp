@@ -9,6 +9,8 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <vector>
 
 #include "adaptiso/error.hpp"
@@ -52,16 +54,65 @@ void put(std::string& out, const T& x) {
   out.append(reinterpret_cast<const char*>(&x), sizeof x);
 }
 
+// The working arrays of an encoding, kept for the next one. The viewer encodes a surface of
+// millions of triangles per request, and on virtual machines fresh memory of that size costs more
+// than the encoding itself (every page zeroed and faulted in anew: for the MR head's 17 M-triangle
+// surface, 2.5–3.7 s of which meshoptimizer's codecs took a fraction). A few sets are kept, one
+// per encoding under way, so small requests never wait behind a large one.
+struct Scratch {
+  std::vector<unsigned int> remap, indices;
+  std::vector<Packed> packed;
+  std::vector<unsigned char> vbuf, ibuf;
+};
+
+class ScratchPool {
+public:
+  std::unique_ptr<Scratch> take() {
+    std::lock_guard lock(mutex_);
+    if (free_.empty()) return std::make_unique<Scratch>();
+    auto s = std::move(free_.back());
+    free_.pop_back();
+    return s;
+  }
+  void give(std::unique_ptr<Scratch> s) {
+    std::lock_guard lock(mutex_);
+    if (free_.size() < kKept) free_.push_back(std::move(s));
+  }
+
+private:
+  static constexpr std::size_t kKept = 2;  // the surface at rest and one being dragged
+  std::mutex mutex_;
+  std::vector<std::unique_ptr<Scratch>> free_;
+};
+
+ScratchPool& scratch_pool() {
+  static ScratchPool pool;
+  return pool;
+}
+
+// Resizes without giving back capacity (and without zeroing what the next step overwrites).
+template <class T>
+void size_to(std::vector<T>& v, std::size_t n) {
+  if (v.capacity() < n) {
+    std::vector<T>().swap(v);
+    v.reserve(n + n / 8);  // room for a slightly larger surface next time
+  }
+  v.resize(n);
+}
+
 }  // namespace
 
 std::string encode_mesh_compact(const Mesh& m) {
   const std::size_t V = m.vertex_count(), T = m.triangle_count();
+  std::unique_ptr<Scratch> scratch = scratch_pool().take();
+  auto& [remap, indices, packed, vbuf, ibuf] = *scratch;
   // Vertices in first-use order: the codecs compress neighbours' differences.
-  std::vector<unsigned int> remap(V, ~0u);  // ~0u: a vertex no triangle uses
+  size_to(remap, V);  // ~0u (set by the remap): a vertex no triangle uses
   // The triangles as one index array (no element to take the address of when there is none).
   const unsigned int* triangles = reinterpret_cast<const unsigned int*>(m.triangles.data());
+  if (!T) std::fill(remap.begin(), remap.end(), ~0u);
   const std::size_t used = T ? meshopt_optimizeVertexFetchRemap(remap.data(), triangles, 3 * T, V) : 0;
-  std::vector<unsigned int> indices(3 * T);
+  size_to(indices, 3 * T);
   if (T) meshopt_remapIndexBuffer(indices.data(), triangles, 3 * T, remap.data());
   float lo[3] = {0, 0, 0}, step[3] = {1, 1, 1};
   if (V) {
@@ -71,23 +122,23 @@ std::string encode_mesh_compact(const Mesh& m) {
       for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], p[a]), hi[a] = std::max(hi[a], p[a]);
     for (int a = 0; a < 3; ++a) step[a] = hi[a] > lo[a] ? (hi[a] - lo[a]) / 65535.0f : 1.0f;
   }
-  std::vector<Packed> packed(used);
+  size_to(packed, used);
   const bool normals = m.normals.size() == V;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 1 << 14), [&](const auto& r) {
     for (std::size_t v = r.begin(); v < r.end(); ++v) {
       if (remap[v] == ~0u) continue;  // unused vertex
       Packed& p = packed[remap[v]];
-      for (int a = 0; a < 3; ++a)
-        p.q[a] = static_cast<std::uint16_t>(std::clamp(std::lround((m.positions[v][a] - lo[a]) / step[a]), 0L, 65535L));
+      for (int a = 0; a < 3; ++a)  // round half up by truncation (non-negative): lround is a library call
+        p.q[a] = static_cast<std::uint16_t>(std::clamp((m.positions[v][a] - lo[a]) / step[a] + 0.5f, 0.0f, 65535.0f));
       if (normals)
         octahedral(m.normals[v], p.o);
       else
         p.o[0] = p.o[1] = 0;
     }
   });
-  std::vector<unsigned char> vbuf(meshopt_encodeVertexBufferBound(used, sizeof(Packed)));
+  size_to(vbuf, meshopt_encodeVertexBufferBound(used, sizeof(Packed)));
   vbuf.resize(meshopt_encodeVertexBuffer(vbuf.data(), vbuf.size(), packed.data(), used, sizeof(Packed)));
-  std::vector<unsigned char> ibuf(meshopt_encodeIndexBufferBound(3 * T, used));
+  size_to(ibuf, meshopt_encodeIndexBufferBound(3 * T, used));
   ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), indices.data(), 3 * T));
   std::string out;
   out.reserve(44 + vbuf.size() + ibuf.size());
@@ -100,6 +151,7 @@ std::string encode_mesh_compact(const Mesh& m) {
   out.append(reinterpret_cast<const char*>(vbuf.data()), vbuf.size());
   put(out, static_cast<std::uint32_t>(ibuf.size()));
   out.append(reinterpret_cast<const char*>(ibuf.data()), ibuf.size());
+  scratch_pool().give(std::move(scratch));
   return out;
 }
 

@@ -6,6 +6,7 @@
 #include <map>
 #include <memory>
 #include <set>
+#include <thread>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/mesh_codec.hpp"
@@ -85,4 +86,26 @@ TEST(MeshCodec, EmptyMeshAndMalformedBuffersAreHandled) {
   huge[4] = huge[5] = huge[6] = huge[7] = '\xff';  // a vertex count the streams cannot hold
   EXPECT_THROW(decode_mesh_compact(huge), InputError);
   for (std::size_t cut = 0; cut < good.size(); cut += 97) EXPECT_THROW(decode_mesh_compact(good.substr(0, cut)), InputError);
+}
+
+// The encoder keeps its working arrays for the next call (the viewer's surfaces are millions of
+// triangles): a large mesh, a small one and the large again give the bytes of fresh encodings, and
+// threads encoding different meshes at once each get their own.
+TEST(MeshCodec, ReusedWorkingArraysGiveTheSameBytesAlsoFromSeveralThreads) {
+  const Mesh large = sphere_mesh(48), small = sphere_mesh(16);
+  const std::string a = encode_mesh_compact(large), b = encode_mesh_compact(small);
+  EXPECT_EQ(encode_mesh_compact(large), a);
+  EXPECT_EQ(encode_mesh_compact(small), b);
+  EXPECT_EQ(encode_mesh_compact(large), a);
+  Mesh none;
+  EXPECT_EQ(decode_mesh_compact(encode_mesh_compact(none)).triangle_count(), 0u);
+  EXPECT_EQ(encode_mesh_compact(small), b);
+  std::vector<std::thread> threads;
+  std::vector<int> wrong(4, 0);
+  for (int t = 0; t < 4; ++t)
+    threads.emplace_back([&, t] {
+      for (int k = 0; k < 10; ++k) wrong[static_cast<std::size_t>(t)] += encode_mesh_compact(t % 2 ? small : large) != (t % 2 ? b : a);
+    });
+  for (auto& th : threads) th.join();
+  EXPECT_EQ(wrong, std::vector<int>(4, 0));
 }
