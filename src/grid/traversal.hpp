@@ -59,8 +59,9 @@ inline std::array<Tet, 6> root_tetrahedra(std::int32_t S) {
 // apart, x3 the far corner) with k = 3; of the halves at z = (x0 + xk)/2, one keeps x0 (z in
 // xk's slot), the other drops it (x1 … xk move down one, z takes x0's slot as the new xk); both get
 // k − 1, or 3 after 1 (Maubach 1995). That edge is the longest one, as the tests check at every
-// node of the hierarchy, so the walk needs no edge lengths: it took the bunny's selection, which
-// visits 120 M tetrahedra twice, a tenth of its time.
+// node of the hierarchy, so the walk needs no edge lengths (they took 8.6 % of the bunny's whole
+// preparation, whose selection visits 120 M tetrahedra twice; without them it runs in 0.8× the
+// time).
 struct Order {
   std::array<std::uint8_t, 4> slot{0, 1, 2, 3};
   std::uint8_t k = 3;

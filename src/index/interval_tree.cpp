@@ -74,10 +74,10 @@ struct Builder {
   IntervalTree& tree;
   Record<K>* recs;
 
-  // The median midpoint of recs[b, e); above kSampled records, of an evenly spaced sample of them
-  // (the top of the tree would otherwise select among tens of millions on one core: the root of
-  // the bunny's 52 M records took that long; a sample of 65,536 splits within a few per mille of
-  // the median).
+  // The median midpoint of recs[b, e); above kSampled records, of an evenly spaced sample of them:
+  // the top of the tree would otherwise select among tens of millions of records on one core (the
+  // bunny's root: 52 M), while the median of 65,536 samples lies within about 0.4 % of the records
+  // of the true one (two standard errors).
   static constexpr std::uint64_t kSampled = std::uint64_t{1} << 20, kSample = std::uint64_t{1} << 16;
   double split_value(std::uint64_t b, std::uint64_t e) const {
     if (e - b <= kSampled) {
@@ -153,8 +153,8 @@ void sort_node(const Record<K>* recs, std::uint64_t b, std::uint64_t e, Key key,
     keys.resize(e - b);
     for (std::uint64_t i = b; i < e; ++i) keys[i - b] = ordered(key(recs[i]), recs[i].id);
     // A large node is sorted by the key alone, stably: equal keys keep the build's order, which
-    // is as deterministic as the ids and halves the passes (2 instead of 4; the lists of the
-    // bunny's grid sorted in 0.6× the time).
+    // is as deterministic as the ids and halves the passes (2 instead of 4; with the sampled
+    // splits the bunny's index builds in 0.55–0.78× the time).
     if (large)
       radix_sort(keys, scratch, 32);
     else
