@@ -125,10 +125,20 @@ inline bool refinement(const Tet& t, OrderState o, Coord& m, int& i, int& j) {
   return true;
 }
 
-// The states of the halves: the one whose slot j took the midpoint, and the one whose slot i did.
-inline void half_orders(OrderState o, OrderState& at_j, OrderState& at_i) {
-  at_j = order_table::kTable[o].at_j;
-  at_i = order_table::kTable[o].at_i;
+// A tetrahedron of the hierarchy with its order.
+struct Subtree {
+  Tet tet;
+  OrderState order;
+};
+
+// The halves of t split at m, its refinement edge's midpoint (slots i < j), with their orders: the
+// first has m in slot j, the second in slot i (replacing an end by the midpoint keeps the
+// orientation).
+inline std::array<Subtree, 2> halves(const Tet& t, OrderState o, const Coord& m, int i, int j) {
+  std::array<Subtree, 2> h{Subtree{t, order_table::kTable[o].at_j}, Subtree{t, order_table::kTable[o].at_i}};
+  h[0].tet[static_cast<std::size_t>(j)] = m;
+  h[1].tet[static_cast<std::size_t>(i)] = m;
+  return h;
 }
 
 // The values under a subtree (of its leaves' vertices), combined upwards.
@@ -143,10 +153,6 @@ struct ValueSpan {
 // The top of the traversal, cut into subtrees to run in parallel: the subtrees' roots in
 // depth-first order, and the split tetrahedra inside the box above them, each with the range of
 // subtrees below it (children before parents, so spans combine in one pass).
-struct Subtree {
-  Tet tet;
-  OrderState order;
-};
 struct Frontier {
   std::vector<Subtree> roots;
   struct Split {
@@ -201,13 +207,9 @@ private:
     Coord m;
     int i, j;
     if (!refinement(t, o, m, i, j) || !split_across(m)) return {};  // a leaf not inside is beyond the box
-    Tet a = t, b = t;
-    a[j] = m;  // replacing an end by the midpoint keeps the orientation
-    b[i] = m;
-    OrderState oa, ob;
-    half_orders(o, oa, ob);
-    ValueSpan s = visit(a, oa, leaf, split);
-    s.add(visit(b, ob, leaf, split));
+    const auto [a, b] = halves(t, o, m, i, j);
+    ValueSpan s = visit(a.tet, a.order, leaf, split);
+    s.add(visit(b.tet, b.order, leaf, split));
     return s;
   }
 
@@ -221,13 +223,9 @@ private:
     const Decision d = rule_.decide(voxel);
     if (d == Decision::leaf) return leaf(t, voxel);
     if (d == Decision::prune) return {};
-    Tet a = t, b = t;
-    a[j] = m;
-    b[i] = m;
-    OrderState oa, ob;
-    half_orders(o, oa, ob);
-    ValueSpan s = visit_inside(a, oa, leaf, split);
-    s.add(visit_inside(b, ob, leaf, split));
+    const auto [a, b] = halves(t, o, m, i, j);
+    ValueSpan s = visit_inside(a.tet, a.order, leaf, split);
+    s.add(visit_inside(b.tet, b.order, leaf, split));
     split(voxel, t, s);
     return s;
   }
@@ -246,13 +244,9 @@ private:
       return;  // a leaf not inside is beyond the box
     }
     const std::size_t first = f.roots.size();
-    Tet a = t, b = t;
-    a[j] = m;
-    b[i] = m;
-    OrderState oa, ob;
-    half_orders(o, oa, ob);
-    collect(a, oa, depth - 1, f);
-    collect(b, ob, depth - 1, f);
+    const auto [a, b] = halves(t, o, m, i, j);
+    collect(a.tet, a.order, depth - 1, f);
+    collect(b.tet, b.order, depth - 1, f);
     if (in) f.splits.push_back({lat_.index(m), t, first, f.roots.size()});
   }
 

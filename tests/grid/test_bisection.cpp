@@ -349,13 +349,14 @@ TEST(Bisection, MaubachOrderNamesTheLongestEdgeAtEveryNode) {
       ASSERT_EQ(i, bi);
       ASSERT_EQ(j, bj);
       ASSERT_EQ(m, (Coord{(t[bi][0] + t[bj][0]) / 2, (t[bi][1] + t[bj][1]) / 2, (t[bi][2] + t[bj][2]) / 2}));
-      OrderState oa, ob;
-      detail::half_orders(o, oa, ob);
       Tet a = t, b = t;
-      a[j] = m;
-      b[i] = m;
-      stack.push_back({a, oa});
-      stack.push_back({b, ob});
+      a[bj] = m;
+      b[bi] = m;
+      const auto h = detail::halves(t, o, m, i, j);
+      ASSERT_EQ(h[0].tet, a);
+      ASSERT_EQ(h[1].tet, b);
+      stack.push_back({a, h[0].order});
+      stack.push_back({b, h[1].order});
     }
     EXPECT_GT(nodes, std::size_t(6) << (3 * k - 1)) << "every level was visited";
   }
