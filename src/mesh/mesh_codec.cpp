@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "adaptiso/error.hpp"
+#include "util/big_array.hpp"
 
 namespace adaptiso {
 namespace {
@@ -90,16 +91,6 @@ ScratchPool& scratch_pool() {
   return pool;
 }
 
-// Resizes without giving back capacity (and without zeroing what the next step overwrites).
-template <class T>
-void size_to(std::vector<T>& v, std::size_t n) {
-  if (v.capacity() < n) {
-    std::vector<T>().swap(v);
-    v.reserve(n + n / 8);  // room for a slightly larger surface next time
-  }
-  v.resize(n);
-}
-
 }  // namespace
 
 std::string encode_mesh_compact(const Mesh& m) {
@@ -107,12 +98,12 @@ std::string encode_mesh_compact(const Mesh& m) {
   std::unique_ptr<Scratch> scratch = scratch_pool().take();
   auto& [remap, indices, packed, vbuf, ibuf] = *scratch;
   // Vertices in first-use order: the codecs compress neighbours' differences.
-  size_to(remap, V);  // ~0u (set by the remap): a vertex no triangle uses
+  detail::resize_big(remap, V);  // ~0u (set by the remap): a vertex no triangle uses
   // The triangles as one index array (no element to take the address of when there is none).
   const unsigned int* triangles = reinterpret_cast<const unsigned int*>(m.triangles.data());
   if (!T) std::fill(remap.begin(), remap.end(), ~0u);
   const std::size_t used = T ? meshopt_optimizeVertexFetchRemap(remap.data(), triangles, 3 * T, V) : 0;
-  size_to(indices, 3 * T);
+  detail::resize_big(indices, 3 * T);
   if (T) meshopt_remapIndexBuffer(indices.data(), triangles, 3 * T, remap.data());
   float lo[3] = {0, 0, 0}, step[3] = {1, 1, 1};
   if (V) {
@@ -122,7 +113,7 @@ std::string encode_mesh_compact(const Mesh& m) {
       for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], p[a]), hi[a] = std::max(hi[a], p[a]);
     for (int a = 0; a < 3; ++a) step[a] = hi[a] > lo[a] ? (hi[a] - lo[a]) / 65535.0f : 1.0f;
   }
-  size_to(packed, used);
+  detail::resize_big(packed, used);
   const bool normals = m.normals.size() == V;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 1 << 14), [&](const auto& r) {
     for (std::size_t v = r.begin(); v < r.end(); ++v) {
@@ -136,9 +127,9 @@ std::string encode_mesh_compact(const Mesh& m) {
         p.o[0] = p.o[1] = 0;
     }
   });
-  size_to(vbuf, meshopt_encodeVertexBufferBound(used, sizeof(Packed)));
+  detail::resize_big(vbuf, meshopt_encodeVertexBufferBound(used, sizeof(Packed)));
   vbuf.resize(meshopt_encodeVertexBuffer(vbuf.data(), vbuf.size(), packed.data(), used, sizeof(Packed)));
-  size_to(ibuf, meshopt_encodeIndexBufferBound(3 * T, used));
+  detail::resize_big(ibuf, meshopt_encodeIndexBufferBound(3 * T, used));
   ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), indices.data(), 3 * T));
   std::string out;
   out.reserve(44 + vbuf.size() + ibuf.size());
