@@ -81,7 +81,8 @@ try {
     },
     rest: {
       ms_after_release: settled.at - released, error: settled.error, level: settled.level, triangles: settled.triangles,
-      bytes_per_triangle: settled.bytes / Math.max(settled.triangles, 1), server_ms: settled.server, request_ms: settled.request,
+      bytes_per_triangle: settled.bytes / Math.max(settled.triangles, 1), server_ms: settled.server, wait_ms: settled.wait,
+      encode_ms: settled.encode, request_ms: settled.request,
       decode_ms: settled.decode, draw_ms: settled.draw,
     },
   }));

@@ -44,7 +44,7 @@ const tets = new THREE.LineSegments(new THREE.BufferGeometry(), new THREE.LineBa
 scene.add(surface, reference, points, tets);
 
 let info = null;
-const stats = { extract: 0, transfer: 0, decode: 0, bytes: 0, triangles: 0, vertices: 0, active: 0, incremental: false, inRange: true,
+const stats = { extract: 0, encode: 0, wait: 0, transfer: 0, decode: 0, bytes: 0, triangles: 0, vertices: 0, active: 0, incremental: false, inRange: true,
                 refTriangles: null, error: 0, guaranteed: true, level: 0, coarse: false };
 
 function resize() {
@@ -74,6 +74,7 @@ function updateStats() {
     `vertices: ${stats.vertices}`,
     `active tetrahedra: ${stats.active}`,
     `extraction: ${(stats.extract * 1000).toFixed(1)} ms${stats.incremental ? ' (incremental)' : ''}`,
+    `encoding: ${stats.encode.toFixed(1)} ms${stats.wait >= 1 ? `, after waiting ${stats.wait.toFixed(0)} ms for the background extraction` : ''}`,
     `transfer: ${stats.transfer.toFixed(1)} ms, ${(stats.bytes / Math.max(stats.triangles, 1)).toFixed(1)} bytes/triangle`,
     `decode: ${stats.decode.toFixed(1)} ms`,
   ];
@@ -174,7 +175,9 @@ async function pump() {
     const geometry = decodeCompact(buffer);
     const t2 = performance.now();
     stats.extract = Number(r.headers.get('X-Extract-Seconds'));
-    stats.transfer = t1 - t0 - 1000 * (stats.extract + Number(r.headers.get('X-Encode-Seconds')));
+    stats.encode = 1000 * Number(r.headers.get('X-Encode-Seconds'));
+    stats.wait = 1000 * Number(r.headers.get('X-Wait-Seconds'));
+    stats.transfer = t1 - t0 - 1000 * stats.extract - stats.encode - stats.wait;
     stats.decode = t2 - t1;
     stats.bytes = buffer.byteLength;
     stats.triangles = Number(r.headers.get('X-Triangles'));
@@ -193,7 +196,7 @@ async function pump() {
     const t3 = performance.now();
     shownIso = iso;
     record.push({ iso, coarse, level: stats.level, error: stats.error, triangles: stats.triangles, bytes: stats.bytes,
-                  request: t1 - t0, server: 1000 * stats.extract, decode: t2 - t1, draw: t3 - t2, fromInput: t2 - input,
+                  request: t1 - t0, server: 1000 * stats.extract, wait: stats.wait, encode: stats.encode, decode: t2 - t1, draw: t3 - t2, fromInput: t2 - input,
                   fromInputDrawn: t3 - input, at: t3 });
     updateStats();
     const layers = [];

@@ -15,9 +15,15 @@
 //
 // The Extractor shares ownership of its grid, so the grid outlives every client that uses it.
 // One Extractor is used by one thread at a time; any number of Extractors may share a grid.
+//
+// extract() may be given a cancel flag, read between its stages (sweep, collecting, marching,
+// placing): once raised, extract throws ExtractCancelled within one stage, and the Extractor's
+// next extract marches afresh. The viewer cancels background work this way when a page asks.
 #pragma once
+#include <atomic>
 #include <cstdint>
 #include <memory>
+#include <stdexcept>
 #include <vector>
 
 #include "adaptiso/mesh.hpp"
@@ -47,6 +53,10 @@ struct ExtractStats {
   bool incremental = false;  // the mesh was updated from the previous one
 };
 
+struct ExtractCancelled : std::runtime_error {
+  ExtractCancelled() : std::runtime_error("extraction cancelled") {}
+};
+
 class Extractor {
 public:
   explicit Extractor(std::shared_ptr<const PreparedGrid> grid, const ExtractorOptions& options = {});
@@ -54,7 +64,7 @@ public:
   Extractor(Extractor&&) noexcept;
   Extractor& operator=(Extractor&&) noexcept;
 
-  ExtractStats extract(double iso);
+  ExtractStats extract(double iso, const std::atomic<bool>* cancel = nullptr);
   const Mesh& mesh() const;
   // The active tetrahedra of the last extract, in slot order (ascending after a fresh march).
   const std::vector<std::uint32_t>& active() const;

@@ -83,7 +83,9 @@ ExtractorState::ExtractorState(std::shared_ptr<const PreparedGrid> p, const Extr
 void ExtractorState::fresh(double iso) {
   active.clear();
   active_tetrahedra(tree, sweep, active);
+  checkpoint();
   sort_ids(active, grid.tet_count(), bitmap_);
+  checkpoint();
   // Edge ends (64 bytes per vertex, about 0.7 vertices per active tetrahedron) are kept only up to
   // edge_cache_max_tetrahedra; larger surfaces are re-interpolated from the grid, a little slower.
   cache_ends = active.size() <= options.edge_cache_max_tetrahedra;
@@ -118,10 +120,13 @@ bool ExtractorState::step(double iso) {
                            ? options.max_changed_fraction * static_cast<double>(std::max<std::size_t>(old_slots_, 1))
                            : std::numeric_limits<double>::infinity();
   if (!collect_entered(iso, limit)) return false;
+  checkpoint();
   if (!find_changed(iso, limit)) return false;  // codes and gaps are rebuilt by the fresh march
+  checkpoint();
   release_changed();
   split_work();
   march_work();
+  checkpoint();
   place_vertices();
   place_slots();
   place_triangles();
@@ -488,7 +493,7 @@ const std::vector<std::uint64_t>& Extractor::vertex_edges() const { return state
 bool Extractor::last_was_incremental() const { return state_->incremental; }
 const PreparedGrid& Extractor::grid() const { return *state_->prepared; }
 
-ExtractStats Extractor::extract(double iso) {
+ExtractStats Extractor::extract(double iso, const std::atomic<bool>* cancel) {
   using Clock = std::chrono::steady_clock;
   auto& s = *state_;
   ExtractStats st;
@@ -504,9 +509,13 @@ ExtractStats Extractor::extract(double iso) {
   // Should anything below throw, the state is half updated: the next call then starts afresh.
   const bool had_previous = s.valid;
   s.valid = false;
+  s.cancel = cancel;
+  s.scratch.cancel = cancel;
+  s.checkpoint();
   s.incremental = had_previous && s.step(iso);
   if (!s.incremental) s.fresh(iso);
   s.valid = true;
+  s.cancel = s.scratch.cancel = nullptr;
   const auto t2 = Clock::now();
   st.walked = s.sweep.walked;
   st.active = s.active.size();

@@ -60,6 +60,13 @@ struct ExtractorState {
   std::vector<EdgeEnds> ends;        // per vertex, for re-interpolation (when cache_ends)
   bool cache_ends = false;
   MarchScratch scratch;
+  const std::atomic<bool>* cancel = nullptr;  // of the extract under way
+
+  // Between stages: throws ExtractCancelled once the flag is raised (the caller has marked the
+  // state invalid, so the next extract starts afresh).
+  void checkpoint() const {
+    if (cancel && cancel->load(std::memory_order_relaxed)) throw ExtractCancelled();
+  }
 
   void fresh(double iso);
   bool step(double iso);  // the incremental path; false when a fresh march is cheaper

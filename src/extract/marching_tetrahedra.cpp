@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 
+#include "adaptiso/extractor.hpp"
 #include "adaptiso/marching_tetrahedra.hpp"
 #include "extract/march_detail.hpp"
 
@@ -156,6 +157,7 @@ void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, M
     constexpr std::size_t kBatch = 256;
     auto& keys = ch.pending;
     for (std::size_t i0 = b; i0 < e; i0 += kBatch) {
+      if (sc.cancel && sc.cancel->load(std::memory_order_relaxed)) return;
       const std::size_t i1 = std::min(e, i0 + kBatch);
       keys.clear();
       for (std::size_t i = i0; i < i1; ++i) {
@@ -174,6 +176,7 @@ void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, M
       }
     }
   });
+  if (sc.cancel && sc.cancel->load()) throw ExtractCancelled();  // the chunks may be incomplete
   auto& order = sc.order;
   number_chunk_edges(sc.chunks, order);
   // 2. Triangles in the order of the tetrahedra, with their global vertex ids (in parallel).

@@ -141,16 +141,30 @@ struct Served {
 // a coarse level never waits behind a long extraction at a fine one.
 struct LevelExtractor {
   std::mutex mutex;
+  // Raised by a page's request for this level: the background follower's extraction yields.
+  std::atomic<bool> page_waiting{false};
+  std::atomic<std::uint64_t> page_requests{0};  // counts them: a follower's job queued before one is stale
   std::unique_ptr<Extractor> extractor;
   double iso = std::numeric_limits<double>::quiet_NaN();  // of the surface it holds
-  // The surface at iso on grid: extracted unless it already is.
-  const Mesh& at(const std::shared_ptr<const PreparedGrid>& grid, double value, ExtractStats* stats = nullptr) {
+  // The lock for a page's request: the follower's extraction under way yields at its next stage.
+  std::unique_lock<std::mutex> lock_for_page() {
+    page_requests.fetch_add(1);
+    page_waiting.store(true);
+    std::unique_lock lock(mutex);
+    page_waiting.store(false);
+    return lock;
+  }
+  // The surface at iso on grid: extracted unless it already is. With a cancel flag it may throw
+  // ExtractCancelled, leaving no surface (the next call extracts afresh).
+  const Mesh& at(const std::shared_ptr<const PreparedGrid>& grid, double value, ExtractStats* stats = nullptr,
+                 const std::atomic<bool>* cancel = nullptr) {
     if (!extractor || &extractor->grid() != grid.get()) {
       extractor = std::make_unique<Extractor>(grid);
       iso = std::numeric_limits<double>::quiet_NaN();
     }
     if (value != iso || stats) {
-      const ExtractStats st = extractor->extract(value);
+      iso = std::numeric_limits<double>::quiet_NaN();  // until the extraction completes
+      const ExtractStats st = extractor->extract(value, cancel);
       iso = value;
       if (stats) *stats = st;
     }
@@ -171,13 +185,14 @@ struct Client {
 };
 
 // While a page drags (coarse surfaces within a budget), its surface at rest follows in the
-// background on one thread at low priority, the latest iso-value only; so when the slider rests
-// the accurate surface is a small step away, not a long one. The coarse requests keep the other
-// cores.
+// background at low priority, the latest iso-value only; so when the slider rests the accurate
+// surface is a small step away, not a long one. It uses every core: the coarse requests are small
+// (under a millisecond of extraction on the MR head), and on a noisy scan each step of the
+// follower is a march of millions of triangles. A page's own request for the level makes the
+// follower's extraction yield at its next stage rather than wait for it to finish.
 class Follower {
 public:
-  Follower()
-      : arena_(tbb::task_arena::constraints{}.set_max_concurrency(1), 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
+  Follower() : arena_(tbb::task_arena::automatic, 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
   ~Follower() {
     {
       std::lock_guard lock(mutex_);
@@ -189,7 +204,7 @@ public:
   void follow(const std::shared_ptr<LevelExtractor>& slot, std::shared_ptr<const PreparedGrid> grid, double iso) {
     {
       std::lock_guard lock(mutex_);
-      jobs_[slot.get()] = {slot, std::move(grid), iso};
+      jobs_[slot.get()] = {slot, std::move(grid), iso, slot->page_requests.load()};
     }
     ready_.notify_one();
   }
@@ -199,6 +214,7 @@ private:
     std::weak_ptr<LevelExtractor> slot;
     std::shared_ptr<const PreparedGrid> grid;
     double iso = 0;
+    std::uint64_t page_requests = 0;  // the slot's count when queued
   };
   void run() {
     for (;;) {
@@ -213,8 +229,12 @@ private:
       auto slot = job.slot.lock();
       if (!slot) continue;  // the client is gone
       std::lock_guard lock(slot->mutex);
+      // The page asked for this level since the job was queued (or is asking now): it has, or is
+      // about to get, the surface it wants; following an older iso-value would only move away.
+      if (slot->page_requests.load() != job.page_requests) continue;
       try {
-        arena_.execute([&] { slot->at(job.grid, job.iso); });
+        arena_.execute([&] { slot->at(job.grid, job.iso, nullptr, &slot->page_waiting); });
+      } catch (const ExtractCancelled&) {  // the page asked meanwhile: its request extracts
       } catch (const std::exception& e) {  // the page's own request will meet and report it
         std::cerr << "adaptiso view: background extraction failed: " << e.what() << "\n";
       }
@@ -505,7 +525,12 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const auto grid = s.at(level);
   auto c = client(id);
   auto slot = c->level(level);
-  std::unique_lock lock(slot->mutex);  // one extraction at a time per page and level; others run freely
+  const auto queued = std::chrono::steady_clock::now();
+  // One extraction at a time per page and level; others run freely. The follower yields to this
+  // request, and its jobs for the level queued before it are dropped.
+  const auto lock = slot->lock_for_page();
+  // Time spent behind this level's other work (the follower's current stage), reported apart.
+  const double wait = std::chrono::duration<double>(std::chrono::steady_clock::now() - queued).count();
   ExtractStats st;
   slot->at(grid, iso, &st);
   if (s.levels) s.levels->record(level, st.triangles);
@@ -516,6 +541,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.sweep_seconds + st.march_seconds));
   res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));
+  res.set_header("X-Wait-Seconds", fmt::format("{:.6f}", wait));
   res.set_header("X-Triangles", std::to_string(st.triangles));
   res.set_header("X-Vertices", std::to_string(st.vertices));
   res.set_header("X-Active-Tetrahedra", std::to_string(st.active));
@@ -543,7 +569,7 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   auto slot = client(id)->level(level);
   Mesh mesh;
   {
-    std::lock_guard lock(slot->mutex);
+    const auto lock = slot->lock_for_page();
     mesh = slot->at(grid, iso);
   }
   const Vec3& sp = grid->grid.source.spacing;

@@ -4,10 +4,13 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <iterator>
 #include <map>
 #include <random>
+#include <thread>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/interval_tree.hpp"
@@ -210,4 +213,52 @@ TEST(Extractor, IncrementalStepsOnALargeGridMatchFreshExtractionForAnyThreadCoun
   }
   EXPECT_GE(incremental, 10u);
   EXPECT_GE(large, 5u);  // the multi-chunk path ran
+}
+
+TEST(Extractor, CancelledAtAnyMomentTheNextExtractionStillMatchesAFreshMarch) {
+  // The viewer's background follower is cancelled whenever a page asks: at whatever stage the flag
+  // is seen, extract throws ExtractCancelled and the Extractor stays usable, its next surface the
+  // fresh march's. Raised before the call (always cancelled), never, and after random delays that
+  // land in the sweep, the collection, the march or the placing.
+  Volume v = make_synthetic("marschner-lobb", 40, ScalarType::f32);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g);
+  ExtractorOptions chunked;
+  chunked.parallel_min_tetrahedra = 1;
+  Extractor ex(testutil::prepared(g, tree), chunked);
+  std::mt19937 rng(5);
+  const double range = g.source.max - g.source.min;
+  double iso = 0.5 * (g.source.min + g.source.max);
+  ex.extract(iso);
+  std::size_t cancelled = 0;
+  for (int step = 0; step < 30; ++step) {
+    iso += (step % 4 == 3 ? 0.05 : (step % 2 ? -0.004 : 0.003)) * range;  // small steps and large ones
+    std::atomic<bool> flag{step % 5 == 0};
+    std::thread raiser;
+    if (step % 5 >= 2)
+      raiser = std::thread([&flag, us = rng() % 3000] {
+        std::this_thread::sleep_for(std::chrono::microseconds(us));
+        flag.store(true);
+      });
+    bool was_cancelled = false;
+    try {
+      ex.extract(iso, &flag);
+    } catch (const ExtractCancelled&) {
+      was_cancelled = true;
+    }
+    if (raiser.joinable()) raiser.join();
+    if (step % 5 == 0) ASSERT_TRUE(was_cancelled) << step;
+    if (step % 5 == 1) ASSERT_FALSE(was_cancelled) << step;
+    if (was_cancelled) {
+      ++cancelled;
+      ex.extract(iso);
+      ASSERT_FALSE(ex.last_was_incremental()) << step;  // a cancelled state is never stepped from
+    }
+    std::vector<std::uint32_t> act;
+    scan_active(g, iso, act);
+    std::vector<std::uint64_t> ref_edges;
+    const Mesh ref = march_tetrahedra(g, act, iso, MarchOptions{1}, &ref_edges);
+    ASSERT_TRUE(same_surface(ex, ref, ref_edges)) << step << (was_cancelled ? " after a cancellation" : "");
+  }
+  EXPECT_GE(cancelled, 6u);
 }

@@ -459,6 +459,41 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
     EXPECT_EQ(c.Get(std::string("/api/surface?iso=0.5&") + bad)->status, 400) << bad;
 }
 
+TEST(ViewServer, AfterADragTheSurfaceAtRestIsTheFreshMarchsWhateverTheFollowerWasDoing) {
+  // While a page drags, the follower extracts the level at rest in the background; the page's own
+  // request cancels it mid-way or drops its stale jobs. Whatever it was doing, the surface at rest
+  // and its export are those of a fresh extraction at the released iso-value.
+  const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 48, ScalarType::f32));
+  const auto grid = bisection_grid_of(*volume, 0.002);
+  Running run(options());
+  run.server.set_grid(grid);
+  auto c = run.client();
+  for (int i = 0; i < 500; ++i) {  // the levels are built in the background
+    const auto info = nlohmann::json::parse(c.Get("/api/info")->body);
+    if (info["levels"].size() > 1 && info["levels"].back()["built"].get<bool>()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  for (int round = 0; round < 3; ++round) {
+    const double released = 0.3 + 0.1 * round;
+    for (int step = 0; step <= 20; ++step) {  // a drag: coarse answers, each queueing the follower
+      const double iso = 0.75 - (0.75 - released) * step / 20.0;
+      ASSERT_EQ(c.Get(fmt::format("/api/surface?iso={:.17g}&client=d&budget=50", iso))->status, 200);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(round * 3));  // catch the follower at different stages
+    auto rest = c.Get(fmt::format("/api/surface?iso={:.17g}&client=d", released));
+    ASSERT_EQ(rest->status, 200);
+    EXPECT_EQ(rest->get_header_value("X-Level"), "0");
+    EXPECT_GE(std::stod(rest->get_header_value("X-Wait-Seconds")), 0.0);
+    Extractor direct(grid);
+    direct.extract(released);
+    EXPECT_TRUE(same_surface(rest->body, encode_mesh(direct.mesh()))) << "round " << round;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));  // stale follower jobs would run now
+    auto file = c.Get(fmt::format("/api/export?iso={:.17g}&client=d&format=ply", released));
+    ASSERT_EQ(file->status, 200);
+    EXPECT_EQ(file->get_header_value("X-Triangles"), std::to_string(direct.mesh().triangle_count())) << "round " << round;
+  }
+}
+
 TEST(ViewServer, ExportDownloadsTheSurfaceSimplified) {
   const auto grid = bisection_grid_of(make_synthetic("sphere", 40, ScalarType::i16), 0.01);
   Running run(options());
