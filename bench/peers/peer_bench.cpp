@@ -3,6 +3,7 @@
 // exclude I/O and are the best of --repeat runs after a warm-up. Meshes are written as PLY for the
 // surface-distance comparison.
 //   peer_bench vtk VOLUME ISO OUT_PREFIX       flying edges (SMP) and marching cubes
+//   peer_bench fe VOLUME ISO OUT.ply           flying edges (SMP) alone
 //   peer_bench vdb VOLUME ISO OUT_PREFIX       OpenVDB volumeToMesh at adaptivity 0, 0.25, 0.5, 1
 //   peer_bench simplify MESH.ply TRIANGLES OUT.ply   meshoptimizer simplification to a triangle count
 //   peer_bench vtkgrid GRID.vtu ISO[,ISO...]   vtkContour3DLinearGrid with a vtkSpanSpace scalar tree
@@ -94,6 +95,20 @@ int main(int argc, char** argv) {
     to_world(v, m);
     write_mesh(m, prefix + "marching_cubes.ply");
     print("vtkMarchingCubes", "", m.triangle_count(), t);
+    return 0;
+  }
+  if (cmd == "fe") {  // flying edges alone: the start of "flying edges + meshoptimizer" in bench/simplify.py
+    Volume v = read_volume(argv[2]);
+    std::vector<float> f(static_cast<std::size_t>(v.voxel_count()));
+    for (std::int64_t i = 0; i < v.voxel_count(); ++i) f[i] = float(v.at(i));
+    const int dims[3] = {int(v.dims[0]), int(v.dims[1]), int(v.dims[2])};
+    PeerMesh pm;
+    std::string backend;
+    const double t = vtk_flying_edges(f.data(), dims, v.spacing.data(), std::stod(argv[3]), repeat, pm, backend);
+    Mesh m = to_mesh(pm);
+    to_world(v, m);
+    write_mesh(m, argv[4]);
+    print("vtkFlyingEdges3D", "\"smp\":\"" + backend + "\",", m.triangle_count(), t);
     return 0;
   }
   if (cmd == "world") {  // peer_bench world VOLUME MESH.ply: rewrite a grid-frame mesh in world coordinates
