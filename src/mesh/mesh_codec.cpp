@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 #include <meshoptimizer.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
 #include <cmath>
@@ -91,21 +92,11 @@ ScratchPool& scratch_pool() {
   return pool;
 }
 
-}  // namespace
-
-std::string encode_mesh_compact(const Mesh& m) {
-  const std::size_t V = m.vertex_count(), T = m.triangle_count();
-  std::unique_ptr<Scratch> scratch = scratch_pool().take();
-  auto& [remap, indices, packed, vbuf, ibuf] = *scratch;
-  // Vertices in first-use order: the codecs compress neighbours' differences.
-  detail::resize_big(remap, V);  // ~0u (set by the remap): a vertex no triangle uses
-  // The triangles as one index array (no element to take the address of when there is none).
-  const unsigned int* triangles = reinterpret_cast<const unsigned int*>(m.triangles.data());
-  if (!T) std::fill(remap.begin(), remap.end(), ~0u);
-  const std::size_t used = T ? meshopt_optimizeVertexFetchRemap(remap.data(), triangles, 3 * T, V) : 0;
-  detail::resize_big(indices, 3 * T);
-  if (T) meshopt_remapIndexBuffer(indices.data(), triangles, 3 * T, remap.data());
-  float lo[3] = {0, 0, 0}, step[3] = {1, 1, 1};
+// Positions quantized to 16 bits in the mesh's bounding box (lo + step * q) and normals as 8-bit
+// octahedral pairs, in remap order, then meshoptimizer's vertex codec.
+void encode_vertices(const Mesh& m, const std::vector<unsigned int>& remap, std::size_t used, float lo[3], float step[3],
+                     std::vector<Packed>& packed, std::vector<unsigned char>& vbuf) {
+  const std::size_t V = m.vertex_count();
   if (V) {
     float hi[3];
     for (int a = 0; a < 3; ++a) lo[a] = hi[a] = m.positions[0][a];
@@ -129,8 +120,31 @@ std::string encode_mesh_compact(const Mesh& m) {
   });
   detail::resize_big(vbuf, meshopt_encodeVertexBufferBound(used, sizeof(Packed)));
   vbuf.resize(meshopt_encodeVertexBuffer(vbuf.data(), vbuf.size(), packed.data(), used, sizeof(Packed)));
-  detail::resize_big(ibuf, meshopt_encodeIndexBufferBound(3 * T, used));
-  ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), indices.data(), 3 * T));
+}
+
+}  // namespace
+
+std::string encode_mesh_compact(const Mesh& m) {
+  const std::size_t V = m.vertex_count(), T = m.triangle_count();
+  std::unique_ptr<Scratch> scratch = scratch_pool().take();
+  auto& [remap, indices, packed, vbuf, ibuf] = *scratch;
+  // Vertices in first-use order: the codecs compress neighbours' differences.
+  detail::resize_big(remap, V);  // ~0u (set by the remap): a vertex no triangle uses
+  // The triangles as one index array (no element to take the address of when there is none).
+  const unsigned int* triangles = reinterpret_cast<const unsigned int*>(m.triangles.data());
+  if (!T) std::fill(remap.begin(), remap.end(), ~0u);
+  const std::size_t used = T ? meshopt_optimizeVertexFetchRemap(remap.data(), triangles, 3 * T, V) : 0;
+  // The index and vertex streams only share the remap: encode them side by side (meshoptimizer's
+  // codecs run on one thread each). Same bytes as one after the other.
+  float lo[3] = {0, 0, 0}, step[3] = {1, 1, 1};
+  tbb::parallel_invoke(
+      [&] {
+        detail::resize_big(indices, 3 * T);
+        if (T) meshopt_remapIndexBuffer(indices.data(), triangles, 3 * T, remap.data());
+        detail::resize_big(ibuf, meshopt_encodeIndexBufferBound(3 * T, used));
+        ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), indices.data(), 3 * T));
+      },
+      [&] { encode_vertices(m, remap, used, lo, step, packed, vbuf); });
   std::string out;
   out.reserve(44 + vbuf.size() + ibuf.size());
   out.append("ADM1", 4);
