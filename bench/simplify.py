@@ -12,7 +12,8 @@ volume and iso-value:
 Per row: triangles, mean / 95th percentile symmetric distance to the full-resolution surface
 (`adaptiso mc`, voxels of the smallest spacing, `adaptiso compare`), and the seconds of extraction +
 simplification (the tools' own timings, no file I/O). The peers need `peer_bench` (scripts/bench.sh
-builds it, -DADAPTISO_BUILD_PEERS=ON); without it their columns are left out with a message.
+builds it and bench_simplify into build/peers, -DADAPTISO_BUILD_PEERS=ON); without it their columns
+are left out with a message.
 
 Usage: bench/simplify.py --build BUILD [--data DIR] [--work DIR] [--distances 0.1,0.25,0.5]
                          [--error 0.02] [--repeat 3] [--out RECORDS.json] [--plot PNG] [DATASET[:ISO,...] ...]

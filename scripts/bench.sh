@@ -9,6 +9,6 @@ PEERS=(libvtk9-dev python3-vtk9 libopenvdb-dev libboost-iostreams-dev python3-sk
 ./scripts/deps.sh "${PEERS[@]}"
 cmake -S . -B build/peers -G Ninja -DCMAKE_BUILD_TYPE=Release -DADAPTISO_BUILD_TESTS=OFF -DADAPTISO_BUILD_APPS=ON \
   -DADAPTISO_BUILD_BENCH=ON -DADAPTISO_BUILD_PEERS=ON -DADAPTISO_SANITIZE=OFF >/dev/null
-cmake --build build/peers --target adaptiso_cli bench_extract peer_bench
+cmake --build build/peers --target adaptiso_cli bench_extract bench_simplify peer_bench
 exec /usr/bin/python3 bench/run_bench.py --build build/peers --data "${ADAPTISO_DATA:-../shared/data}" --out bench/results \
   --work build/bench-work --errors "${BENCH_ERRORS:-0.05}" --repeat "${BENCH_REPEAT:-3}" "$@"
