@@ -60,6 +60,29 @@ void print(const std::string& method, const std::string& extra, std::size_t tris
   std::fflush(stdout);
 }
 
+// The volume's values as floats, x fastest, with its dimensions: what VTK's filters take.
+struct Floats {
+  std::vector<float> values;
+  int dims[3];
+};
+
+Floats as_floats(const Volume& v) {
+  Floats f{std::vector<float>(static_cast<std::size_t>(v.voxel_count())), {int(v.dims[0]), int(v.dims[1]), int(v.dims[2])}};
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) f.values[i] = float(v.at(i));
+  return f;
+}
+
+// Flying edges (SMP) at iso: timed, written to path in world coordinates, and printed.
+void flying_edges_to(const Volume& v, const Floats& f, double iso, const std::string& path) {
+  PeerMesh pm;
+  std::string backend;
+  const double t = vtk_flying_edges(f.values.data(), f.dims, v.spacing.data(), iso, repeat, pm, backend);
+  Mesh m = to_mesh(pm);
+  to_world(v, m);
+  write_mesh(m, path);
+  print("vtkFlyingEdges3D", "\"smp\":\"" + backend + "\",", m.triangle_count(), t);
+}
+
 int main(int argc, char** argv) {
   if (argc < 3) {
     std::fprintf(stderr, "usage: see the comment at the top of peer_bench.cpp\n");
@@ -69,9 +92,8 @@ int main(int argc, char** argv) {
   if (const char* r = std::getenv("PEER_REPEAT")) repeat = std::max(1, std::atoi(r));
   if (cmd == "dump") {
     Volume v = read_volume(argv[2]);
-    std::vector<float> f(static_cast<std::size_t>(v.voxel_count()));
-    for (std::int64_t i = 0; i < v.voxel_count(); ++i) f[i] = float(v.at(i));
-    std::ofstream(argv[3], std::ios::binary).write(reinterpret_cast<const char*>(f.data()), std::streamsize(f.size() * 4));
+    const Floats f = as_floats(v);
+    std::ofstream(argv[3], std::ios::binary).write(reinterpret_cast<const char*>(f.values.data()), std::streamsize(f.values.size() * 4));
     std::printf("{\"dims\":[%lld,%lld,%lld],\"spacing\":[%g,%g,%g]}\n", (long long)v.dims[0], (long long)v.dims[1], (long long)v.dims[2],
                 v.spacing[0], v.spacing[1], v.spacing[2]);
     return 0;
@@ -80,18 +102,11 @@ int main(int argc, char** argv) {
     Volume v = read_volume(argv[2]);
     const double iso = std::stod(argv[3]);
     const std::string prefix = argv[4];
-    std::vector<float> f(static_cast<std::size_t>(v.voxel_count()));
-    for (std::int64_t i = 0; i < v.voxel_count(); ++i) f[i] = float(v.at(i));
-    const int dims[3] = {int(v.dims[0]), int(v.dims[1]), int(v.dims[2])};
+    const Floats f = as_floats(v);
+    flying_edges_to(v, f, iso, prefix + "flying_edges.ply");
     PeerMesh pm;
-    std::string backend;
-    double t = vtk_flying_edges(f.data(), dims, v.spacing.data(), iso, repeat, pm, backend);
+    const double t = vtk_marching_cubes(f.values.data(), f.dims, v.spacing.data(), iso, repeat, pm);
     Mesh m = to_mesh(pm);
-    to_world(v, m);
-    write_mesh(m, prefix + "flying_edges.ply");
-    print("vtkFlyingEdges3D", "\"smp\":\"" + backend + "\",", m.triangle_count(), t);
-    t = vtk_marching_cubes(f.data(), dims, v.spacing.data(), iso, repeat, pm);
-    m = to_mesh(pm);
     to_world(v, m);
     write_mesh(m, prefix + "marching_cubes.ply");
     print("vtkMarchingCubes", "", m.triangle_count(), t);
@@ -99,16 +114,7 @@ int main(int argc, char** argv) {
   }
   if (cmd == "fe") {  // flying edges alone: the start of "flying edges + meshoptimizer" in bench/simplify.py
     Volume v = read_volume(argv[2]);
-    std::vector<float> f(static_cast<std::size_t>(v.voxel_count()));
-    for (std::int64_t i = 0; i < v.voxel_count(); ++i) f[i] = float(v.at(i));
-    const int dims[3] = {int(v.dims[0]), int(v.dims[1]), int(v.dims[2])};
-    PeerMesh pm;
-    std::string backend;
-    const double t = vtk_flying_edges(f.data(), dims, v.spacing.data(), std::stod(argv[3]), repeat, pm, backend);
-    Mesh m = to_mesh(pm);
-    to_world(v, m);
-    write_mesh(m, argv[4]);
-    print("vtkFlyingEdges3D", "\"smp\":\"" + backend + "\",", m.triangle_count(), t);
+    flying_edges_to(v, as_floats(v), std::stod(argv[3]), argv[4]);
     return 0;
   }
   if (cmd == "world") {  // peer_bench world VOLUME MESH.ply: rewrite a grid-frame mesh in world coordinates
@@ -120,15 +126,13 @@ int main(int argc, char** argv) {
   }
   if (cmd == "vtksweep") {  // flying edges per iso-value, for the sweep plot
     Volume v = read_volume(argv[2]);
-    std::vector<float> f(static_cast<std::size_t>(v.voxel_count()));
-    for (std::int64_t i = 0; i < v.voxel_count(); ++i) f[i] = float(v.at(i));
-    const int dims[3] = {int(v.dims[0]), int(v.dims[1]), int(v.dims[2])};
+    const Floats f = as_floats(v);
     std::stringstream ss(argv[3]);
     for (std::string tok; std::getline(ss, tok, ',');) {
       PeerMesh pm;
       std::string backend;
       const double iso = std::stod(tok);
-      double t = vtk_flying_edges(f.data(), dims, v.spacing.data(), iso, repeat, pm, backend);
+      double t = vtk_flying_edges(f.values.data(), f.dims, v.spacing.data(), iso, repeat, pm, backend);
       print("vtkFlyingEdges3D", "\"iso\":" + tok + ",", pm.triangles.size() / 3, t);
     }
     return 0;

@@ -509,13 +509,12 @@ ExtractStats Extractor::extract(double iso, const std::atomic<bool>* cancel) {
   // Should anything below throw, the state is half updated: the next call then starts afresh.
   const bool had_previous = s.valid;
   s.valid = false;
-  s.cancel = cancel;
   s.scratch.cancel = cancel;
   s.checkpoint();
   s.incremental = had_previous && s.step(iso);
   if (!s.incremental) s.fresh(iso);
   s.valid = true;
-  s.cancel = s.scratch.cancel = nullptr;
+  s.scratch.cancel = nullptr;
   const auto t2 = Clock::now();
   st.walked = s.sweep.walked;
   st.active = s.active.size();

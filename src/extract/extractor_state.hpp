@@ -59,13 +59,12 @@ struct ExtractorState {
   std::vector<std::uint64_t> keys;   // per vertex, its cut edge
   std::vector<EdgeEnds> ends;        // per vertex, for re-interpolation (when cache_ends)
   bool cache_ends = false;
-  MarchScratch scratch;
-  const std::atomic<bool>* cancel = nullptr;  // of the extract under way
+  MarchScratch scratch;  // its cancel flag is the extract's under way, read by the march too
 
   // Between stages: throws ExtractCancelled once the flag is raised (the caller has marked the
   // state invalid, so the next extract starts afresh).
   void checkpoint() const {
-    if (cancel && cancel->load(std::memory_order_relaxed)) throw ExtractCancelled();
+    if (scratch.cancel && scratch.cancel->load(std::memory_order_relaxed)) throw ExtractCancelled();
   }
 
   void fresh(double iso);

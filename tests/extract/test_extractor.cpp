@@ -83,6 +83,15 @@ testing::AssertionResult same_surface(const Extractor& ex, const Mesh& ref, cons
 
 }  // namespace
 
+// The Extractor's mesh against a fresh march of the brute-force scan's active tetrahedra at iso.
+testing::AssertionResult matches_fresh_march(const Extractor& ex, const TetGrid& g, double iso) {
+  std::vector<std::uint32_t> act;
+  scan_active(g, iso, act);
+  std::vector<std::uint64_t> ref_edges;
+  const Mesh ref = march_tetrahedra(g, act, iso, MarchOptions{1}, &ref_edges);
+  return same_surface(ex, ref, ref_edges);
+}
+
 TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
   std::mt19937 rng(5);
   for (int trial = 0; trial < 60; ++trial) {
@@ -171,12 +180,8 @@ TEST(Extractor, StepsBetweenAValueAndItsFloatRoundingMatchFreshExtraction) {
   }
   for (std::size_t step = 0; step < isos.size(); ++step) {
     ex.extract(isos[step]);
-    std::vector<std::uint32_t> act;
-    scan_active(g, isos[step], act);
-    std::vector<std::uint64_t> ref_edges;
-    const Mesh ref = march_tetrahedra(g, act, isos[step], {}, &ref_edges);
     ASSERT_EQ(ex.last_was_incremental(), step > 0);
-    ASSERT_TRUE(same_surface(ex, ref, ref_edges)) << step << " iso " << isos[step];
+    ASSERT_TRUE(matches_fresh_march(ex, g, isos[step])) << step << " iso " << isos[step];
   }
 }
 
@@ -205,11 +210,7 @@ TEST(Extractor, IncrementalStepsOnALargeGridMatchFreshExtractionForAnyThreadCoun
     ASSERT_EQ(one.mesh().triangles, four.mesh().triangles) << step;
     ASSERT_EQ(one.mesh().positions, four.mesh().positions) << step;
     ASSERT_EQ(one.vertex_edges(), four.vertex_edges()) << step;
-    std::vector<std::uint32_t> act;
-    scan_active(g, iso, act);
-    std::vector<std::uint64_t> ref_edges;
-    const Mesh ref = march_tetrahedra(g, act, iso, MarchOptions{1}, &ref_edges);
-    ASSERT_TRUE(same_surface(four, ref, ref_edges)) << step;
+    ASSERT_TRUE(matches_fresh_march(four, g, iso)) << step;
   }
   EXPECT_GE(incremental, 10u);
   EXPECT_GE(large, 5u);  // the multi-chunk path ran
@@ -254,11 +255,7 @@ TEST(Extractor, CancelledAtAnyMomentTheNextExtractionStillMatchesAFreshMarch) {
       ex.extract(iso);
       ASSERT_FALSE(ex.last_was_incremental()) << step;  // a cancelled state is never stepped from
     }
-    std::vector<std::uint32_t> act;
-    scan_active(g, iso, act);
-    std::vector<std::uint64_t> ref_edges;
-    const Mesh ref = march_tetrahedra(g, act, iso, MarchOptions{1}, &ref_edges);
-    ASSERT_TRUE(same_surface(ex, ref, ref_edges)) << step << (was_cancelled ? " after a cancellation" : "");
+    ASSERT_TRUE(matches_fresh_march(ex, g, iso)) << step << (was_cancelled ? " after a cancellation" : "");
   }
   EXPECT_GE(cancelled, 6u);
 }

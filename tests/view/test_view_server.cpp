@@ -67,6 +67,17 @@ struct Running {
   }
 };
 
+// /api/info once every level of detail is built (they are built in the background), or after 10 s.
+nlohmann::json info_with_levels_built(httplib::Client& c) {
+  nlohmann::json info;
+  for (int i = 0; i < 500; ++i) {
+    info = nlohmann::json::parse(c.Get("/api/info")->body);
+    if (std::all_of(info["levels"].begin(), info["levels"].end(), [](const auto& l) { return l["built"].template get<bool>(); })) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return info;
+}
+
 ViewOptions options() {
   ViewOptions o;
   o.port = 0;
@@ -406,12 +417,7 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
   Running run(options());
   run.server.set_grid(grid);
   auto c = run.client();
-  nlohmann::json info;
-  for (int i = 0; i < 500; ++i) {  // the levels are built in the background
-    info = nlohmann::json::parse(c.Get("/api/info")->body);
-    if (std::all_of(info["levels"].begin(), info["levels"].end(), [](const auto& l) { return l["built"].template get<bool>(); })) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
+  const nlohmann::json info = info_with_levels_built(c);
   ASSERT_GE(info["levels"].size(), 5u);
   EXPECT_DOUBLE_EQ(info["error_bound"].get<double>(), grid->stats.error_bound);
   EXPECT_TRUE(info["error_guaranteed"].get<bool>());
@@ -468,11 +474,7 @@ TEST(ViewServer, AfterADragTheSurfaceAtRestIsTheFreshMarchsWhateverTheFollowerWa
   Running run(options());
   run.server.set_grid(grid);
   auto c = run.client();
-  for (int i = 0; i < 500; ++i) {  // the levels are built in the background
-    const auto info = nlohmann::json::parse(c.Get("/api/info")->body);
-    if (info["levels"].size() > 1 && info["levels"].back()["built"].get<bool>()) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
+  ASSERT_GT(info_with_levels_built(c)["levels"].size(), 1u);  // so the drag has a coarse level
   for (int round = 0; round < 3; ++round) {
     const double released = 0.3 + 0.1 * round;
     for (int step = 0; step <= 20; ++step) {  // a drag: coarse answers, each queueing the follower
