@@ -127,4 +127,10 @@ PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOpti
 // detail). Throws InputError for a grid without a hierarchy.
 PreparedGrid coarsen(const PreparedGrid& grid, double max_error, double max_displacement = 0, const Progress& progress = {});
 
+// The same under a cell floor (bisection.hpp: BisectionOptions::cell_floor): no tetrahedron finer
+// than cubes of 2^cell_floor voxels but where the volume's box forces it, for surfaces some 4×
+// smaller a step of the floor on any data. Its error bound (stats.error_bound, guaranteed) is
+// measured, not asked for; it has no hierarchy, being no selection at one bound.
+PreparedGrid coarsen_floored(const PreparedGrid& grid, double max_error, int cell_floor, const Progress& progress = {});
+
 }  // namespace adaptiso

@@ -2,6 +2,7 @@
 #include "adaptiso/levels_of_detail.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 
@@ -12,19 +13,41 @@ namespace adaptiso {
 LevelsOfDetail::LevelsOfDetail(std::shared_ptr<const PreparedGrid> fine) {
   if (!fine || !fine->hierarchy) throw InputError("levels of detail need a bisection grid with its hierarchy");
   const double span = fine->grid.source.max - fine->grid.source.min;
+  const double e0 = std::max(fine->stats.error_bound, 0.0);
   // A lossless grid (bound 0) starts the ladder at 1/4096 of the range.
-  double e = fine->stats.error_bound > 0 ? fine->stats.error_bound : span / 4096;
-  bounds_.push_back(std::max(fine->stats.error_bound, 0.0));
+  double e = e0 > 0 ? e0 : span / 4096;
+  bounds_.push_back(e0);
   while (span > 0 && e < span) {
     e *= 2;
     bounds_.push_back(e);
+  }
+  floors_.assign(bounds_.size(), 0);
+  if (bounds_.size() > 1) {  // the floored levels go before the coarsest error level
+    const double coarsest = bounds_.back();
+    bounds_.pop_back();
+    floors_.pop_back();
+    const int k = std::countr_zero(static_cast<std::uint32_t>(std::max(fine->hierarchy->root_size, 1)));
+    for (int f = 2; f <= k - 4; ++f) {  // down to 16 cells across the root cube: coarser ones only keep the box's far faces
+      bounds_.push_back(e0);
+      floors_.push_back(f);
+    }
+    bounds_.push_back(coarsest);
+    floors_.push_back(0);
   }
   grids_.assign(bounds_.size(), nullptr);
   grids_[0] = std::move(fine);
   triangles_.assign(bounds_.size(), 0);
 }
 
-double LevelsOfDetail::bound(std::size_t level) const { return bounds_.at(level); }
+double LevelsOfDetail::bound_locked(std::size_t level) const {
+  const auto& g = grids_.at(level);
+  return floors_[level] && g ? g->stats.error_bound : bounds_[level];
+}
+
+double LevelsOfDetail::bound(std::size_t level) const {
+  std::lock_guard lock(mutex_);
+  return bound_locked(level);
+}
 
 std::shared_ptr<const PreparedGrid> LevelsOfDetail::grid(std::size_t level) const {
   std::lock_guard lock(mutex_);
@@ -41,7 +64,8 @@ void LevelsOfDetail::build(const std::atomic<bool>* stop) {
   for (std::size_t level = size(); level-- > 1;) {
     if (stop && stop->load()) return;
     if (grid(level)) continue;
-    auto g = std::make_shared<const PreparedGrid>(coarsen(*fine, bounds_[level]));
+    auto g = std::make_shared<const PreparedGrid>(floors_[level] ? coarsen_floored(*fine, bounds_[level], floors_[level])
+                                                                 : coarsen(*fine, bounds_[level]));
     std::lock_guard lock(mutex_);
     grids_[level] = std::move(g);
   }
@@ -51,41 +75,59 @@ std::size_t LevelsOfDetail::level_for_error(double max_error) const {
   std::lock_guard lock(mutex_);
   std::size_t best = 0;
   for (std::size_t k = 1; k < bounds_.size(); ++k)
-    if (grids_[k] && bounds_[k] <= max_error) best = k;
+    if (grids_[k] && !floors_[k] && bounds_[k] <= max_error) best = k;
   return best;
 }
 
-std::size_t LevelsOfDetail::level_for_budget(std::size_t triangles, std::size_t finest) const {
-  std::lock_guard lock(mutex_);
-  // Expected triangles per level: recorded, or else the largest of the estimates from the nearest
-  // recorded finer level (half as many per level coarser) and the nearest recorded coarser one
-  // (twice as many per level finer); a level nothing is known about is expected to be too large.
+// Expected triangles per level: recorded, or else the largest of the estimates from the nearest
+// recorded level on either side, a factor a step (4 between floored levels, whose cells shrink
+// 2× along each axis; 2 otherwise); a level nothing is known about is expected to be too large.
+std::vector<double> LevelsOfDetail::expected_locked() const {
   const std::size_t n = bounds_.size();
+  auto factor = [&](std::size_t k) { return floors_[k] && floors_[k + 1] ? 4.0 : 2.0; };  // from level k to k + 1
   std::vector<double> expected(n, std::numeric_limits<double>::infinity());
   for (std::size_t k = 0; k < n; ++k) {
     if (triangles_[k]) {
       expected[k] = static_cast<double>(triangles_[k]);
       continue;
     }
-    double estimate = -1;
-    for (std::size_t j = k; j-- > 0;)
+    double estimate = -1, scale = 1;
+    for (std::size_t j = k; j-- > 0;) {
+      scale *= factor(j);
       if (triangles_[j]) {
-        estimate = std::max(estimate, static_cast<double>(triangles_[j]) / std::ldexp(1.0, static_cast<int>(k - j)));
+        estimate = std::max(estimate, static_cast<double>(triangles_[j]) / scale);
         break;
       }
-    for (std::size_t j = k + 1; j < n; ++j)
+    }
+    scale = 1;
+    for (std::size_t j = k + 1; j < n; ++j) {
+      scale *= factor(j - 1);
       if (triangles_[j]) {
-        estimate = std::max(estimate, static_cast<double>(triangles_[j]) * std::ldexp(1.0, static_cast<int>(j - k)));
+        estimate = std::max(estimate, static_cast<double>(triangles_[j]) * scale);
         break;
       }
+    }
     if (estimate >= 0) expected[k] = estimate;
   }
-  std::size_t coarsest_built = 0;
-  for (std::size_t k = 0; k < bounds_.size(); ++k)
-    if (grids_[k]) coarsest_built = k;
-  for (std::size_t k = finest; k < bounds_.size(); ++k)
-    if (grids_[k] && expected[k] <= static_cast<double>(triangles)) return k;
-  return std::max(coarsest_built, finest);
+  return expected;
+}
+
+std::size_t LevelsOfDetail::level_for_budget(std::size_t triangles, std::size_t finest) const {
+  std::lock_guard lock(mutex_);
+  const std::vector<double> expected = expected_locked();
+  const double floor_bound = bound_locked(finest);
+  std::size_t best = finest, coarsest_built = finest;
+  bool found = false;
+  for (std::size_t k = 0; k < bounds_.size(); ++k) {
+    const bool finer_error_level = k < finest && !floors_[k];
+    if (!grids_[k] || (k != finest && (finer_error_level || bound_locked(k) < floor_bound))) continue;
+    coarsest_built = std::max(coarsest_built, k);
+    if (expected[k] > static_cast<double>(triangles)) continue;
+    const double b = bound_locked(k), best_b = bound_locked(best);
+    if (!found || b < best_b || (b == best_b && expected[k] > expected[best])) best = k;
+    found = true;
+  }
+  return found ? best : coarsest_built;
 }
 
 void LevelsOfDetail::record(std::size_t level, std::size_t triangles) {

@@ -555,6 +555,33 @@ struct CodedSplits {
   Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
 };
 
+// The selection under a cell floor: a diamond centred at (x, y, z) splits cubes of side 2^(t+1)
+// into cubes of side 2^t, t the fewest trailing zeros among x, y, z (ctz(x | y | z)), so the
+// diamonds of scale below the floor stay whole, but those the box forces (their codes say so,
+// and so do their ancestors'). The largest codes of the diamonds the floor kept whole are the
+// grid's measured bounds.
+struct FlooredSplits {
+  CodedSplits coded;
+  std::int64_t nx, nxy;
+  std::int64_t below;  // 2^floor − 1: a centre with any of these bits set is below the floor
+  mutable std::atomic<std::uint8_t> kept_error{0}, kept_displacement{0};
+  static void raise(std::atomic<std::uint8_t>& a, std::uint8_t c) {
+    for (std::uint8_t cur = a.load(std::memory_order_relaxed); c > cur && !a.compare_exchange_weak(cur, c, std::memory_order_relaxed);) {
+    }
+  }
+  bool split(std::int64_t voxel) const {
+    if (!coded.split(voxel)) return false;
+    const auto i = static_cast<std::size_t>(voxel);
+    if (coded.code[i] == ErrorCodes::kForced) return true;
+    const std::int64_t x = voxel % nx, y = voxel % nxy / nx, z = voxel / nxy;
+    if (((x | y | z) & below) == 0) return true;
+    raise(kept_error, coded.code[i]);
+    if (coded.displacement) raise(kept_displacement, (*coded.displacement)[i]);
+    return false;
+  }
+  Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
+};
+
 }  // namespace
 }  // namespace detail
 
@@ -684,6 +711,8 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
 }
 
 void check_bounds(const BisectionOptions& o) {
+  if (o.cell_floor < 0 || o.cell_floor > 30)
+    throw OptionError("cell_floor", fmt::format("must be between 0 and 30 (cubes of 1 to 2^30 voxels), got {}", o.cell_floor));
   if (!(o.max_error >= 0))  // +∞: no error criterion (the displacement alone, or the coarsest grid)
     throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
   if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
@@ -697,6 +726,7 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
                                const Progress& progress) {
   using namespace detail;
   check_bounds(o);
+  if (o.cell_floor != 0) throw OptionError("cell_floor", "only a coarsening takes a cell floor (a grid prepared under one keeps no bound)");
   const Lattice lat = make_lattice(v.dims);
   if (errors.code.size() != static_cast<std::size_t>(v.voxel_count()) || errors.root_size != lat.S)
     throw std::invalid_argument("bisection_select: the errors belong to another volume");
@@ -784,7 +814,7 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
       if (displacement) moves[i] = fh.displacement_code[f];
     }
   });
-  const CodedSplits rule{code, h.error_threshold, displacement ? &moves : nullptr, h.displacement_threshold};
+  const CodedSplits coded{code, h.error_threshold, displacement ? &moves : nullptr, h.displacement_threshold};
   TetGrid& g = out.grid;
   g.source = fine.source;
   g.source.max_error = std::max(o.max_error, fh.codes.error(fh.error_threshold));
@@ -803,8 +833,16 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
     h.error_code[id] = fh.error_code[f];
     if (displacement) h.displacement_code[id] = fh.displacement_code[f];
   };
-  assemble(lat, rule, voxels, size, fill, out, progress);
   out.error_bound = fh.codes.error(h.error_threshold);
+  if (o.cell_floor == 0) {
+    assemble(lat, coded, voxels, size, fill, out, progress);
+    return out;
+  }
+  const FlooredSplits floored{coded, lat.nx, lat.nxy, (std::int64_t{1} << o.cell_floor) - 1};
+  assemble(lat, floored, voxels, size, fill, out, progress);
+  out.error_bound = std::max(out.error_bound, fh.codes.error(floored.kept_error.load()));
+  if (displacement)
+    out.displacement_bound = std::max(out.displacement_bound, fh.displacement_codes.error(floored.kept_displacement.load()));
   return out;
 }
 

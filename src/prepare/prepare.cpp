@@ -162,16 +162,15 @@ PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOpti
   return p;
 }
 
-PreparedGrid coarsen(const PreparedGrid& fine, double max_error, double max_displacement, const Progress& progress) {
+namespace {
+
+PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, const Progress& progress) {
   if (!fine.hierarchy) throw InputError("this grid has no bisection hierarchy: only a bisection grid can be coarsened");
   PreparedGrid p;
   StageClock clock(p.stats);
-  BisectionOptions b;
-  b.max_error = max_error;
-  b.max_displacement = max_displacement;
   BisectionGrid grid = clock.run("select", [&] { return bisection_coarsen(fine.grid, *fine.hierarchy, b, progress); });
   p.grid = std::move(grid.grid);
-  p.hierarchy = std::move(grid.hierarchy);
+  if (b.cell_floor == 0) p.hierarchy = std::move(grid.hierarchy);
   p.index = clock.run("index", [&] { return build_interval_tree(p.grid, fine.index.depth ? fine.index.depth : kDefaultTreeDepth); });
   p.stats.grid = "bisection";
   p.stats.voxels = fine.stats.voxels;
@@ -179,10 +178,27 @@ PreparedGrid coarsen(const PreparedGrid& fine, double max_error, double max_disp
   p.stats.tetrahedra = p.grid.tet_count();
   p.stats.max_error = p.grid.source.max_error;
   p.stats.error_bound = grid.error_bound;
-  p.stats.max_displacement = fine.stats.max_displacement > 0 ? std::max(max_displacement, fine.stats.max_displacement) : 0;
+  p.stats.max_displacement = fine.stats.max_displacement > 0 ? std::max(b.max_displacement, fine.stats.max_displacement) : 0;
+  if (b.cell_floor && p.stats.max_displacement > 0) p.stats.max_displacement = std::max(p.stats.max_displacement, grid.displacement_bound);
   p.stats.index_depth = p.index.depth;
   p.stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
   return p;
+}
+
+}  // namespace
+
+PreparedGrid coarsen(const PreparedGrid& fine, double max_error, double max_displacement, const Progress& progress) {
+  BisectionOptions b;
+  b.max_error = max_error;
+  b.max_displacement = max_displacement;
+  return coarsen_with(fine, b, progress);
+}
+
+PreparedGrid coarsen_floored(const PreparedGrid& fine, double max_error, int cell_floor, const Progress& progress) {
+  BisectionOptions b;
+  b.max_error = max_error;
+  b.cell_floor = cell_floor;
+  return coarsen_with(fine, b, progress);
 }
 
 }  // namespace adaptiso

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 #include <httplib.h>
 
+#include <sys/resource.h>
 #include <tbb/task_arena.h>
 #include <unistd.h>
 #include <algorithm>
@@ -185,14 +186,16 @@ struct Client {
 };
 
 // While a page drags (coarse surfaces within a budget), its surface at rest follows in the
-// background at low priority, the latest iso-value only; so when the slider rests the accurate
-// surface is a small step away, not a long one. It uses every core: the coarse requests are small
-// (under a millisecond of extraction on the MR head), and on a noisy scan each step of the
-// follower is a march of millions of triangles. A page's own request for the level makes the
-// follower's extraction yield at its next stage rather than wait for it to finish.
+// background, the latest iso-value only; so when the slider rests the accurate surface is often
+// ready or a small step away. It runs on its own thread alone, at the lowest scheduling priority:
+// it must only use time nobody else wants. Using every core (low priority inside TBB does not
+// preempt) stalled the page itself: on the bunny, with chromium drawing on the same 2 cores, the
+// drag paused 9-10 times for 1-2 s. A page's own request for the level makes the follower's
+// extraction yield at its next checkpoint (a batch of the march) rather than wait for it.
 class Follower {
 public:
-  Follower() : arena_(tbb::task_arena::automatic, 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
+  // One slot, reserved for the follower's thread: no TBB worker joins its work.
+  Follower() : arena_(1, 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
   ~Follower() {
     {
       std::lock_guard lock(mutex_);
@@ -217,6 +220,7 @@ private:
     std::uint64_t page_requests = 0;  // the slot's count when queued
   };
   void run() {
+    setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 19);  // this thread only (Linux); best effort
     for (;;) {
       Job job;
       {
@@ -504,7 +508,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
       nlohmann::json ladder = nlohmann::json::array();
       if (levels)
         for (std::size_t k = 0; k < levels->size(); ++k)
-          ladder.push_back({{"bound", levels->bound(k)}, {"built", levels->grid(k) != nullptr}});
+          ladder.push_back({{"bound", levels->bound(k)}, {"built", levels->grid(k) != nullptr}, {"cell_floor", levels->cell_floor(k)}});
       j["levels"] = ladder;
     }
   }

@@ -231,6 +231,70 @@ TEST(Bisection, NoiseAtErrorZeroKeepsEveryVoxel) {
   }
 }
 
+TEST(Bisection, CellFloorKeepsCubesWholeConformingAndWithinItsMeasuredBound) {
+  // The viewer's coarse levels: no diamond split below cubes of 2^f voxels but where the box
+  // forces it. Noise at bound 0 splits every diamond of the fine grid that covers more than a few
+  // voxels, so on a 2^k+1 cube the floored grid is exactly the Kuhn tetrahedra of the cubes of
+  // side 2^f; on other boxes it is checked for
+  // conformity, coverage and its measured bound voxel by voxel.
+  std::mt19937 rng(7);
+  for (Dims d : {Dims{17, 17, 17}, Dims{33, 33, 33}, Dims{40, 23, 17}, Dims{9, 33, 5}, Dims{33, 2, 9}}) {
+    const Volume noise = random_volume(d, rng, 50);
+    const BisectionGrid fine = grid_of(noise, 0);
+    std::size_t previous_tets = fine.grid.tet_count();
+    double previous_bound = 0;
+    for (int f = 0; f <= 3; ++f) {
+      BisectionOptions o;
+      o.max_error = 0;
+      o.cell_floor = f;
+      const BisectionGrid b = bisection_coarsen(fine.grid, fine.hierarchy, o);
+      const std::string what = fmt::format("{}x{}x{} floor {}", d[0], d[1], d[2], f);
+      const Check c = brute_force(noise, b.grid);
+      EXPECT_EQ(c.uncovered, 0) << what;
+      EXPECT_LE(c.max_error, b.error_bound * (1 + 1e-12)) << what;
+      EXPECT_LE(b.error_bound, 1.5 * c.max_error + 1e-9) << what << ": the measured bound is not far above the error";
+      expect_conforming(noise, b.grid, what);
+      EXPECT_LE(b.grid.tet_count(), previous_tets) << what;
+      EXPECT_GE(b.error_bound, previous_bound) << what;
+      previous_tets = b.grid.tet_count();
+      previous_bound = b.error_bound;
+      if (f == 0) {
+        EXPECT_EQ(b.grid.tets, fine.grid.tets) << what;
+        EXPECT_EQ(b.error_bound, fine.error_bound) << what;
+      }
+      const std::int64_t n = d[0] - 1, cells = n >> f;
+      if (f > 0 && d[1] == d[0] && d[2] == d[0] && std::has_single_bit(static_cast<std::uint64_t>(n))) {
+        EXPECT_EQ(b.grid.tet_count(), static_cast<std::size_t>(6 * cells * cells * cells)) << what;
+        for (const auto& p : b.grid.ijk) EXPECT_EQ((p[0] | p[1] | p[2]) & ((1u << f) - 1), 0u) << what;
+      }
+    }
+  }
+  // On a smooth field the floor only removes detail: never more tetrahedra than without it.
+  const Volume sphere = make_synthetic("sphere", 33, ScalarType::f32);
+  const ValueRange r = value_range(sphere);
+  const BisectionGrid fine = grid_of(sphere, 0.002 * (r.max - r.min));
+  for (double rel : {0.002, 0.02})
+    for (int f = 1; f <= 3; ++f) {
+      BisectionOptions o;
+      o.max_error = rel * (r.max - r.min);
+      const BisectionGrid plain = bisection_coarsen(fine.grid, fine.hierarchy, o);
+      o.cell_floor = f;
+      const BisectionGrid b = bisection_coarsen(fine.grid, fine.hierarchy, o);
+      EXPECT_LE(b.grid.tet_count(), plain.grid.tet_count()) << rel << " floor " << f;
+      EXPECT_GE(b.error_bound, plain.error_bound);
+      EXPECT_LE(brute_force(sphere, b.grid).max_error, b.error_bound * (1 + 1e-12));
+      expect_conforming(sphere, b.grid, fmt::format("sphere {} floor {}", rel, f));
+    }
+  // Only a coarsening takes a floor, and a sane one.
+  BisectionOptions bad;
+  bad.cell_floor = 2;
+  EXPECT_THROW(bisection_select(sphere, r, bisection_errors(sphere, r), bad), OptionError);
+  for (int f : {-1, 31}) {
+    bad.cell_floor = f;
+    EXPECT_THROW(bisection_coarsen(fine.grid, fine.hierarchy, bad), OptionError);
+  }
+}
+
 TEST(Bisection, FlatVolumesAreRefused) {
   for (Dims d : {Dims{1, 5, 5}, Dims{5, 1, 5}, Dims{5, 5, 1}, Dims{1, 1, 1}}) {
     const Volume v = make_volume(d, ScalarType::u8);
