@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 #include <zlib.h>
 
+#include <algorithm>
+#include <array>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -170,6 +172,39 @@ inline std::shared_ptr<const adaptiso::PreparedGrid> prepared(adaptiso::TetGrid 
 inline std::shared_ptr<const adaptiso::PreparedGrid> prepared(adaptiso::TetGrid g, std::uint32_t depth = adaptiso::kDefaultTreeDepth) {
   adaptiso::IntervalTree index = adaptiso::build_interval_tree(g, depth);
   return prepared(std::move(g), std::move(index));
+}
+
+// The largest |value − linear interpolation| over every voxel in the given tetrahedra (closed,
+// exact barycentric coordinates in index space), each checked positively oriented.
+inline double largest_error(const adaptiso::Volume& v, const adaptiso::TetGrid& g, const std::vector<std::array<std::uint32_t, 4>>& tets) {
+  double worst = 0;
+  for (const auto& t : tets) {
+    std::int64_t P[4][3];
+    for (int i = 0; i < 4; ++i)
+      for (int a = 0; a < 3; ++a) P[i][a] = g.ijk[t[i]][a];
+    auto det = [](const std::int64_t* a, const std::int64_t* b, const std::int64_t* c, const std::int64_t* d) {
+      std::int64_t u[3], w[3], z[3];
+      for (int k = 0; k < 3; ++k) u[k] = b[k] - a[k], w[k] = c[k] - a[k], z[k] = d[k] - a[k];
+      return u[0] * (w[1] * z[2] - w[2] * z[1]) - u[1] * (w[0] * z[2] - w[2] * z[0]) + u[2] * (w[0] * z[1] - w[1] * z[0]);
+    };
+    const std::int64_t D = det(P[0], P[1], P[2], P[3]);
+    EXPECT_GT(D, 0);
+    std::int64_t lo[3], hi[3];
+    for (int a = 0; a < 3; ++a)
+      lo[a] = std::min({P[0][a], P[1][a], P[2][a], P[3][a]}), hi[a] = std::max({P[0][a], P[1][a], P[2][a], P[3][a]});
+    for (std::int64_t z = lo[2]; z <= hi[2]; ++z)
+      for (std::int64_t y = lo[1]; y <= hi[1]; ++y)
+        for (std::int64_t x = lo[0]; x <= hi[0]; ++x) {
+          const std::int64_t q[3] = {x, y, z};
+          const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]),
+                                     det(P[0], P[1], P[2], q)};
+          if (l[0] < 0 || l[1] < 0 || l[2] < 0 || l[3] < 0) continue;
+          double rec = 0;
+          for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * g.values[t[i]];
+          worst = std::max(worst, std::abs(v.at(x, y, z) - rec));
+        }
+  }
+  return worst;
 }
 
 inline std::vector<std::int64_t> all_voxels(const adaptiso::Volume& v) {

@@ -92,6 +92,9 @@ struct BisectionGrid {
   BisectionHierarchy hierarchy;
   double error_bound = 0;          // guaranteed max-norm error of the grid's piecewise-linear reconstruction
   double displacement_bound = -1;  // voxels, when the displacement criterion is used
+  // Under a cell floor: per tetrahedron, the code of its own bound (the diamond it would split
+  // at; 0 for a unit tetrahedron), so a surface's error can be that of the tetrahedra it cuts.
+  std::vector<std::uint8_t> tet_code;
 };
 
 // The error hierarchy alone: a saturated code per voxel (1 byte each), then the selection at a

@@ -21,13 +21,18 @@
 // Choosing a level: for an error E, the coarsest built error level whose bound is at most E
 // (level 0 when E is below e0: finer cannot be had); for a triangle budget T, the built level of
 // the smallest bound among those expected to fit (the more triangles on a tie), never more
-// accurate than a given level. Expected triangles come from the counts reported by record(); a
-// level not seen yet is estimated from the nearest levels seen, finer and coarser, at a factor of
-// 2 a level (4 between floored levels), the larger estimate kept. Thread-safe throughout.
+// accurate than a given level. Expected triangles come from the counts reported by record(),
+// kept per level and per band of iso-values (64 bands across the value range): a count depends on
+// the iso-value, and a level once seen over the budget at one iso-value must not be shunned at
+// all others. In the iso-value's band, a level not seen is estimated from the nearest levels seen,
+// finer and coarser, at a factor of 2 a level (4 between floored levels), the larger estimate
+// kept; with nothing in the band, from the last counts at any iso-value likewise. Thread-safe
+// throughout.
 // Throws InputError when the grid has no bisection hierarchy (a Delaunay grid).
 #pragma once
 #include <atomic>
 #include <cstddef>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -52,17 +57,23 @@ public:
   void build(const std::atomic<bool>* stop = nullptr);
 
   std::size_t level_for_error(double max_error) const;
-  std::size_t level_for_budget(std::size_t triangles, std::size_t finest = 0) const;  // never more accurate than `finest`
-  void record(std::size_t level, std::size_t triangles);                              // the triangle count of a surface at that level
+  // Never more accurate than `finest`; iso NaN: the last counts at any iso-value.
+  std::size_t level_for_budget(std::size_t triangles, std::size_t finest = 0, double iso = std::numeric_limits<double>::quiet_NaN()) const;
+  // The triangle count of a surface at that level (and iso-value, when known).
+  void record(std::size_t level, std::size_t triangles, double iso = std::numeric_limits<double>::quiet_NaN());
 
 private:
   std::vector<double> bounds_;  // asked
   std::vector<int> floors_;
   mutable std::mutex mutex_;
   std::vector<std::shared_ptr<const PreparedGrid>> grids_;
-  std::vector<std::size_t> triangles_;  // last recorded, 0: none yet
+  static constexpr std::size_t kBands = 64;
+  double lo_ = 0, hi_ = 0;                   // the value range the bands divide
+  std::vector<std::size_t> triangles_;       // per level, last recorded at any iso-value; 0: none yet
+  std::vector<std::size_t> band_triangles_;  // per band and level (band · size() + level), likewise
   double bound_locked(std::size_t level) const;
-  std::vector<double> expected_locked() const;
+  std::size_t band(double iso) const;  // kBands for NaN
+  std::vector<double> expected_locked(const std::size_t* counts) const;
 };
 
 }  // namespace adaptiso

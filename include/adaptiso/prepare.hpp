@@ -115,7 +115,16 @@ struct PreparedGrid {
   IntervalTree index;
   PrepareStats stats;
   std::optional<BisectionHierarchy> hierarchy;  // bisection grids: for queries at a coarser error
+  // Floored levels (coarsen_floored): per tetrahedron the code of its own guaranteed bound, in
+  // tet_codes; empty otherwise.
+  std::vector<std::uint8_t> tet_error_code;
+  ErrorCodes tet_codes;
 };
+
+// The guaranteed error of a surface made of the given tetrahedra of the grid (data units; the
+// Extractor's active() after an extract): on a floored level the largest bound among them (0
+// for none), elsewhere the grid's (surface_error on a Delaunay grid: its measured error).
+double surface_error_bound(const PreparedGrid& grid, const std::vector<std::uint32_t>& tetrahedra);
 
 PreparedGrid prepare(const Volume& v, const PrepareOptions& options, const Progress& progress = {});
 

@@ -34,9 +34,19 @@ LevelsOfDetail::LevelsOfDetail(std::shared_ptr<const PreparedGrid> fine) {
     bounds_.push_back(coarsest);
     floors_.push_back(0);
   }
+  lo_ = fine->grid.source.min;
+  hi_ = fine->grid.source.max;
   grids_.assign(bounds_.size(), nullptr);
   grids_[0] = std::move(fine);
   triangles_.assign(bounds_.size(), 0);
+  band_triangles_.assign(kBands * bounds_.size(), 0);
+}
+
+std::size_t LevelsOfDetail::band(double iso) const {
+  if (std::isnan(iso)) return kBands;
+  if (!(hi_ > lo_)) return 0;
+  const double t = std::clamp((iso - lo_) / (hi_ - lo_), 0.0, 1.0);
+  return std::min(kBands - 1, static_cast<std::size_t>(t * kBands));
 }
 
 double LevelsOfDetail::bound_locked(std::size_t level) const {
@@ -82,28 +92,28 @@ std::size_t LevelsOfDetail::level_for_error(double max_error) const {
 // Expected triangles per level: recorded, or else the largest of the estimates from the nearest
 // recorded level on either side, a factor a step (4 between floored levels, whose cells shrink
 // 2× along each axis; 2 otherwise); a level nothing is known about is expected to be too large.
-std::vector<double> LevelsOfDetail::expected_locked() const {
+std::vector<double> LevelsOfDetail::expected_locked(const std::size_t* counts) const {
   const std::size_t n = bounds_.size();
   auto factor = [&](std::size_t k) { return floors_[k] && floors_[k + 1] ? 4.0 : 2.0; };  // from level k to k + 1
   std::vector<double> expected(n, std::numeric_limits<double>::infinity());
   for (std::size_t k = 0; k < n; ++k) {
-    if (triangles_[k]) {
-      expected[k] = static_cast<double>(triangles_[k]);
+    if (counts[k]) {
+      expected[k] = static_cast<double>(counts[k]);
       continue;
     }
     double estimate = -1, scale = 1;
     for (std::size_t j = k; j-- > 0;) {
       scale *= factor(j);
-      if (triangles_[j]) {
-        estimate = std::max(estimate, static_cast<double>(triangles_[j]) / scale);
+      if (counts[j]) {
+        estimate = std::max(estimate, static_cast<double>(counts[j]) / scale);
         break;
       }
     }
     scale = 1;
     for (std::size_t j = k + 1; j < n; ++j) {
       scale *= factor(j - 1);
-      if (triangles_[j]) {
-        estimate = std::max(estimate, static_cast<double>(triangles_[j]) * scale);
+      if (counts[j]) {
+        estimate = std::max(estimate, static_cast<double>(counts[j]) * scale);
         break;
       }
     }
@@ -112,9 +122,16 @@ std::vector<double> LevelsOfDetail::expected_locked() const {
   return expected;
 }
 
-std::size_t LevelsOfDetail::level_for_budget(std::size_t triangles, std::size_t finest) const {
+std::size_t LevelsOfDetail::level_for_budget(std::size_t triangles, std::size_t finest, double iso) const {
   std::lock_guard lock(mutex_);
-  const std::vector<double> expected = expected_locked();
+  // The iso-value's band first; levels it knows nothing of, from the last counts at any iso-value.
+  std::vector<double> expected = expected_locked(triangles_.data());
+  const std::size_t b = band(iso);
+  if (b < kBands) {
+    const std::vector<double> in_band = expected_locked(band_triangles_.data() + b * bounds_.size());
+    for (std::size_t k = 0; k < expected.size(); ++k)
+      if (std::isfinite(in_band[k])) expected[k] = in_band[k];
+  }
   const double floor_bound = bound_locked(finest);
   std::size_t best = finest, coarsest_built = finest;
   bool found = false;
@@ -130,9 +147,11 @@ std::size_t LevelsOfDetail::level_for_budget(std::size_t triangles, std::size_t 
   return found ? best : coarsest_built;
 }
 
-void LevelsOfDetail::record(std::size_t level, std::size_t triangles) {
+void LevelsOfDetail::record(std::size_t level, std::size_t triangles, double iso) {
   std::lock_guard lock(mutex_);
-  triangles_.at(level) = std::max<std::size_t>(triangles, 1);
+  const std::size_t count = std::max<std::size_t>(triangles, 1), b = band(iso);
+  triangles_.at(level) = count;
+  if (b < kBands) band_triangles_[b * bounds_.size() + level] = count;
 }
 
 }  // namespace adaptiso

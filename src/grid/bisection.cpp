@@ -626,9 +626,13 @@ namespace {
 // written with their final numbers, and each split diamond gets the span of the values beneath
 // it. Both walks cut the hierarchy 12 splits below the roots into subtrees run in parallel and
 // placed in depth-first order, so the grid is the same for any thread count.
+//
+// With `own_code` (the codes by voxel), each tetrahedron's own bound is kept too, in
+// out.tet_code: the code of the diamond it would split at, at least `own_least` (0 for a unit
+// tetrahedron).
 template <class Rule, class Size, class Fill>
-void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size size, Fill fill, BisectionGrid& out,
-              const Progress& progress) {
+void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size size, Fill fill, BisectionGrid& out, const Progress& progress,
+              const std::vector<std::uint8_t>* own_code = nullptr, std::uint8_t own_least = 0) {
   const Traversal<Rule> walk(lat, rule);
   const Frontier top = walk.frontier(12);
   const std::vector<Subtree>& roots = top.roots;
@@ -677,6 +681,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
     }
   });
   resize_big(g.tets, tets);
+  if (own_code) resize_big(out.tet_code, tets);
   auto& spans = out.hierarchy.value_span;
   spans.assign(vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
   auto merge = [&](std::int64_t voxel, const ValueSpan& s) {
@@ -689,7 +694,9 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
     std::uint64_t at = leaves[f];
     root_spans[f] = walk.visit(
         roots[f],
-        [&](const Tet& t, std::int64_t) {
+        [&](const Tet& t, std::int64_t split_at) {
+          if (own_code)
+            out.tet_code[at] = split_at >= 0 ? std::max((*own_code)[static_cast<std::size_t>(split_at)], own_least) : std::uint8_t{0};
           auto& q = g.tets[at++];
           ValueSpan s;
           for (int k = 0; k < 4; ++k) {
@@ -839,7 +846,8 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
     return out;
   }
   const FlooredSplits floored{coded, lat.nx, lat.nxy, (std::int64_t{1} << o.cell_floor) - 1};
-  assemble(lat, floored, voxels, size, fill, out, progress);
+  // A diamond the fine grid left whole has no code of its own here (0): the fine bound holds.
+  assemble(lat, floored, voxels, size, fill, out, progress, &code, fh.error_threshold);
   out.error_bound = std::max(out.error_bound, fh.codes.error(floored.kept_error.load()));
   if (displacement)
     out.displacement_bound = std::max(out.displacement_bound, fh.displacement_codes.error(floored.kept_displacement.load()));

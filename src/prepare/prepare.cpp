@@ -3,6 +3,8 @@
 #include "adaptiso/prepare.hpp"
 
 #include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
 
 #include <chrono>
 #include <cstdlib>
@@ -170,7 +172,12 @@ PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, c
   StageClock clock(p.stats);
   BisectionGrid grid = clock.run("select", [&] { return bisection_coarsen(fine.grid, *fine.hierarchy, b, progress); });
   p.grid = std::move(grid.grid);
-  if (b.cell_floor == 0) p.hierarchy = std::move(grid.hierarchy);
+  if (b.cell_floor == 0) {
+    p.hierarchy = std::move(grid.hierarchy);
+  } else {
+    p.tet_error_code = std::move(grid.tet_code);
+    p.tet_codes = fine.hierarchy->codes;
+  }
   p.index = clock.run("index", [&] { return build_interval_tree(p.grid, fine.index.depth ? fine.index.depth : kDefaultTreeDepth); });
   p.stats.grid = "bisection";
   p.stats.voxels = fine.stats.voxels;
@@ -186,6 +193,19 @@ PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, c
 }
 
 }  // namespace
+
+double surface_error_bound(const PreparedGrid& g, const std::vector<std::uint32_t>& tetrahedra) {
+  const PrepareStats& s = g.stats;
+  if (g.tet_error_code.empty()) return s.error_bound >= 0 ? s.error_bound : s.pl_max_error;
+  const std::uint8_t worst = tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, tetrahedra.size(), 1 << 14), std::uint8_t{0},
+      [&](const auto& r, std::uint8_t m) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) m = std::max(m, g.tet_error_code[tetrahedra[i]]);
+        return m;
+      },
+      [](std::uint8_t a, std::uint8_t b) { return std::max(a, b); });
+  return tetrahedra.empty() ? 0.0 : g.tet_codes.error(worst);
+}
 
 PreparedGrid coarsen(const PreparedGrid& fine, double max_error, double max_displacement, const Progress& progress) {
   BisectionOptions b;

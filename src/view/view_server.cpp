@@ -6,7 +6,6 @@
 #include <fmt/format.h>
 #include <httplib.h>
 
-#include <sys/resource.h>
 #include <tbb/task_arena.h>
 #include <unistd.h>
 #include <algorithm>
@@ -186,16 +185,16 @@ struct Client {
 };
 
 // While a page drags (coarse surfaces within a budget), its surface at rest follows in the
-// background, the latest iso-value only; so when the slider rests the accurate surface is often
-// ready or a small step away. It runs on its own thread alone, at the lowest scheduling priority:
-// it must only use time nobody else wants. Using every core (low priority inside TBB does not
-// preempt) stalled the page itself: on the bunny, with chromium drawing on the same 2 cores, the
-// drag paused 9-10 times for 1-2 s. A page's own request for the level makes the follower's
-// extraction yield at its next checkpoint (a batch of the march) rather than wait for it.
+// background at low priority, the latest iso-value only; so when the slider rests the accurate
+// surface is a small step away, not a long one. It uses every core: the coarse requests are small
+// (under a millisecond of extraction on the MR head), and on a noisy scan each step of the
+// follower is a march of millions of triangles. A page's own request for the level makes the
+// follower's extraction yield at its next stage rather than wait for it to finish. (A follower
+// alone on a thread at nice 19 was tried: the page's request at rest then waited 7.2 s on the MR
+// head for the starved follower to reach a checkpoint and let go of the level.)
 class Follower {
 public:
-  // One slot, reserved for the follower's thread: no TBB worker joins its work.
-  Follower() : arena_(1, 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
+  Follower() : arena_(tbb::task_arena::automatic, 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
   ~Follower() {
     {
       std::lock_guard lock(mutex_);
@@ -220,7 +219,6 @@ private:
     std::uint64_t page_requests = 0;  // the slot's count when queued
   };
   void run() {
-    setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 19);  // this thread only (Linux); best effort
     for (;;) {
       Job job;
       {
@@ -525,7 +523,8 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   // The level shown when the slider rests: the coarsest within error=; while dragging, as fine as
   // the triangle budget allows but no finer.
   const std::size_t rest = s.level_for(error);
-  const std::size_t level = s.levels && budget ? s.levels->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), rest) : rest;
+  const std::size_t level =
+      s.levels && budget ? s.levels->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), rest, iso) : rest;
   const auto grid = s.at(level);
   auto c = client(id);
   auto slot = c->level(level);
@@ -537,7 +536,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const double wait = std::chrono::duration<double>(std::chrono::steady_clock::now() - queued).count();
   ExtractStats st;
   slot->at(grid, iso, &st);
-  if (s.levels) s.levels->record(level, st.triangles);
+  if (s.levels) s.levels->record(level, st.triangles, iso);
   if (level != rest) follower.follow(c->level(rest), s.at(rest), iso);
   const Extractor* ex = slot->extractor.get();
   const auto t0 = std::chrono::steady_clock::now();
@@ -552,8 +551,9 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   res.set_header("X-Incremental", st.incremental ? "1" : "0");
   res.set_header("X-In-Range", st.in_range ? "1" : "0");
   res.set_header("X-Level", std::to_string(level));
-  // The error of what is returned: guaranteed (bisection) or measured (Delaunay), data units.
-  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(grid->stats)));
+  // The error of what is returned: guaranteed (bisection) or measured (Delaunay), data units; on
+  // a floored level, of the tetrahedra this surface cuts.
+  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error_bound(*grid, ex->active())));
   res.set_header("X-Error-Guaranteed", grid->stats.error_bound >= 0 ? "1" : "0");
   res.set_header("X-Encoding", compact ? "compact" : "plain");
   res.set_header("Cache-Control", "no-store");

@@ -40,37 +40,6 @@ std::shared_ptr<const PreparedGrid> prepared_at(const Volume& v, double max_erro
   return std::make_shared<const PreparedGrid>(prepare(v, o));
 }
 
-double largest_error(const Volume& v, const TetGrid& g, const std::vector<std::array<std::uint32_t, 4>>& tets) {
-  double worst = 0;
-  for (const auto& t : tets) {
-    std::int64_t P[4][3];
-    for (int i = 0; i < 4; ++i)
-      for (int a = 0; a < 3; ++a) P[i][a] = g.ijk[t[i]][a];
-    auto det = [](const std::int64_t* a, const std::int64_t* b, const std::int64_t* c, const std::int64_t* d) {
-      std::int64_t u[3], w[3], z[3];
-      for (int k = 0; k < 3; ++k) u[k] = b[k] - a[k], w[k] = c[k] - a[k], z[k] = d[k] - a[k];
-      return u[0] * (w[1] * z[2] - w[2] * z[1]) - u[1] * (w[0] * z[2] - w[2] * z[0]) + u[2] * (w[0] * z[1] - w[1] * z[0]);
-    };
-    const std::int64_t D = det(P[0], P[1], P[2], P[3]);
-    EXPECT_GT(D, 0);
-    std::int64_t lo[3], hi[3];
-    for (int a = 0; a < 3; ++a)
-      lo[a] = std::min({P[0][a], P[1][a], P[2][a], P[3][a]}), hi[a] = std::max({P[0][a], P[1][a], P[2][a], P[3][a]});
-    for (std::int64_t z = lo[2]; z <= hi[2]; ++z)
-      for (std::int64_t y = lo[1]; y <= hi[1]; ++y)
-        for (std::int64_t x = lo[0]; x <= hi[0]; ++x) {
-          const std::int64_t q[3] = {x, y, z};
-          const std::int64_t l[4] = {det(q, P[1], P[2], P[3]), det(P[0], q, P[2], P[3]), det(P[0], P[1], q, P[3]),
-                                     det(P[0], P[1], P[2], q)};
-          if (l[0] < 0 || l[1] < 0 || l[2] < 0 || l[3] < 0) continue;
-          double rec = 0;
-          for (int i = 0; i < 4; ++i) rec += static_cast<double>(l[i]) / static_cast<double>(D) * g.values[t[i]];
-          worst = std::max(worst, std::abs(v.at(x, y, z) - rec));
-        }
-  }
-  return worst;
-}
-
 }  // namespace
 
 TEST(HierarchyQuery, EqualsPreparingAtThatErrorForEveryIsoAndError) {
@@ -116,7 +85,7 @@ TEST(HierarchyQuery, EveryVoxelOfTheTetrahedraUsedIsWithinTheReportedBound) {
         const Mesh m = query.extract(r.min + f * (r.max - r.min), e, 0, &st, &used);
         EXPECT_EQ(used.size(), st.tetrahedra);
         EXPECT_LE(st.error_bound, std::max(e, query.prepared_error()) + 1e-12);
-        EXPECT_LE(largest_error(v, grid->grid, used), st.error_bound + 1e-9) << d[0] << " e " << e << " f " << f;
+        EXPECT_LE(testutil::largest_error(v, grid->grid, used), st.error_bound + 1e-9) << d[0] << " e " << e << " f " << f;
       }
     }
   }

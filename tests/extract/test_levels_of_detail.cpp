@@ -9,6 +9,7 @@
 #include "adaptiso/gradients.hpp"
 #include "adaptiso/levels_of_detail.hpp"
 #include "adaptiso/synthetic.hpp"
+#include "test_util.hpp"
 
 using namespace adaptiso;
 
@@ -90,8 +91,15 @@ TEST(LevelsOfDetail, FlooredLevelsFitABudgetThatCoarserBoundsCannot) {
     const auto g = lod.grid(k);
     EXPECT_LE(piecewise_linear_error(v, g->grid).max, lod.bound(k) * (1 + 1e-9)) << "level " << k;
     EXPECT_EQ(g->hierarchy.has_value(), lod.cell_floor(k) == 0) << "level " << k;
-    triangles[k] = Extractor(g).extract(iso).triangles;
+    Extractor ex(g);
+    triangles[k] = ex.extract(iso).triangles;
     lod.record(k, triangles[k]);
+    // The surface's own error: that of the tetrahedra it cuts, voxel by voxel.
+    std::vector<std::array<std::uint32_t, 4>> cut;
+    for (std::uint32_t t : ex.active()) cut.push_back(g->grid.tets[t]);
+    const double own = surface_error_bound(*g, ex.active());
+    EXPECT_LE(testutil::largest_error(v, g->grid, cut), own * (1 + 1e-9)) << "level " << k;
+    EXPECT_LE(own, lod.bound(k)) << "level " << k;
   }
   const std::size_t floored = lod.size() - 2;
   EXPECT_GE(lod.bound(floored), lod.bound(0));
@@ -109,6 +117,55 @@ TEST(LevelsOfDetail, FlooredLevelsFitABudgetThatCoarserBoundsCannot) {
         EXPECT_EQ(lod.level_for_budget(triangles[k], finest), best) << "budget " << triangles[k] << " finest " << finest;
     }
   for (std::size_t k = 0; k < lod.size(); ++k) EXPECT_EQ(lod.cell_floor(lod.level_for_error(lod.bound(k))), 0) << k;
+}
+
+TEST(LevelsOfDetail, FlooredSurfaceErrorIsThatOfTheTetrahedraItCuts) {
+  // A sphere with one spike of the whole range far from the surface: the floored grid's bound is
+  // the spike's, the surface's only that of the tetrahedra it cuts, and holds voxel by voxel.
+  Volume v = make_synthetic("sphere", 33, ScalarType::f32);
+  const ValueRange r = value_range(v);
+  v.set(v.index(2, 2, 2), r.max + (r.max - r.min));
+  PrepareOptions o;
+  o.max_error = 0.01;
+  o.relative = true;
+  const auto fine = std::make_shared<const PreparedGrid>(prepare(v, o));
+  const auto floored = std::make_shared<const PreparedGrid>(coarsen_floored(*fine, fine->stats.error_bound, 2));
+  EXPECT_FALSE(floored->hierarchy.has_value());
+  ASSERT_EQ(floored->tet_error_code.size(), floored->grid.tet_count());
+  EXPECT_EQ(surface_error_bound(*fine, {}), fine->stats.error_bound) << "elsewhere the grid's bound";
+  const double iso = 0.5 * (r.min + r.max);
+  Extractor ex(floored);
+  ASSERT_GT(ex.extract(iso).triangles, 0u);
+  std::vector<std::array<std::uint32_t, 4>> cut;
+  for (std::uint32_t t : ex.active()) cut.push_back(floored->grid.tets[t]);
+  const double own = surface_error_bound(*floored, ex.active());
+  EXPECT_LE(testutil::largest_error(v, floored->grid, cut), own * (1 + 1e-9));
+  EXPECT_LT(own, 0.25 * floored->stats.error_bound);
+  EXPECT_GE(floored->stats.error_bound, r.max - r.min) << "the spike's diamond, kept whole";
+  EXPECT_EQ(surface_error_bound(*floored, {}), 0.0);
+}
+
+TEST(LevelsOfDetail, BudgetFollowsTheCountsAtTheIsoValueAsked) {
+  // A level over the budget at one iso-value must not be shunned at another where it fits.
+  const auto fine = torus(0.001);
+  LevelsOfDetail lod(fine);
+  lod.build();
+  ASSERT_GE(lod.size(), 6u);
+  const double lo = fine->grid.source.min, hi = fine->grid.source.max;
+  const double big = lo + 0.2 * (hi - lo), small = lo + 0.8 * (hi - lo);
+  for (std::size_t k = 0; k < lod.size(); ++k) {
+    lod.record(k, std::size_t{1000} >> k, big);
+    lod.record(k, std::size_t{100} >> k, small);
+  }
+  EXPECT_EQ(lod.level_for_budget(60, 0, big), 5u);    // 1000 / 32
+  EXPECT_EQ(lod.level_for_budget(60, 0, small), 1u);  // 100 / 2
+  EXPECT_EQ(lod.level_for_budget(60, 0), 1u);         // no iso-value: the last counts
+  // An iso-value never seen: the last counts at any iso-value.
+  EXPECT_EQ(lod.level_for_budget(60, 0, lo + 0.5 * (hi - lo)), 1u);
+  // A band that saw one level estimates the others from it, at a factor of 2 a level.
+  lod.record(3, 40, hi);
+  EXPECT_EQ(lod.level_for_budget(60, 0, hi), 3u);
+  EXPECT_EQ(lod.level_for_budget(80, 0, hi), 2u);
 }
 
 TEST(LevelsOfDetail, OnlyForBisectionGrids) { EXPECT_THROW(LevelsOfDetail(torus(0.05, GridKind::delaunay)), InputError); }
