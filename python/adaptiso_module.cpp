@@ -312,11 +312,16 @@ relative: iso (and max_error) as fractions of the value range. Safe to call from
           "An Extractor for browsing iso-values: each call after the first updates the previous surface.")
       .def(
           "coarsen",
-          [](Grid& g, double max_error) {
+          [](Grid& g, double max_error, int cell_floor) {
             py::gil_scoped_release release;
-            return Grid{std::make_shared<const PreparedGrid>(coarsen(*g.grid, max_error)), nullptr};
+            return Grid{std::make_shared<const PreparedGrid>(cell_floor ? coarsen_floored(*g.grid, max_error, cell_floor)
+                                                                        : coarsen(*g.grid, max_error)),
+                        nullptr};
           },
-          py::arg("max_error"), "The bisection grid at a coarser error bound (data units), without the volume.")
+          py::arg("max_error"), py::arg("cell_floor") = 0,
+          R"(The bisection grid at a coarser error bound (data units), without the volume. cell_floor f > 0: no
+tetrahedron finer than cubes of 2**f voxels (except along the volume's far faces), its guaranteed
+error measured (stats["error_bound"]) rather than asked for: far fewer triangles on noisy data.)")
       .def(
           "save", [](Grid& g, const std::string& path) { file_call([&] { save_grid(*g.grid, path); }); }, py::arg("path"),
           "Writes the grid (.adg); OSError when it cannot be written.")

@@ -108,6 +108,19 @@ def test_coarser_error_from_the_hierarchy():
     assert grid.coarsen(1.0).tetrahedron_count < grid.tetrahedron_count
 
 
+def test_cell_floor_gives_fewer_tetrahedra_at_a_measured_error():
+    rng = np.random.default_rng(3)
+    a = sphere_distance() + rng.uniform(0, 5, size=sphere_distance().shape).astype(np.float32)
+    grid = adaptiso.prepare(adaptiso.Volume(a), max_error=0.01, relative=True)
+    e0 = grid.stats["error_bound"]
+    floored = grid.coarsen(e0, cell_floor=2)
+    assert floored.tetrahedron_count < grid.coarsen(e0).tetrahedron_count
+    assert floored.stats["error_bound"] > e0
+    assert floored.extract(10.0)[1].shape[0] < grid.extract(10.0)[1].shape[0]
+    with pytest.raises(ValueError):
+        grid.coarsen(e0, cell_floor=-1)
+
+
 def test_same_mesh_as_the_command_line(tmp_path):
     if not CLI:
         pytest.skip("ADAPTISO_CLI not set")
