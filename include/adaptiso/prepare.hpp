@@ -121,9 +121,13 @@ struct PreparedGrid {
   ErrorCodes tet_codes;
 };
 
-// The guaranteed error of a surface made of the given tetrahedra of the grid (data units; the
-// Extractor's active() after an extract): on a floored level the largest bound among them (0
-// for none), elsewhere the grid's (surface_error on a Delaunay grid: its measured error).
+// The error of a grid's surfaces, data units: guaranteed on a bisection grid, measured on a
+// Delaunay grid.
+double surface_error(const PrepareStats& stats);
+
+// The error of a surface made of the given tetrahedra of the grid (data units; the Extractor's
+// active() after an extract): on a floored level the largest guaranteed bound among them (0 for
+// none: a unit tetrahedron holds no voxel but its corners), elsewhere surface_error.
 double surface_error_bound(const PreparedGrid& grid, const std::vector<std::uint32_t>& tetrahedra);
 
 PreparedGrid prepare(const Volume& v, const PrepareOptions& options, const Progress& progress = {});

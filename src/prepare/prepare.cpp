@@ -194,9 +194,10 @@ PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, c
 
 }  // namespace
 
+double surface_error(const PrepareStats& s) { return s.error_bound >= 0 ? s.error_bound : s.pl_max_error; }
+
 double surface_error_bound(const PreparedGrid& g, const std::vector<std::uint32_t>& tetrahedra) {
-  const PrepareStats& s = g.stats;
-  if (g.tet_error_code.empty()) return s.error_bound >= 0 ? s.error_bound : s.pl_max_error;
+  if (g.tet_error_code.empty()) return surface_error(g.stats);
   const std::uint8_t worst = tbb::parallel_reduce(
       tbb::blocked_range<std::size_t>(0, tetrahedra.size(), 1 << 14), std::uint8_t{0},
       [&](const auto& r, std::uint8_t m) {

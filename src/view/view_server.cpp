@@ -124,10 +124,6 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
   return {{"min", h.min}, {"max", h.max}, {"counts", h.counts}, {"of", of}};
 }
 
-// The error of a grid's surfaces, data units: guaranteed on a bisection grid, measured on a
-// Delaunay grid.
-double surface_error(const PrepareStats& s) { return s.error_bound >= 0 ? s.error_bound : s.pl_max_error; }
-
 // The grid being served and its levels of detail, taken together (set_grid replaces both).
 struct Served {
   std::shared_ptr<const PreparedGrid> grid;

@@ -117,10 +117,12 @@ try {
   const dragged = await lod.evaluate((n) => window.adaptisoSurfaces.slice(n).filter((r) => r.coarse), before);
   const coarse = dragged.filter((r) => r.level > 0);
   // A level coarsened by its bound has a larger one; a floored level's surface has the error of
-  // the tetrahedra it cuts, never below the prepared one (it may equal it on a smooth field).
-  const claims = (r) => (info.levels[r.level].cell_floor ? r.error >= info.error_bound : r.error > info.error_bound);
+  // the tetrahedra it cuts, within the level's bound (measured once built), and may be as small as
+  // the prepared one on a smooth field.
+  const built = (await (await fetch(`${url}api/info`)).json()).levels;
+  const claims = (r) => (built[r.level].cell_floor ? r.error <= built[r.level].bound * (1 + 1e-12) : r.error > info.error_bound);
   const wrong = coarse.find((r) => !claims(r));
-  if (wrong) fail(`a coarse surface claims too small an error: ${JSON.stringify(wrong)} (levels ${JSON.stringify(info.levels)})`);
+  if (wrong) fail(`a coarse surface claims a wrong error: ${JSON.stringify(wrong)} (levels ${JSON.stringify(built)})`);
   await lod.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
   await lod.waitForFunction((e) => document.getElementById('stats').dataset.level === '0' &&
     Number(document.getElementById('stats').dataset.error) === e && !/coarse while dragging/.test(document.getElementById('stats').textContent),
