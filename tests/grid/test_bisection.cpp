@@ -285,6 +285,19 @@ TEST(Bisection, CellFloorKeepsCubesWholeConformingAndWithinItsMeasuredBound) {
       EXPECT_LE(brute_force(sphere, b.grid).max_error, b.error_bound * (1 + 1e-12));
       expect_conforming(sphere, b.grid, fmt::format("sphere {} floor {}", rel, f));
     }
+  // With the displacement criterion too: both bounds measured, the error one voxel by voxel.
+  {
+    BisectionOptions o;
+    o.max_error = 0.002 * (r.max - r.min);
+    o.max_displacement = 0.25;
+    const BisectionGrid moved = bisection_grid(sphere, r, o);
+    o.cell_floor = 2;
+    const BisectionGrid b = bisection_coarsen(moved.grid, moved.hierarchy, o);
+    EXPECT_LT(b.grid.tet_count(), moved.grid.tet_count());
+    EXPECT_GE(b.displacement_bound, moved.displacement_bound);
+    EXPECT_LE(brute_force(sphere, b.grid).max_error, b.error_bound * (1 + 1e-12));
+    expect_conforming(sphere, b.grid, "sphere with displacement, floor 2");
+  }
   // Only a coarsening takes a floor, and a sane one.
   BisectionOptions bad;
   bad.cell_floor = 2;
