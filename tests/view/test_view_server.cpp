@@ -468,7 +468,8 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
 
 TEST(ViewServer, AfterADragTheSurfaceAtRestIsTheFreshMarchsWhateverTheFollowerWasDoing) {
   // While a page drags, the follower extracts the level at rest in the background; the page's own
-  // request cancels it mid-way or drops its stale jobs. Whatever it was doing, the surface at rest
+  // request cancels it mid-way (or waits for it, when it extracts that very surface: the drag ends
+  // at the released iso-value) or drops its stale jobs. Whatever it was doing, the surface at rest
   // and its export are those of a fresh extraction at the released iso-value.
   const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 48, ScalarType::f32));
   const auto grid = bisection_grid_of(*volume, 0.002);
