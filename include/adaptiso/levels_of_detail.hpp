@@ -69,11 +69,10 @@ private:
   mutable std::mutex mutex_;
   std::vector<std::shared_ptr<const PreparedGrid>> grids_;
   static constexpr std::size_t kBands = 64;
-  double lo_ = 0, hi_ = 0;                   // the value range the bands divide
   std::vector<std::size_t> triangles_;       // per level, last recorded at any iso-value; 0: none yet
   std::vector<std::size_t> band_triangles_;  // per band and level (band · size() + level), likewise
   double bound_locked(std::size_t level) const;
-  std::size_t band(double iso) const;  // kBands for NaN
+  std::size_t band(double iso) const;  // of the value range; kBands for NaN
   std::vector<double> expected_locked(const std::size_t* counts) const;
 };
 

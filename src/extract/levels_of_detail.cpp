@@ -34,8 +34,6 @@ LevelsOfDetail::LevelsOfDetail(std::shared_ptr<const PreparedGrid> fine) {
     bounds_.push_back(coarsest);
     floors_.push_back(0);
   }
-  lo_ = fine->grid.source.min;
-  hi_ = fine->grid.source.max;
   grids_.assign(bounds_.size(), nullptr);
   grids_[0] = std::move(fine);
   triangles_.assign(bounds_.size(), 0);
@@ -44,8 +42,9 @@ LevelsOfDetail::LevelsOfDetail(std::shared_ptr<const PreparedGrid> fine) {
 
 std::size_t LevelsOfDetail::band(double iso) const {
   if (std::isnan(iso)) return kBands;
-  if (!(hi_ > lo_)) return 0;
-  const double t = std::clamp((iso - lo_) / (hi_ - lo_), 0.0, 1.0);
+  const double lo = grids_[0]->grid.source.min, hi = grids_[0]->grid.source.max;  // level 0 never changes
+  if (!(hi > lo)) return 0;
+  const double t = std::clamp((iso - lo) / (hi - lo), 0.0, 1.0);
   return std::min(kBands - 1, static_cast<std::size_t>(t * kBands));
 }
 

@@ -536,9 +536,10 @@ void atomic_min(float& target, float v) {
   for (float cur = a.load(std::memory_order_relaxed); v < cur && !a.compare_exchange_weak(cur, v, std::memory_order_relaxed);) {
   }
 }
-void atomic_max(float& target, float v) {
-  std::atomic_ref<float> a(target);
-  for (float cur = a.load(std::memory_order_relaxed); v > cur && !a.compare_exchange_weak(cur, v, std::memory_order_relaxed);) {
+template <class T>
+void atomic_max(T& target, T v) {
+  std::atomic_ref<T> a(target);
+  for (T cur = a.load(std::memory_order_relaxed); v > cur && !a.compare_exchange_weak(cur, v, std::memory_order_relaxed);) {
   }
 }
 
@@ -563,20 +564,16 @@ struct CodedSplits {
 struct FlooredSplits {
   CodedSplits coded;
   std::int64_t nx, nxy;
-  std::int64_t below;  // 2^floor − 1: a centre with any of these bits set is below the floor
-  mutable std::atomic<std::uint8_t> kept_error{0}, kept_displacement{0};
-  static void raise(std::atomic<std::uint8_t>& a, std::uint8_t c) {
-    for (std::uint8_t cur = a.load(std::memory_order_relaxed); c > cur && !a.compare_exchange_weak(cur, c, std::memory_order_relaxed);) {
-    }
-  }
+  std::int64_t below;                                          // 2^floor − 1: a centre with any of these bits set is below the floor
+  mutable std::uint8_t kept_error = 0, kept_displacement = 0;  // raised atomically by the walks' threads
   bool split(std::int64_t voxel) const {
     if (!coded.split(voxel)) return false;
     const auto i = static_cast<std::size_t>(voxel);
     if (coded.code[i] == ErrorCodes::kForced) return true;
     const std::int64_t x = voxel % nx, y = voxel % nxy / nx, z = voxel / nxy;
     if (((x | y | z) & below) == 0) return true;
-    raise(kept_error, coded.code[i]);
-    if (coded.displacement) raise(kept_displacement, (*coded.displacement)[i]);
+    atomic_max(kept_error, coded.code[i]);
+    if (coded.displacement) atomic_max(kept_displacement, (*coded.displacement)[i]);
     return false;
   }
   Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
@@ -848,9 +845,8 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
   const FlooredSplits floored{coded, lat.nx, lat.nxy, (std::int64_t{1} << o.cell_floor) - 1};
   // A diamond the fine grid left whole has no code of its own here (0): the fine bound holds.
   assemble(lat, floored, voxels, size, fill, out, progress, &code, fh.error_threshold);
-  out.error_bound = std::max(out.error_bound, fh.codes.error(floored.kept_error.load()));
-  if (displacement)
-    out.displacement_bound = std::max(out.displacement_bound, fh.displacement_codes.error(floored.kept_displacement.load()));
+  out.error_bound = std::max(out.error_bound, fh.codes.error(floored.kept_error));
+  if (displacement) out.displacement_bound = std::max(out.displacement_bound, fh.displacement_codes.error(floored.kept_displacement));
   return out;
 }
 
