@@ -9,11 +9,16 @@
 #include <atomic>
 #include <cerrno>
 #include <csignal>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
+#include <future>
+#include <memory>
 #include <mutex>
+#include <ostream>
 #include <random>
+#include <streambuf>
+#include <utility>
 
 #include "adaptiso/error.hpp"
 
@@ -71,6 +76,132 @@ private:
   std::atomic<const char*>* slot_ = nullptr;
 };
 
+// The file's bytes go to the disk directly (O_DIRECT) where the file system allows it, past the
+// page cache: on this machine a 1.8 GB grid took 4.4 s to write through the cache and 4.6 s with
+// the fsync, against 1.1 s straight to the disk, the cache's first touch of fresh memory being the
+// cost (as for big arrays, util/big_array.hpp). The caller fills one aligned buffer while a thread
+// writes the other. The last partial block is written through the cache (O_DIRECT wants whole
+// blocks); a file system that refuses O_DIRECT, at open or at the first write, gets ordinary
+// writes.
+class DirectFileBuf : public std::streambuf {
+public:
+  static constexpr std::size_t kBuffer = std::size_t{16} << 20, kBlock = 4096;
+
+  explicit DirectFileBuf(const fs::path& p) {
+    // ADAPTISO_NO_DIRECT_IO set: through the cache, for file systems where O_DIRECT misbehaves.
+    const int direct = std::getenv("ADAPTISO_NO_DIRECT_IO") ? 0 : O_DIRECT;
+    fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | direct, 0666);
+    if (fd_ < 0 && errno == EINVAL && direct) fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+    if (fd_ < 0) error_ = errno;
+  }
+  ~DirectFileBuf() override {
+    if (pending_.valid()) pending_.wait();
+    if (fd_ >= 0) ::close(fd_);
+  }
+  DirectFileBuf(const DirectFileBuf&) = delete;
+  DirectFileBuf& operator=(const DirectFileBuf&) = delete;
+
+  bool is_open() const { return fd_ >= 0; }
+  // Writes what is buffered and closes the file; 0, or the errno of the first failure.
+  int finish() {
+    if (error_ == 0) hand_over(false);
+    settle();
+    if (fd_ >= 0 && ::close(std::exchange(fd_, -1)) != 0 && error_ == 0) error_ = errno;
+    return error_;
+  }
+
+protected:
+  int_type overflow(int_type ch) override {
+    if (error_ != 0 || !hand_over(true)) return traits_type::eof();
+    if (!traits_type::eq_int_type(ch, traits_type::eof())) {
+      *pptr() = traits_type::to_char_type(ch);
+      pbump(1);
+    }
+    return traits_type::not_eof(ch);
+  }
+  std::streamsize xsputn(const char* s, std::streamsize n) override {
+    std::streamsize done = 0;
+    while (done < n) {
+      if (pptr() == epptr() && (error_ != 0 || !hand_over(true))) break;
+      const auto k = std::min<std::streamsize>(n - done, epptr() - pptr());
+      std::memcpy(pptr(), s + done, static_cast<std::size_t>(k));
+      pbump(static_cast<int>(k));
+      done += k;
+    }
+    return done;
+  }
+
+private:
+  struct Free {
+    void operator()(char* p) const { std::free(p); }
+  };
+  using Buffer = std::unique_ptr<char, Free>;
+
+  static Buffer allocate() {
+    Buffer b(static_cast<char*>(std::aligned_alloc(kBlock, kBuffer)));
+    if (!b) throw std::bad_alloc();
+    return b;
+  }
+  // Waits for the write in flight and keeps its error.
+  void settle() {
+    if (!pending_.valid()) return;
+    const int e = pending_.get();
+    if (error_ == 0) error_ = e;
+  }
+  // Sends the filled part of the current buffer to the writer thread and, if more is to come,
+  // gives the caller the other buffer; false after an error.
+  bool hand_over(bool more) {
+    if (current_) {
+      const std::size_t n = static_cast<std::size_t>(pptr() - pbase());
+      settle();
+      if (error_ != 0) return false;
+      pending_ = std::async(std::launch::async, [this, p = current_.get(), n, last = !more] { return write_out(p, n, last); });
+      if (!more) return true;
+      if (!spare_) spare_ = allocate();
+      std::swap(current_, spare_);
+    } else if (!more) {
+      return true;  // an empty file
+    } else {
+      current_ = allocate();
+    }
+    setp(current_.get(), current_.get() + kBuffer);
+    return true;
+  }
+  // Writes n bytes at the file's end: whole blocks directly, a last partial one (only at the end)
+  // through the cache.
+  int write_out(const char* p, std::size_t n, bool last) {
+    const std::size_t whole = last ? n / kBlock * kBlock : n;
+    if (int e = write_all(p, whole)) {
+      if (e != EINVAL || !drop_direct()) return e;
+      if ((e = write_all(p, whole)) != 0) return e;  // EINVAL on a file system that takes O_DIRECT only at open
+    }
+    if (whole == n) return 0;
+    if (!drop_direct()) return errno;
+    return write_all(p + whole, n - whole);
+  }
+  int write_all(const char* p, std::size_t n) {
+    while (n > 0) {
+      const ssize_t k = ::write(fd_, p, n);
+      if (k < 0) {
+        if (errno == EINTR) continue;
+        return errno;
+      }
+      p += k;
+      n -= static_cast<std::size_t>(k);
+    }
+    return 0;
+  }
+  bool drop_direct() {
+    const int flags = ::fcntl(fd_, F_GETFL);
+    return flags >= 0 && ::fcntl(fd_, F_SETFL, flags & ~O_DIRECT) == 0;
+  }
+
+  int fd_ = -1;
+  int error_ = 0;
+  Buffer current_, spare_;
+  std::future<int> pending_;
+};
+
 // Where the bytes must land: through a symlink to its target, and only ever over a regular file
 // (renaming over /dev/null or a FIFO would replace the device, not write to it).
 fs::path resolve_target(const std::string& path) {
@@ -117,11 +248,14 @@ void write_and_rename(const std::string& path, const std::function<void(std::ost
   InFlight guard(tmp.string());
   try {
     {
-      std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-      if (!out) throw InputError(fmt::format("{}: cannot write ({})", path, std::strerror(errno)));
+      DirectFileBuf file(tmp);
+      if (!file.is_open()) throw InputError(fmt::format("{}: cannot write ({})", path, std::strerror(file.finish())));
+      std::ostream out(&file);
       write(out);
       out.flush();
-      if (!out) throw InputError(fmt::format("{}: write failed (disk full?)", path));
+      const int error = file.finish();
+      if (error != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(error)));
+      if (!out) throw InputError(fmt::format("{}: write failed", path));
     }
     // The replaced file keeps its permissions (a private 0600 result stays private).
     if (replacing) ::chmod(tmp.c_str(), old.st_mode & 07777);

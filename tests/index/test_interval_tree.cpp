@@ -119,3 +119,41 @@ TEST(IntervalTree, SampledSplitOfAHugeNodeStaysNearTheMedian) {
   const std::uint64_t left = tree.nodes[2].begin - tree.nodes[1].begin, total = tree.entries() - tree.nodes[0].end;
   EXPECT_LE(std::max(left, total - left), total / 2 + total / 50) << left << " of " << total;
 }
+
+// The validator checks the lists in even chunks that cut through nodes (the root alone can hold a
+// tenth of the entries), so the order of two neighbours on either side of a cut must still be
+// checked. TBB cuts [0, E) first at E/2 (then E/4, 3E/4, …): two neighbours swapped there, in one
+// node and with different keys, are out of order only against each other.
+TEST(IntervalTree, ValidatorRefusesNeighboursOutOfOrderAcrossItsChunks) {
+  TetGrid g;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> value(0, 1000);
+  g.tets.resize(600000);
+  g.values.resize(4 * g.tets.size());  // vertices of their own, so neighbours' keys differ
+  for (auto& v : g.values) v = value(rng);
+  g.ijk.resize(g.values.size());
+  for (std::uint32_t t = 0; t < g.tets.size(); ++t) g.tets[t] = {4 * t, 4 * t + 1, 4 * t + 2, 4 * t + 3};
+  const IntervalTree tree = build_interval_tree(g, 1);  // the root and two leaves: large nodes
+  ASSERT_NO_THROW(validate_interval_tree(tree, g, "t"));
+  auto key = [&](std::uint32_t t, bool by_min) {
+    const auto& q = g.tets[t];
+    double lo = g.values[q[0]], hi = lo;
+    for (auto v : q) lo = std::min(lo, g.values[v]), hi = std::max(hi, g.values[v]);
+    return by_min ? lo : hi;
+  };
+  const std::uint64_t E = tree.entries();
+  int tried = 0;
+  for (std::uint64_t k : {E / 2, E / 4, E / 2 + E / 4}) {
+    for (bool by_min : {true, false}) {
+      IntervalTree bad = tree;
+      auto& list = by_min ? bad.by_min : bad.by_max;
+      const bool one_node = std::none_of(tree.nodes.begin(), tree.nodes.end(), [&](const auto& n) { return n.begin == k; });
+      if (!one_node || key(list[k - 1], by_min) == key(list[k], by_min)) continue;
+      std::swap(list[k - 1], list[k]);
+      EXPECT_THROW(validate_interval_tree(bad, g, "t"), InputError)
+          << "entries " << k - 1 << ", " << k << (by_min ? " by minimum" : " by maximum");
+      ++tried;
+    }
+  }
+  EXPECT_GE(tried, 4);
+}
