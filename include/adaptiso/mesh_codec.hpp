@@ -13,6 +13,8 @@
 // and winding (the index codec may rotate a triangle's corners), the vertices renumbered by first
 // use.
 #pragma once
+#include <cstdint>
+#include <span>
 #include <string>
 #include <string_view>
 
@@ -20,7 +22,12 @@
 
 namespace adaptiso {
 
-std::string encode_mesh_compact(const Mesh& mesh);
+// With an order (a permutation of the triangles' indices), the triangles are encoded in that
+// order instead: the codecs compress spatially coherent triangles best (Extractor::
+// triangles_in_march_order: a surface after incremental steps took 8.7 bytes a triangle in its
+// own order and 4.9 in the march's). Throws std::invalid_argument when the order's size is not
+// the triangle count or an index is out of range.
+std::string encode_mesh_compact(const Mesh& mesh, std::span<const std::uint32_t> order = {});
 // The decoded mesh (positions and normals as quantized); throws InputError on a malformed buffer.
 Mesh decode_mesh_compact(std::string_view bytes);
 

@@ -48,6 +48,7 @@ struct ExtractorState {
   SweepState sweep;
   Mesh mesh;
   bool valid = false, incremental = false;
+  bool in_march_order = false;  // the triangles are as the fresh march wrote them (no step since)
   std::size_t marched = 0;
 
   // Per slot (one per active tetrahedron): its id, case, case interval and triangle places.

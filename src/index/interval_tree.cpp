@@ -21,6 +21,7 @@
 #include "adaptiso/error.hpp"
 #include "util/big_array.hpp"
 #include "util/prefetch.hpp"
+#include "util/radix_sort.hpp"
 
 namespace adaptiso {
 namespace {
@@ -129,22 +130,6 @@ inline std::uint64_t ordered(float f, std::uint32_t id) {
   return (std::uint64_t{key} << 32) | id;
 }
 
-// LSD radix sort of 64-bit keys by their bits [from, 64), 16 bits a pass, stable (for the nodes
-// too large to sort in cache).
-void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint64_t>& scratch, int from) {
-  scratch.resize(keys.size());
-  std::vector<std::uint64_t> count(1 << 16);
-  for (int shift = from; shift < 64; shift += 16) {
-    std::fill(count.begin(), count.end(), 0);
-    for (std::uint64_t k : keys) ++count[(k >> shift) & 0xffff];
-    if (std::find(count.begin(), count.end(), keys.size()) != count.end()) continue;  // one digit value: nothing moves
-    std::uint64_t sum = 0;
-    for (auto& c : count) sum += std::exchange(c, sum);
-    for (std::uint64_t k : keys) scratch[count[(k >> shift) & 0xffff]++] = k;
-    keys.swap(scratch);
-  }
-}
-
 // Sorts one node's ids into list[b, e) by the key of their records.
 template <class K, class Key>
 void sort_node(const Record<K>* recs, std::uint64_t b, std::uint64_t e, Key key, std::uint32_t* list, bool large) {
@@ -156,7 +141,7 @@ void sort_node(const Record<K>* recs, std::uint64_t b, std::uint64_t e, Key key,
     // is as deterministic as the ids and halves the passes (2 instead of 4; with the sampled
     // splits the bunny's index builds in 0.55–0.78× the time).
     if (large)
-      radix_sort(keys, scratch, 32);
+      detail::radix_sort(keys, scratch, 32);
     else
       std::sort(keys.begin(), keys.end());
     for (std::uint64_t i = b; i < e; ++i) list[i] = static_cast<std::uint32_t>(keys[i - b]);

@@ -7,11 +7,13 @@
 #include <tbb/parallel_invoke.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <stdexcept>
 #include <vector>
 
 #include "adaptiso/error.hpp"
@@ -62,7 +64,7 @@ void put(std::string& out, const T& x) {
 // the time with the arrays kept. Two sets are kept (more encodings under way get fresh ones), so
 // small requests never wait behind a large one.
 struct Scratch {
-  std::vector<unsigned int> remap, indices;
+  std::vector<unsigned int> remap, indices, ordered;
   std::vector<Packed> packed;
   std::vector<unsigned char> vbuf, ibuf;
 };
@@ -124,14 +126,33 @@ void encode_vertices(const Mesh& m, const std::vector<unsigned int>& remap, std:
 
 }  // namespace
 
-std::string encode_mesh_compact(const Mesh& m) {
+std::string encode_mesh_compact(const Mesh& m, std::span<const std::uint32_t> order) {
   const std::size_t V = m.vertex_count(), T = m.triangle_count();
+  if (!order.empty() && order.size() != T) throw std::invalid_argument("encode_mesh_compact: the order does not list every triangle");
   std::unique_ptr<Scratch> scratch = scratch_pool().take();
-  auto& [remap, indices, packed, vbuf, ibuf] = *scratch;
+  auto& [remap, indices, ordered, packed, vbuf, ibuf] = *scratch;
   // Vertices in first-use order: the codecs compress neighbours' differences.
   detail::resize_big(remap, V);  // ~0u (set by the remap): a vertex no triangle uses
   // The triangles as one index array (no element to take the address of when there is none).
   const unsigned int* triangles = reinterpret_cast<const unsigned int*>(m.triangles.data());
+  if (!order.empty()) {
+    detail::resize_big(ordered, 3 * T);
+    std::atomic<bool> out_of_range{false};
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 1 << 14), [&](const auto& r) {
+      for (std::size_t i = r.begin(); i < r.end(); ++i) {
+        if (order[i] >= T) {
+          out_of_range = true;
+          return;
+        }
+        std::memcpy(&ordered[3 * i], &m.triangles[order[i]], 12);
+      }
+    });
+    if (out_of_range) {
+      scratch_pool().give(std::move(scratch));
+      throw std::invalid_argument("encode_mesh_compact: a triangle index in the order is out of range");
+    }
+    triangles = ordered.data();
+  }
   if (!T) std::fill(remap.begin(), remap.end(), ~0u);
   const std::size_t used = T ? meshopt_optimizeVertexFetchRemap(remap.data(), triangles, 3 * T, V) : 0;
   // The index and vertex streams only share the remap: encode them side by side (meshoptimizer's

@@ -551,7 +551,10 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   if (level != rest) follower.follow(c->level(rest), s.at(rest), iso);
   const Extractor* ex = slot->extractor.get();
   const auto t0 = std::chrono::steady_clock::now();
-  std::string body = compact ? encode_mesh_compact(ex->mesh()) : encode_mesh(ex->mesh());
+  // After incremental steps the mesh's triangles are in an order of its history's making, which
+  // the codecs compress to nearly twice the bytes (the chest at rest: 8.7 bytes a triangle
+  // against 4.9): sent in the fresh march's order.
+  std::string body = compact ? encode_mesh_compact(ex->mesh(), ex->triangles_in_march_order()) : encode_mesh(ex->mesh());
   const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.sweep_seconds + st.march_seconds));
   res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));

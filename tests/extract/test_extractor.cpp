@@ -9,6 +9,7 @@
 #include <cmath>
 #include <iterator>
 #include <map>
+#include <numeric>
 #include <random>
 #include <thread>
 
@@ -258,4 +259,44 @@ TEST(Extractor, CancelledAtAnyMomentTheNextExtractionStillMatchesAFreshMarch) {
     ASSERT_TRUE(matches_fresh_march(ex, g, iso)) << step << (was_cancelled ? " after a cancellation" : "");
   }
   EXPECT_GE(cancelled, 6u);
+}
+
+// The order the compact codec sends a surface in: after incremental steps (triangles placed by
+// the history of iso-values), exactly the triangles of a fresh march in its order, corner for
+// corner (cut edges, so vertex numbering does not matter); the identity right after a fresh march.
+TEST(Extractor, TrianglesInMarchOrderAreAFreshMarchsOrderAfterIncrementalSteps) {
+  Volume v = make_synthetic("marschner-lobb", 24, ScalarType::f32);
+  TetGrid g = build(v, all_voxels(v));
+  IntervalTree tree = build_interval_tree(g);
+  const auto shared = testutil::prepared(g, tree);
+  Extractor stepped(shared);
+  const double range = g.source.max - g.source.min;
+  double iso = g.source.min + 0.45 * range;
+  std::size_t steps = 0, two_triangle_tets = 0;
+  for (int step = 0; step < 8; ++step, iso += (step % 3 == 2 ? -0.007 : 0.005) * range) {
+    stepped.extract(iso);
+    Extractor fresh(shared);
+    fresh.extract(iso);
+    const auto order = stepped.triangles_in_march_order();
+    const Mesh& m = stepped.mesh();
+    ASSERT_EQ(order.size(), m.triangle_count());
+    ASSERT_EQ(sorted(order), [&] {
+      std::vector<std::uint32_t> all(m.triangle_count());
+      std::iota(all.begin(), all.end(), 0u);
+      return all;
+    }()) << "a permutation";
+    if (!stepped.last_was_incremental()) {
+      for (std::uint32_t i = 0; i < order.size(); ++i) ASSERT_EQ(order[i], i) << "identity after a fresh march";
+      continue;
+    }
+    ++steps;
+    ASSERT_EQ(fresh.mesh().triangle_count(), m.triangle_count());
+    for (std::size_t i = 0; i < order.size(); ++i)
+      for (int c = 0; c < 3; ++c)
+        ASSERT_EQ(stepped.vertex_edges()[m.triangles[order[i]][c]], fresh.vertex_edges()[fresh.mesh().triangles[i][c]])
+            << "step " << step << " triangle " << i << " corner " << c;
+    two_triangle_tets += fresh.mesh().triangle_count() > fresh.active().size();
+  }
+  EXPECT_GE(steps, 5u);
+  EXPECT_GT(two_triangle_tets, 0u) << "tetrahedra cut in two triangles must be among those stepped";
 }

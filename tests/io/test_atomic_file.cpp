@@ -46,18 +46,18 @@ TEST(AtomicFile, BytesOnDiskAreTheBytesWrittenAtEverySizeAroundBlocksAndBuffers)
   std::vector<std::string> folders{dir.path.string()};
   if (std::filesystem::is_directory("/dev/shm")) folders.push_back("/dev/shm");
   for (const bool direct : {true, false})
-  for (const auto& folder : folders)
-    for (std::size_t size : {std::size_t{0}, std::size_t{1}, std::size_t{4095}, std::size_t{4096}, std::size_t{4097}, 16 * MiB - 1, 16 * MiB,
-                             16 * MiB + 1, 16 * MiB + 4096 + 5, pool.size()}) {
-      const std::string path = folder + "/adaptiso-atomic-" + std::to_string(size) + ".bin";
-      const std::string bytes = pool.substr(0, size);
-      if (!direct) setenv("ADAPTISO_NO_DIRECT_IO", "1", 1);
-      write_file_atomically(path, [&](std::ostream& out) { write_in_pieces(out, bytes, rng); });
-      EXPECT_EQ(std::filesystem::file_size(path), size) << path;
-      EXPECT_TRUE(read_all(path) == bytes) << path;
-      std::filesystem::remove(path);
-      unsetenv("ADAPTISO_NO_DIRECT_IO");
-    }
+    for (const auto& folder : folders)
+      for (std::size_t size : {std::size_t{0}, std::size_t{1}, std::size_t{4095}, std::size_t{4096}, std::size_t{4097}, 16 * MiB - 1,
+                               16 * MiB, 16 * MiB + 1, 16 * MiB + 4096 + 5, pool.size()}) {
+        const std::string path = folder + "/adaptiso-atomic-" + std::to_string(size) + ".bin";
+        const std::string bytes = pool.substr(0, size);
+        if (!direct) setenv("ADAPTISO_NO_DIRECT_IO", "1", 1);
+        write_file_atomically(path, [&](std::ostream& out) { write_in_pieces(out, bytes, rng); });
+        EXPECT_EQ(std::filesystem::file_size(path), size) << path;
+        EXPECT_TRUE(read_all(path) == bytes) << path;
+        std::filesystem::remove(path);
+        unsetenv("ADAPTISO_NO_DIRECT_IO");
+      }
 }
 
 TEST(AtomicFile, AFailingWriteLeavesTheOldFileAndNoTemporary) {
