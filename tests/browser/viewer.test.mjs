@@ -58,6 +58,38 @@ async function apiTriangles(iso) {
   return T;
 }
 
+// The page's decoding of the compact answer against the plain one (f32 positions and normals) of
+// the same surface: fresh extractions of two new clients, so the same triangles in the same order
+// (the index codec may rotate a triangle's corners); positions within half a 16-bit step of the
+// bounding box, normals within 1° (the octahedral bytes: about 0.6° at worst).
+async function checkCompactDecoding(page, iso) {
+  const r = await fetch(`${url}api/surface?iso=${encodeURIComponent(iso)}&client=test-plain`);
+  const buf = await r.arrayBuffer();
+  const [V, T] = new Uint32Array(buf, 0, 2);
+  const pos = new Float32Array(buf, 8, 3 * V), nrm = new Float32Array(buf, 8 + 12 * V, 3 * V), idx = new Uint32Array(buf, 8 + 24 * V, 3 * T);
+  const got = await page.evaluate(async (i) => {
+    const b = await (await fetch(`api/surface?iso=${encodeURIComponent(i)}&client=test-compact&format=compact`)).arrayBuffer();
+    const d = await window.adaptisoDecodeCompact(b);
+    return { positions: Array.from(d.positions), normals: Array.from(d.normals), indices: Array.from(d.indices) };
+  }, iso);
+  if (got.indices.length !== 3 * T) fail(`compact decoding: ${got.indices.length / 3} triangles, plain ${T}`);
+  const tol = [0, 1, 2].map((a) => {
+    let lo = Infinity, hi = -Infinity;
+    for (let v = 0; v < V; v++) { lo = Math.min(lo, pos[3 * v + a]); hi = Math.max(hi, pos[3 * v + a]); }
+    return 0.51 * (hi - lo) / 65535 + 1e-6 * Math.max(Math.abs(lo), Math.abs(hi));
+  });
+  const close = (p, q) => [0, 1, 2].every((a) => Math.abs(got.positions[3 * p + a] - pos[3 * q + a]) <= tol[a]);
+  const angle = (p, q) => Math.acos(Math.min(1, [0, 1, 2].reduce((s, a) => s + got.normals[3 * p + a] * nrm[3 * q + a], 0))) * 180 / Math.PI;
+  for (let t = 0; t < T; t++) {
+    const r0 = [0, 1, 2].find((r) => [0, 1, 2].every((c) => close(got.indices[3 * t + (c + r) % 3], idx[3 * t + c])));
+    if (r0 === undefined) fail(`compact decoding: triangle ${t}'s corners are not the plain answer's`);
+    for (let c = 0; c < 3; c++) {
+      const a = angle(got.indices[3 * t + (c + r0) % 3], idx[3 * t + c]);
+      if (!(a <= 1)) fail(`compact decoding: triangle ${t} corner ${c}: normal off by ${a}°`);
+    }
+  }
+}
+
 try {
   browser = await chromium.launch({ executablePath: chromiumPath, headless: true,
     args: ['--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'] });
@@ -71,6 +103,7 @@ try {
   const first = await read();
   const t1 = Number(first.text.match(/triangles: (\d+)/)[1]);
   if (t1 !== await apiTriangles(first.iso)) fail(`stats say ${t1} triangles, the API ${await apiTriangles(first.iso)} at iso ${first.iso}`);
+  await checkCompactDecoding(page, first.iso);
   // Drag the slider to 80 % of the range (input events, as a user's drag produces).
   await page.evaluate(() => {
     const s = document.getElementById('iso');
