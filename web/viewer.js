@@ -52,14 +52,30 @@ function resize() {
   renderer.setSize(w, h, false);
   camera.aspect = w / h;
   camera.updateProjectionMatrix();
+  requestRender();
 }
 window.addEventListener('resize', resize);
 
-function render() {
-  controls.update();
+// Drawn on demand (the camera moved, a layer, the surface or the window changed), not at every
+// animation frame: with software rendering (SwiftShader here) redrawing a still bunny surface of
+// 8 M triangles kept a core busy, which the server on the same machine lost (its encoding of the
+// MR head's surface at rest took 2.2-2.8 s in the browser benchmark against 0.4 s alone), and
+// on a laptop's GPU it is battery.
+let renderQueued = false, renderWanted = false;
+function renderNow() {
+  renderWanted = false;
   renderer.render(scene, camera);
-  requestAnimationFrame(render);
 }
+function requestRender() {
+  renderWanted = true;
+  if (renderQueued) return;
+  renderQueued = true;
+  requestAnimationFrame(() => {
+    renderQueued = false;
+    if (renderWanted) renderNow();  // unless drawn meanwhile (a new surface is drawn at once)
+  });
+}
+controls.addEventListener('change', requestRender);
 
 function showStatus(text) { $('status').textContent = text; }
 
@@ -152,6 +168,7 @@ window.adaptisoDecodeCompact = async (buffer) => {
 function replaceGeometry(object, geometry) {
   object.geometry.dispose();
   object.geometry = geometry;
+  requestRender();
 }
 
 function isoFromSlider() {
@@ -214,7 +231,7 @@ async function pump() {
     replaceGeometry(surface, geometry);
     // Upload and draw now (three.js uploads a geometry when it is first drawn), so the timing
     // covers the geometry on the GPU; SwiftShader's drawing is CPU work and reported with it.
-    renderer.render(scene, camera);
+    renderNow();
     const t3 = performance.now();
     shownIso = iso;
     record.push({ iso, coarse, level: stats.level, error: stats.error, triangles: stats.triangles, bytes: stats.bytes,
@@ -281,6 +298,7 @@ function applyVisibility() {
   const solid = side || !surface.visible;
   referenceMaterial.opacity = solid ? 1 : 0.55;
   referenceMaterial.transparent = !solid;
+  requestRender();
 }
 
 function drawHistogram(h) {
@@ -300,12 +318,13 @@ function frame(box) {
   camera.up.copy(givenVector(startUp) ? new THREE.Vector3(...startUp).normalize() : new THREE.Vector3(0, 0, 1));
   camera.near = size / 1000; camera.far = size * 100;
   camera.updateProjectionMatrix();
+  controls.update();
   sideOffset = box.getSize(new THREE.Vector3()).x * 1.15;
+  requestRender();
 }
 
 async function start() {
   resize();
-  render();
   for (;;) {  // the server may still be preparing the grid
     try {
       const r = await fetch('api/info');

@@ -131,6 +131,23 @@ try {
     return s2 / n - (s / n) ** 2;
   });
   if (!(variance > 20)) fail(`the canvas looks blank (luminance variance ${variance})`);
+  // The page draws on demand: turning the view with the mouse redraws it.
+  const pixels = () => page.evaluate(() => {
+    const src = document.getElementById('view'), c = document.createElement('canvas');
+    c.width = 100; c.height = 70;
+    const ctx = c.getContext('2d');
+    ctx.drawImage(src, 0, 0, c.width, c.height);
+    return Array.from(ctx.getImageData(0, 0, c.width, c.height).data);
+  });
+  const unturned = await pixels();
+  await page.mouse.move(500, 350);
+  await page.mouse.down();
+  await page.mouse.move(650, 380, { steps: 8 });
+  await page.mouse.up();
+  await page.waitForTimeout(300);
+  const after = await pixels();
+  const changed = after.filter((v, i) => Math.abs(v - unturned[i]) > 8).length;
+  if (changed < 0.01 * after.length) fail(`turning the view with the mouse did not redraw the canvas (${changed} values changed)`);
   // Level of detail: with a small triangle budget, dragging shows coarser surfaces with their
   // (larger) guaranteed error; releasing the slider settles on the prepared surface and error.
   const lod = await browser.newPage({ viewport: { width: 800, height: 600 }, acceptDownloads: true });
