@@ -91,6 +91,7 @@ public:
     // ADAPTISO_NO_DIRECT_IO set: through the cache, for file systems where O_DIRECT misbehaves.
     const int direct = std::getenv("ADAPTISO_NO_DIRECT_IO") ? 0 : O_DIRECT;
     fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | direct, 0666);
+    direct_ = fd_ >= 0 && direct;
     if (fd_ < 0 && errno == EINVAL && direct) fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
     if (fd_ < 0) error_ = errno;
   }
@@ -171,19 +172,18 @@ private:
   // through the cache.
   int write_out(const char* p, std::size_t n, bool last) {
     const std::size_t whole = last ? n / kBlock * kBlock : n;
-    if (int e = write_all(p, whole)) {
-      if (e != EINVAL || !drop_direct()) return e;
-      if ((e = write_all(p, whole)) != 0) return e;  // EINVAL on a file system that takes O_DIRECT only at open
-    }
+    if (const int e = write_all(p, whole)) return e;
     if (whole == n) return 0;
-    if (!drop_direct()) return errno;
+    if (direct_ && !drop_direct()) return errno;
     return write_all(p + whole, n - whole);
   }
+  // A write refused with EINVAL under O_DIRECT (a file system that takes the flag only at open,
+  // or the position left unaligned by a short write) goes on through the cache from where it is.
   int write_all(const char* p, std::size_t n) {
     while (n > 0) {
       const ssize_t k = ::write(fd_, p, n);
       if (k < 0) {
-        if (errno == EINTR) continue;
+        if (errno == EINTR || (errno == EINVAL && direct_ && drop_direct())) continue;
         return errno;
       }
       p += k;
@@ -193,10 +193,13 @@ private:
   }
   bool drop_direct() {
     const int flags = ::fcntl(fd_, F_GETFL);
-    return flags >= 0 && ::fcntl(fd_, F_SETFL, flags & ~O_DIRECT) == 0;
+    if (flags < 0 || ::fcntl(fd_, F_SETFL, flags & ~O_DIRECT) != 0) return false;
+    direct_ = false;
+    return true;
   }
 
   int fd_ = -1;
+  bool direct_ = false;  // O_DIRECT is on
   int error_ = 0;
   Buffer current_, spare_;
   std::future<int> pending_;
