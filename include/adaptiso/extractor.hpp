@@ -69,8 +69,10 @@ public:
   // The mesh's triangles in the order a fresh march of the same iso-value writes them (by
   // tetrahedron id; spatially coherent, which the compact codec compresses best: after
   // incremental steps the mesh's own order depends on the history, see above). A permutation of
-  // [0, triangles); sorting costs about 2 passes over the triangles.
-  std::vector<std::uint32_t> triangles_in_march_order() const;
+  // [0, triangles), valid until the next extract; sorting costs about 2 passes over the
+  // triangles, in buffers the Extractor keeps for the next call (fresh memory is costly on
+  // virtual machines: util/big_array.hpp).
+  const std::vector<std::uint32_t>& triangles_in_march_order() const;
   // The active tetrahedra of the last extract, in slot order (ascending after a fresh march).
   const std::vector<std::uint32_t>& active() const;
   // Per mesh vertex, its cut edge as (below vertex << 32 | above vertex), grid vertex ids.

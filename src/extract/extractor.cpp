@@ -492,27 +492,31 @@ Extractor& Extractor::operator=(Extractor&&) noexcept = default;
 const Mesh& Extractor::mesh() const { return state_->mesh; }
 const std::vector<std::uint32_t>& Extractor::active() const { return state_->active; }
 
-std::vector<std::uint32_t> Extractor::triangles_in_march_order() const {
-  const auto& s = *state_;
+const std::vector<std::uint32_t>& Extractor::triangles_in_march_order() const {
+  auto& s = *state_;  // the answer and the sort's buffers are scratch of the state
   const std::size_t T = s.mesh.triangle_count();
-  std::vector<std::uint32_t> order;
-  detail::resize_for_overwrite(order, T);
+  auto& order = s.march_order;
+  detail::resize_big(order, T);
   if (s.in_march_order || !s.valid) {  // (a cancelled extraction leaves no surface to order)
     std::iota(order.begin(), order.end(), std::uint32_t{0});
     return order;
   }
-  // By tetrahedron: a stable sort on the id in the high half of (tet << 32 | triangle). A
-  // tetrahedron's two triangles keep their order, as the march wrote them: steps give new
-  // triangles places in ascending order and move entries into holes in ascending order.
-  std::vector<std::uint64_t> keys, scratch;
+  // By tetrahedron: a stable sort on the id in the high half of (tet << 32 | triangle); then each
+  // tetrahedron's first triangle before its second, as the march wrote them (a step's compaction
+  // can move a second triangle from past the new end into a hole before its first).
+  auto& keys = s.march_order_keys;
   detail::resize_big(keys, T);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 1 << 16), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) keys[k] = std::uint64_t{s.active[s.owner[k]]} << 32 | k;
   });
-  detail::radix_sort(keys, scratch, 32);
+  detail::radix_sort(keys, s.march_order_scratch, 32);
   for (std::size_t i = 0; i < T; ++i) order[i] = static_cast<std::uint32_t>(keys[i]);
+  for (std::size_t i = 0; i + 1 < T; ++i)
+    if (const std::uint32_t slot = s.owner[order[i]]; s.owner[order[i + 1]] == slot && s.slot_tris[slot][0] == order[i + 1])
+      std::swap(order[i], order[i + 1]);
   return order;
 }
+
 const std::vector<std::uint64_t>& Extractor::vertex_edges() const { return state_->keys; }
 bool Extractor::last_was_incremental() const { return state_->incremental; }
 const PreparedGrid& Extractor::grid() const { return *state_->prepared; }

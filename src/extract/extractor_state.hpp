@@ -49,6 +49,9 @@ struct ExtractorState {
   Mesh mesh;
   bool valid = false, incremental = false;
   bool in_march_order = false;  // the triangles are as the fresh march wrote them (no step since)
+  // Extractor::triangles_in_march_order's answer and its sort's buffers, kept between calls.
+  std::vector<std::uint32_t> march_order;
+  std::vector<std::uint64_t> march_order_keys, march_order_scratch;
   std::size_t marched = 0;
 
   // Per slot (one per active tetrahedron): its id, case, case interval and triangle places.

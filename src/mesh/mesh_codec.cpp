@@ -160,10 +160,16 @@ std::string encode_mesh_compact(const Mesh& m, std::span<const std::uint32_t> or
   float lo[3] = {0, 0, 0}, step[3] = {1, 1, 1};
   tbb::parallel_invoke(
       [&] {
-        detail::resize_big(indices, 3 * T);
-        if (T) meshopt_remapIndexBuffer(indices.data(), triangles, 3 * T, remap.data());
+        // Triangles reordered into our own array are renumbered in place (an element-wise map):
+        // 12 bytes a triangle of memory fewer to touch.
+        unsigned int* renumbered = ordered.data();
+        if (order.empty()) {
+          detail::resize_big(indices, 3 * T);
+          renumbered = indices.data();
+        }
+        if (T) meshopt_remapIndexBuffer(renumbered, triangles, 3 * T, remap.data());
         detail::resize_big(ibuf, meshopt_encodeIndexBufferBound(3 * T, used));
-        ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), indices.data(), 3 * T));
+        ibuf.resize(meshopt_encodeIndexBuffer(ibuf.data(), ibuf.size(), renumbered, 3 * T));
       },
       [&] { encode_vertices(m, remap, used, lo, step, packed, vbuf); });
   std::string out;

@@ -264,8 +264,8 @@ TEST(Extractor, CancelledAtAnyMomentTheNextExtractionStillMatchesAFreshMarch) {
 // The order the compact codec sends a surface in: after incremental steps (triangles placed by
 // the history of iso-values), exactly the triangles of a fresh march in its order, corner for
 // corner (cut edges, so vertex numbering does not matter); the identity right after a fresh march.
-TEST(Extractor, TrianglesInMarchOrderAreAFreshMarchsOrderAfterIncrementalSteps) {
-  Volume v = make_synthetic("marschner-lobb", 24, ScalarType::f32);
+// Returns the number of incremental steps checked.
+static std::size_t expect_march_order_after_steps(const Volume& v, double up, double down) {
   TetGrid g = build(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g);
   const auto shared = testutil::prepared(g, tree);
@@ -273,30 +273,48 @@ TEST(Extractor, TrianglesInMarchOrderAreAFreshMarchsOrderAfterIncrementalSteps) 
   const double range = g.source.max - g.source.min;
   double iso = g.source.min + 0.45 * range;
   std::size_t steps = 0, two_triangle_tets = 0;
-  for (int step = 0; step < 8; ++step, iso += (step % 3 == 2 ? -0.007 : 0.005) * range) {
+  for (int step = 0; step < 16; ++step, iso += (step % 3 == 2 ? -down : up) * range) {
     stepped.extract(iso);
     Extractor fresh(shared);
     fresh.extract(iso);
     const auto order = stepped.triangles_in_march_order();
     const Mesh& m = stepped.mesh();
-    ASSERT_EQ(order.size(), m.triangle_count());
-    ASSERT_EQ(sorted(order), [&] {
-      std::vector<std::uint32_t> all(m.triangle_count());
-      std::iota(all.begin(), all.end(), 0u);
-      return all;
-    }()) << "a permutation";
+    EXPECT_EQ(order.size(), m.triangle_count());
+    std::vector<std::uint32_t> all(m.triangle_count());
+    std::iota(all.begin(), all.end(), 0u);
+    EXPECT_EQ(sorted(order), all) << "a permutation";
     if (!stepped.last_was_incremental()) {
-      for (std::uint32_t i = 0; i < order.size(); ++i) ASSERT_EQ(order[i], i) << "identity after a fresh march";
+      EXPECT_EQ(order, all) << "the identity after a fresh march";
       continue;
     }
     ++steps;
-    ASSERT_EQ(fresh.mesh().triangle_count(), m.triangle_count());
-    for (std::size_t i = 0; i < order.size(); ++i)
+    EXPECT_EQ(fresh.mesh().triangle_count(), m.triangle_count());
+    for (std::size_t i = 0; i < std::min(order.size(), fresh.mesh().triangle_count()); ++i)
       for (int c = 0; c < 3; ++c)
-        ASSERT_EQ(stepped.vertex_edges()[m.triangles[order[i]][c]], fresh.vertex_edges()[fresh.mesh().triangles[i][c]])
-            << "step " << step << " triangle " << i << " corner " << c;
+        if (stepped.vertex_edges()[m.triangles[order[i]][c]] != fresh.vertex_edges()[fresh.mesh().triangles[i][c]]) {
+          ADD_FAILURE() << "step " << step << " triangle " << i << " corner " << c;
+          return steps;
+        }
     two_triangle_tets += fresh.mesh().triangle_count() > fresh.active().size();
   }
-  EXPECT_GE(steps, 5u);
   EXPECT_GT(two_triangle_tets, 0u) << "tetrahedra cut in two triangles must be among those stepped";
+  return steps;
+}
+
+TEST(Extractor, TrianglesInMarchOrderAreAFreshMarchsOrderAfterIncrementalSteps) {
+  EXPECT_GE(expect_march_order_after_steps(make_synthetic("marschner-lobb", 24, ScalarType::f32), 0.005, 0.009), 8u);
+  // A ball whose values are jittered a little (±0.025 of 1000), so its cut edges are irregular.
+  Volume v = make_synthetic("sphere", 40, ScalarType::f32);
+  std::mt19937 rng(13);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, v.at(i) + 0.05 * (double(rng() % 1000) / 1000 - 0.5));
+  EXPECT_GE(expect_march_order_after_steps(v, 0.004, 0.006), 8u);
+}
+
+// Regression: a step's compaction can move a tetrahedron's second triangle from past the mesh's
+// new end into a hole before its first; sorted by tetrahedron alone the pair came out swapped (the
+// chest's surface at rest had 72 such triangles, and its encoding differed from a fresh one's).
+// These steps meet the case at the fifth (mutation checked: without putting such pairs back in
+// order this test fails there).
+TEST(Extractor, MarchOrderKeepsATetrahedronsTrianglesInOrderWhenACompactionSwappedThem) {
+  EXPECT_GE(expect_march_order_after_steps(make_synthetic("marschner-lobb", 24, ScalarType::f32), 0.004, 0.006), 8u);
 }
