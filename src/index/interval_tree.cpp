@@ -317,53 +317,45 @@ void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const
     }
     if (k + 8 < e && list[k + 8] < T) prefetch_values(grid, list[k + 8]);
   };
-  // The key of the entry before b in node i's list (−∞ at the node's first), or false if corrupt.
-  auto key_before = [&](const std::uint32_t* list, std::size_t i, std::uint64_t b, auto key, double& out) {
-    out = -std::numeric_limits<double>::infinity();
-    if (b == tree.nodes[i].begin) return true;
-    if (list[b - 1] >= T) return report("entry out of range or repeated");
-    out = key(grid, list[b - 1]);
-    return true;
+  // One list's entries, chunk by chunk: entry(i, t, key) checks tetrahedron t in node i and gives
+  // its key (false once it has reported); the keys must not decrease within a node. The key of the
+  // entry before a chunk's first is read afresh (−∞ at a node's first).
+  auto check_list = [&](const std::vector<std::uint32_t>& entries, auto key_of, const char* unsorted, auto entry) {
+    check_entries_in_chunks(starts, tree, [&](std::size_t i, std::uint64_t b, std::uint64_t e) {
+      if (bad.load(std::memory_order_relaxed)) return false;
+      const std::uint32_t* list = entries.data();  // local, so the atomics below need not make it be reloaded
+      double prev = -std::numeric_limits<double>::infinity();
+      if (b > tree.nodes[i].begin) {
+        if (list[b - 1] >= T) return report("entry out of range or repeated");
+        prev = key_of(grid, list[b - 1]);
+      }
+      for (std::uint64_t k = b; k < e; ++k) {
+        ahead(list, k, e);
+        double key = 0;  // set by entry whenever it returns true
+        if (!entry(i, list[k], key)) return false;
+        if (prev > key) return report(unsorted);  // ties in any order (repeats are caught by entry)
+        prev = key;
+      }
+      return true;
+    });
+    if (bad) fail(why);
   };
-  check_entries_in_chunks(starts, tree, [&](std::size_t i, std::uint64_t b, std::uint64_t e) {
-    if (bad.load(std::memory_order_relaxed)) return false;
-    const auto& n = tree.nodes[i];
-    const bool leaf = tree.is_leaf(i);
-    const std::uint32_t* list = tree.by_min.data();
-    double prev;
-    if (!key_before(list, i, b, tet_min, prev)) return false;
-    for (std::uint64_t k = b; k < e; ++k) {
-      ahead(list, k, e);
-      const std::uint32_t t = list[k];
-      std::uint32_t unseen = kUnseen;
-      if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(unseen, static_cast<std::uint32_t>(i)))
-        return report("entry out of range or repeated");
-      const Range q = tet_range(grid, t);
-      if (!(q.lo < q.hi) || q.lo < allowed[i].lo || q.hi > allowed[i].hi) return report("entry outside its node");
-      if (!leaf && !(q.lo < n.split && q.hi > n.split)) return report("entry does not straddle its split");
-      if (prev > q.lo) return report("list by minimum not sorted");  // ties in any order (repeats are caught above)
-      prev = q.lo;
-    }
+  check_list(tree.by_min, tet_min, "list by minimum not sorted", [&](std::size_t i, std::uint32_t t, double& key) {
+    std::uint32_t unseen = kUnseen;
+    if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(unseen, static_cast<std::uint32_t>(i)))
+      return report("entry out of range or repeated");
+    const Range q = tet_range(grid, t);
+    if (!(q.lo < q.hi) || q.lo < allowed[i].lo || q.hi > allowed[i].hi) return report("entry outside its node");
+    if (!tree.is_leaf(i) && !(q.lo < tree.nodes[i].split && q.hi > tree.nodes[i].split)) return report("entry does not straddle its split");
+    key = q.lo;
     return true;
   });
-  if (bad) fail(why);
-  check_entries_in_chunks(starts, tree, [&](std::size_t i, std::uint64_t b, std::uint64_t e) {
-    if (bad.load(std::memory_order_relaxed)) return false;
-    const std::uint32_t* list = tree.by_max.data();
-    double prev;
-    if (!key_before(list, i, b, tet_max, prev)) return false;
-    for (std::uint64_t k = b; k < e; ++k) {
-      ahead(list, k, e);
-      const std::uint32_t t = list[k];
-      std::uint32_t mine = static_cast<std::uint32_t>(i);
-      if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(mine, kUnseen - 1)) return report("lists disagree");
-      const double qk = tet_max(grid, t);
-      if (prev > qk) return report("list by maximum not sorted");
-      prev = qk;
-    }
+  check_list(tree.by_max, tet_max, "list by maximum not sorted", [&](std::size_t i, std::uint32_t t, double& key) {
+    std::uint32_t mine = static_cast<std::uint32_t>(i);
+    if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(mine, kUnseen - 1)) return report("lists disagree");
+    key = tet_max(grid, t);
     return true;
   });
-  if (bad) fail(why);
   // 3. Every tetrahedron that is not constant is in the lists.
   const std::size_t nonconstant = tbb::parallel_reduce(
       tbb::blocked_range<std::size_t>(0, T, 1 << 16), std::size_t{0},
