@@ -81,8 +81,8 @@ private:
 // the fsync, against 1.1 s straight to the disk, the cache's first touch of fresh memory being the
 // cost (as for big arrays, util/big_array.hpp). The caller fills one aligned buffer while a thread
 // writes the other. The last partial block is written through the cache (O_DIRECT wants whole
-// blocks); a file system that refuses O_DIRECT, at open or at the first write, gets ordinary
-// writes.
+// blocks); a file system that refuses O_DIRECT, at open or at any write, gets ordinary writes
+// from there on.
 class DirectFileBuf : public std::streambuf {
 public:
   static constexpr std::size_t kBuffer = std::size_t{16} << 20, kBlock = 4096;
