@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 PKGS=(build-essential cmake ninja-build pkg-config
       libcgal-dev libgmp-dev libmpfr-dev libboost-dev libeigen3-dev libtbb-dev
       libcli11-dev nlohmann-json3-dev libfmt-dev libteem-dev libbz2-dev libnifti2-dev libgdcm-dev
-      libcpp-httplib-dev libtinygltf-dev zlib1g-dev libgtest-dev libgmock-dev libbenchmark-dev
+      libcpp-httplib-dev libtinygltf-dev zlib1g-dev libdeflate-dev libgtest-dev libgmock-dev libbenchmark-dev
       libmeshoptimizer-dev pybind11-dev python3-dev python3-numpy python3-pytest python3-skimage
       python3-matplotlib chromium "$@")
 # The viewer page and its browser test need node and npm; a node install that already brings npm

