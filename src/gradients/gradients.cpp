@@ -82,7 +82,7 @@ void least_squares_gradients(TetGrid& grid, const Progress& progress) {
 
 void central_difference_gradients(TetGrid& grid, const Volume& vol, const Progress& progress) {
   const std::size_t n = grid.vertex_count();
-  grid.gradients.resize(n);
+  detail::resize_big(grid.gradients, n);
   const Dims d = vol.dims;
   const std::int64_t stride[3] = {1, d[0], d[0] * d[1]};
   visit_values(vol, [&]<class T>(std::span<const T> values) {

@@ -359,7 +359,7 @@ private:
 
   void finest() {
     const Sublattice cubes(lat_, DiamondKind::cube, 0, 1);
-    cubes_.assign(cubes.size(), StoredBound{});
+    assign_big(cubes_, static_cast<std::size_t>(cubes.size()), StoredBound{});
     // 1. The deep blocks.
     tbb::parallel_for(tbb::blocked_range<std::int64_t>(0, cubes.n[2] * cubes.n[1], 4), [&](const auto& r) {
       for (std::int64_t jk = r.begin(); jk < r.end(); ++jk)
@@ -498,7 +498,7 @@ private:
     for (int axis = 0; axis < (kind == DiamondKind::cube ? 1 : 3); ++axis) {
       const Sublattice sub(lat_, kind, axis, h);
       std::vector<StoredBound>& out = kind == DiamondKind::edge ? edges_[axis] : kind == DiamondKind::face ? faces_[axis] : cubes_;
-      out.assign(sub.size(), StoredBound{});
+      assign_big(out, static_cast<std::size_t>(sub.size()), StoredBound{});
       tbb::parallel_for(tbb::blocked_range<std::int64_t>(0, sub.n[2] * sub.n[1], 16), [&](const auto& r) {
         for (std::int64_t jk = r.begin(); jk < r.end(); ++jk) {
           const std::int64_t j = jk % sub.n[1], k = jk / sub.n[1];
@@ -680,7 +680,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   resize_big(g.tets, tets);
   if (own_code) resize_big(out.tet_code, tets);
   auto& spans = out.hierarchy.value_span;
-  spans.assign(vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
+  assign_big(spans, vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
   auto merge = [&](std::int64_t voxel, const ValueSpan& s) {
     auto& span = spans[numbers.id(voxel)];
     atomic_min(span[0], down(s.lo));

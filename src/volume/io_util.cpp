@@ -1,4 +1,5 @@
 #include "io_util.hpp"
+#include "util/big_array.hpp"
 
 #include <bzlib.h>
 #include <fmt/format.h>
@@ -39,7 +40,8 @@ std::vector<unsigned char> read_bytes(const std::string& path, std::uint64_t off
                                  size > offset ? size - offset : 0));
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(fmt::format("{}: cannot open ({})", path, std::strerror(errno)));
-  std::vector<unsigned char> buf(count);
+  std::vector<unsigned char> buf;
+  resize_big(buf, count);
   in.seekg(static_cast<std::streamoff>(offset));
   in.read(reinterpret_cast<char*>(buf.data()), static_cast<std::streamsize>(count));
   if (static_cast<std::uint64_t>(in.gcount()) != count) throw InputError(fmt::format("{}: read failed", path));

@@ -14,6 +14,7 @@
 
 #include "adaptiso/volume_io.hpp"
 #include "io_util.hpp"
+#include "util/big_array.hpp"
 
 namespace adaptiso {
 namespace {
@@ -311,7 +312,11 @@ Volume read_nrrd(const std::string& path) {
   Volume v;
   v.dims = dims;
   v.type = type;
-  v.bytes.resize(expected);
+  {
+    std::vector<unsigned char> bytes;
+    detail::resize_big(bytes, expected);
+    v.bytes = std::move(bytes);
+  }
   for (std::size_t i = 0; i < files.size(); ++i)
     decode_file(h.nio, encoded_bytes(files[i], attached ? header.data_offset : 0, h.nio->lineSkip, path), v.bytes.data() + i * per_file,
                 per_file / es, type, files[i]);
