@@ -1,4 +1,4 @@
-// Large arrays, faulted in by the kernel in one call, on huge pages where it has them.
+// Large arrays, faulted in by the kernel before they are filled, on huge pages where it has them.
 //
 // On virtual machines a first touch of a 4 KiB page can cost microseconds: measured here, writing
 // 512 MiB of fresh memory took 1.36 s page by page and 0.05 s after madvise(MADV_HUGEPAGE) and
