@@ -497,7 +497,8 @@ const std::vector<std::uint32_t>& Extractor::triangles_in_march_order() const {
   const std::size_t T = s.mesh.triangle_count();
   auto& order = s.march_order;
   detail::resize_big(order, T);
-  if (s.in_march_order || !s.valid) {  // (a cancelled extraction leaves no surface to order)
+  // After a fresh march the triangles are in its order (a cancelled extraction leaves no surface).
+  if (!s.incremental || !s.valid) {
     std::iota(order.begin(), order.end(), std::uint32_t{0});
     return order;
   }
@@ -541,7 +542,6 @@ ExtractStats Extractor::extract(double iso, const std::atomic<bool>* cancel) {
   s.checkpoint();
   s.incremental = had_previous && s.step(iso);
   if (!s.incremental) s.fresh(iso);
-  s.in_march_order = !s.incremental;
   s.valid = true;
   s.scratch.cancel = nullptr;
   const auto t2 = Clock::now();

@@ -47,8 +47,8 @@ struct ExtractorState {
   ExtractorOptions options;
   SweepState sweep;
   Mesh mesh;
+  // incremental: the last extract stepped, so the triangles are not in a fresh march's order.
   bool valid = false, incremental = false;
-  bool in_march_order = false;  // the triangles are as the fresh march wrote them (no step since)
   // Extractor::triangles_in_march_order's answer and its sort's buffers, kept between calls.
   std::vector<std::uint32_t> march_order;
   std::vector<std::uint64_t> march_order_keys, march_order_scratch;
