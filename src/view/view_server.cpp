@@ -553,8 +553,15 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const auto t0 = std::chrono::steady_clock::now();
   // After incremental steps the mesh's triangles are in an order of its history's making, which
   // the codecs compress to nearly twice the bytes (the chest at rest: 8.7 bytes a triangle
-  // against 4.9): sent in the fresh march's order.
-  std::string body = compact ? encode_mesh_compact(ex->mesh(), ex->triangles_in_march_order()) : encode_mesh(ex->mesh());
+  // against 4.9): sent in the fresh march's order. A fresh march's surface is in it already, and
+  // goes as it is rather than copied through the identity.
+  std::string body;
+  if (!compact)
+    body = encode_mesh(ex->mesh());
+  else if (ex->last_was_incremental())
+    body = encode_mesh_compact(ex->mesh(), ex->triangles_in_march_order());
+  else
+    body = encode_mesh_compact(ex->mesh());
   const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.sweep_seconds + st.march_seconds));
   res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));
