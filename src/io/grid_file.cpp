@@ -37,8 +37,7 @@ class CrcWriter {
 public:
   explicit CrcWriter(std::ostream& o) : out_(o) {}
   void write(const void* p, std::size_t n) {
-    const auto* b = static_cast<const unsigned char*>(p);
-    crc_ = libdeflate_crc32(crc_, b, n);
+    crc_ = libdeflate_crc32(crc_, p, n);
     out_.write(static_cast<const char*>(p), static_cast<std::streamsize>(n));
   }
   template <class T>
