@@ -230,7 +230,8 @@ void add_run(CLI::App& app) {
     const PrepareOptions options = pf->options(in->path);
     auto values = mesh_out->values(options.relative, range.min, range.max, in->path);
     TerminalProgress tp(!out->quiet && !out->json);
-    auto p = std::make_shared<const PreparedGrid>(prepare(v, range, options, tp.callback()));
+    auto p =
+        std::make_shared<const PreparedGrid>(prepare(std::move(v), range, options, tp.callback()));  // frees the voxels before the index
     tp.finish();
     nlohmann::json j = nlohmann::json::parse(to_json(p->stats));
     j["seconds"]["load"] = t_load;

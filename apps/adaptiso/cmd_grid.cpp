@@ -28,7 +28,7 @@ void add_prepare(CLI::App& app) {
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
     TerminalProgress tp(!out->quiet && !out->json);
-    PreparedGrid p = prepare(v, pf->options(in->path), tp.callback());
+    PreparedGrid p = prepare(std::move(v), pf->options(in->path), tp.callback());  // frees the voxels before the index
     tp.finish();
     auto t0 = Clock::now();
     save_grid(p, *output);

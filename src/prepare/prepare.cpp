@@ -24,21 +24,21 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// Peak resident memory of this process since the last reset (Linux: VmHWM; 0 elsewhere). Resetting
-// (writing 5 to /proc/self/clear_refs) makes the next reading the peak of one stage.
-std::uint64_t peak_rss_and_reset() {
+// Peak resident memory of this process so far (Linux: VmHWM; 0 elsewhere). Never reset (writing
+// to /proc/self/clear_refs would give per-stage peaks, but it also resets what getrusage, time(1)
+// and wait4 report for the whole process: the bunny's 2.8 GB index peak read as 2.0 GB).
+std::uint64_t peak_rss() {
   std::uint64_t kb = 0;
   std::ifstream status("/proc/self/status");
   for (std::string line; std::getline(status, line);)
     if (line.rfind("VmHWM:", 0) == 0) kb = std::strtoull(line.c_str() + 6, nullptr, 10);
-  std::ofstream("/proc/self/clear_refs") << "5";
   return kb * 1024;
 }
 
-// Times one stage and records its memory peak into stats.
+// Times one stage and records the process's peak at its end into stats.
 class StageClock {
 public:
-  explicit StageClock(PrepareStats& stats) : stats_(stats) { peak_rss_and_reset(); }
+  explicit StageClock(PrepareStats& stats) : stats_(stats) {}
   template <class F>
   decltype(auto) run(const char* name, F&& f) {
     const auto t0 = Clock::now();
@@ -46,7 +46,7 @@ public:
       PrepareStats& stats;
       const char* name;
       Clock::time_point t0;
-      ~Record() { stats.stages.push_back({name, std::chrono::duration<double>(Clock::now() - t0).count(), peak_rss_and_reset()}); }
+      ~Record() { stats.stages.push_back({name, std::chrono::duration<double>(Clock::now() - t0).count(), peak_rss()}); }
     } record{stats_, name, t0};
     return f();
   }
@@ -129,7 +129,10 @@ TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const Prepa
 
 }  // namespace
 
-PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress) {
+namespace {
+
+// The pipeline; `release`, when given, is v itself, whose voxels go once nothing reads them.
+PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress, Volume* release) {
   check_options(o);
   PreparedGrid p;
   PrepareStats& stats = p.stats;
@@ -152,16 +155,32 @@ PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOpti
     if (bisection && pl.max > stats.error_bound + error_tolerance(range, stats.error_bound))
       throw std::logic_error(fmt::format("bisection grid: error {} exceeds its guaranteed bound {}", pl.max, stats.error_bound));
   }
+  stats.voxels = v.voxel_count();
+  if (release) release->bytes = VoxelBuffer();
   p.index = clock.run("index", [&] {
     report(progress, "index", 0);
     return build_interval_tree(p.grid, o.tree_depth);
   });
-  stats.voxels = v.voxel_count();
   stats.kept = p.grid.vertex_count();
   stats.tetrahedra = p.grid.tet_count();
   stats.index_depth = p.index.depth;
   stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
   return p;
+}
+
+}  // namespace
+
+PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress) {
+  return prepare_grid(v, range, o, progress, nullptr);
+}
+
+PreparedGrid prepare(Volume&& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress) {
+  return prepare_grid(v, range, o, progress, &v);
+}
+
+PreparedGrid prepare(Volume&& v, const PrepareOptions& o, const Progress& progress) {
+  const ValueRange range = value_range(v);
+  return prepare_grid(v, range, o, progress, &v);
 }
 
 namespace {
