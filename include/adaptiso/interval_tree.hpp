@@ -6,11 +6,14 @@
 // never active and are left out. The tree is binary with a fixed depth over the value range; each
 // node has a split value chosen as the median of the midpoints of the tetrahedra that reach it (of
 // an evenly spaced sample of 65,536 of them where more than 2^20 reach it; so the tree is as
-// balanced as the data allows), and a tetrahedron lives in the shallowest node whose
+// balanced as the data allows; above 2^22 tetrahedra the splits are chosen on a sample of about
+// 2^22 of them, every k-th id), and a tetrahedron lives in the shallowest node whose
 // split it straddles (tmin < split < tmax), i.e. the smallest node whose interval covers it; leaves
-// keep the rest. Each node's tetrahedra appear twice: in `by_min` sorted by tmin and in `by_max`
-// sorted by tmax (ties in an order fixed by the build: the same for any thread count), in the
-// same [begin, end) range of both arrays.
+// keep the rest. Each node's tetrahedra appear twice: in `by_min` sorted by (tmin, id) and in
+// `by_max` by (tmax, id), in the same [begin, end) range of both arrays. The build allocates
+// little beyond the lists (per thread, 16 bytes an entry of the node it sorts; 2 bytes a
+// tetrahedron while placing): the CT bunny's 52 M entries at 0.02 add 0.6 GB at the peak, where
+// records of every tetrahedron added 1.3 GB.
 //
 // The tree is immutable and shared; a SweepState holds one client's position in it (the paper's
 // per-node positions of the iso-value in both lists and the per-tetrahedron flags, indexed by

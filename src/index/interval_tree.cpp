@@ -59,10 +59,10 @@ void compute_bounds(IntervalTree& tree, const TetGrid& grid) {
   }
 }
 
-// The tree is built on records of (tmin, tmax, id) laid out contiguously, so partitioning and
-// sorting stream through memory instead of chasing ids into the grid. Keys are floats when every
-// value of the grid is one exactly (integer and float32 volumes: half the bytes), doubles
-// otherwise; either way the order is the exact order of the values.
+// The splits come from records of (tmin, tmax, id) laid out contiguously, so partitioning and
+// selecting medians stream through memory. Keys are floats when every value of the grid is one
+// exactly (integer and float32 volumes: half the bytes), doubles otherwise; either way the order
+// is the exact order of the values.
 template <class K>
 struct Record {
   K lo, hi;
@@ -70,15 +70,16 @@ struct Record {
   double mid() const { return 0.5 * static_cast<double>(lo) + 0.5 * static_cast<double>(hi); }
 };
 
+// Chooses every node's split by partitioning records top-down (their order is then pre-order).
 template <class K>
-struct Builder {
+struct SplitChooser {
   IntervalTree& tree;
   Record<K>* recs;
 
   // The median midpoint of recs[b, e); above kSampled records, of an evenly spaced sample of them:
-  // the top of the tree would otherwise select among tens of millions of records on one core (the
-  // bunny's root: 52 M), while the median of 65,536 samples lies within about 0.4 % of the records
-  // of the true one (two standard errors).
+  // the top of the tree would otherwise select among millions of records on one core, while the
+  // median of 65,536 samples lies within about 0.4 % of the records of the true one (two standard
+  // errors).
   static constexpr std::uint64_t kSampled = std::uint64_t{1} << 20, kSample = std::uint64_t{1} << 16;
   double split_value(std::uint64_t b, std::uint64_t e) const {
     if (e - b <= kSampled) {
@@ -92,34 +93,34 @@ struct Builder {
     return mids[kSample / 2];
   }
 
-  // recs[b, e) reach node i; lays them out in pre-order: own entries first.
-  void build(std::size_t i, std::uint64_t b, std::uint64_t e) {
+  // recs[b, e) reach node i. A node no record reaches splits at 0 (any split is valid).
+  void choose(std::size_t i, std::uint64_t b, std::uint64_t e) {
+    if (tree.is_leaf(i)) return;
     auto& n = tree.nodes[i];
-    if (tree.is_leaf(i) || b == e) {
-      n.begin = b;
-      n.end = e;
-      if (!tree.is_leaf(i)) {  // empty subtree: give the children empty ranges at e
-        n.split = 0;
-        build(2 * i + 1, e, e);
-        build(2 * i + 2, e, e);
-      }
-      return;
-    }
-    const double s = split_value(b, e);
+    n.split = b == e ? 0 : split_value(b, e);
+    const double s = n.split;
     auto* here_end = std::partition(recs + b, recs + e, [&](const Record<K>& r) { return r.lo < s && r.hi > s; });
     auto* left_end = std::partition(here_end, recs + e, [&](const Record<K>& r) { return r.hi <= s; });
-    n.split = s;
-    n.begin = b;
-    n.end = static_cast<std::uint64_t>(here_end - recs);
-    const std::uint64_t m = static_cast<std::uint64_t>(left_end - recs);
+    const std::uint64_t h = static_cast<std::uint64_t>(here_end - recs), m = static_cast<std::uint64_t>(left_end - recs);
     if (e - b > (1u << 16))
-      tbb::parallel_invoke([&] { build(2 * i + 1, n.end, m); }, [&] { build(2 * i + 2, m, e); });
+      tbb::parallel_invoke([&] { choose(2 * i + 1, h, m); }, [&] { choose(2 * i + 2, m, e); });
     else {
-      build(2 * i + 1, n.end, m);
-      build(2 * i + 2, m, e);
+      choose(2 * i + 1, h, m);
+      choose(2 * i + 2, m, e);
     }
   }
 };
+
+// The node a tetrahedron lives in: down from the root until it straddles a split, or a leaf.
+inline std::size_t node_of(const IntervalTree& tree, const Range& q) {
+  std::size_t i = 0;
+  while (!tree.is_leaf(i)) {
+    const double s = tree.nodes[i].split;
+    if (q.lo < s && q.hi > s) break;
+    i = q.hi <= s ? 2 * i + 1 : 2 * i + 2;
+  }
+  return i;
+}
 
 // A float as an unsigned integer with the same order (−0 as +0, which compare equal), so a
 // (key, id) pair sorts as one 64-bit integer.
@@ -130,90 +131,181 @@ inline std::uint64_t ordered(float f, std::uint32_t id) {
   return (std::uint64_t{key} << 32) | id;
 }
 
-// Sorts one node's ids into list[b, e) by the key of their records.
-template <class K, class Key>
-void sort_node(const Record<K>* recs, std::uint64_t b, std::uint64_t e, Key key, std::uint32_t* list, bool large) {
+// Sorts keys (key << 32 | id, ids increasing) by the key alone, stably, so equal keys stay in id
+// order, as a full sort leaves them. A radix sort but for the smallest nodes: the leaves of a
+// large grid hold about ten thousand entries each, where std::sort took most of the index's time.
+void sort_keys(std::vector<std::uint64_t>& keys, std::vector<std::uint64_t>& scratch) {
+  if (keys.size() > 256)
+    detail::radix_sort(keys, scratch, 32, keys.size() > (std::size_t{1} << 20) ? 16 : 11);
+  else
+    std::sort(keys.begin(), keys.end());
+}
+
+// Sorts one node's entries, in by_min[b, e) and by_max[b, e) in increasing id order, by (tmin, id)
+// and (tmax, id). Each tetrahedron's range is read once (its tetrahedron and four values, from
+// scattered places: prefetched ahead) for both keys.
+template <class K>
+void sort_node(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, std::uint64_t e) {
+  std::uint32_t* by_min = tree.by_min.data();
+  std::uint32_t* by_max = tree.by_max.data();
   if constexpr (std::is_same_v<K, float>) {
-    thread_local std::vector<std::uint64_t> keys, scratch;
-    keys.resize(e - b);
-    for (std::uint64_t i = b; i < e; ++i) keys[i - b] = ordered(key(recs[i]), recs[i].id);
-    // A large node is sorted by the key alone, stably: equal keys keep the build's order, which
-    // is as deterministic as the ids and halves the passes (2 instead of 4; with the sampled
-    // splits the bunny's index builds in 0.55–0.78× the time).
-    if (large)
-      detail::radix_sort(keys, scratch, 32);
-    else
-      std::sort(keys.begin(), keys.end());
-    for (std::uint64_t i = b; i < e; ++i) list[i] = static_cast<std::uint32_t>(keys[i - b]);
-    if (large) {  // do not keep tens of megabytes per thread
-      std::vector<std::uint64_t>().swap(keys);
-      std::vector<std::uint64_t>().swap(scratch);
+    // Two arrays of keys per thread, not three: while the keys by minimum are sorted, the keys by
+    // maximum wait in by_max (32 bits) and the ids in by_min.
+    thread_local std::vector<std::uint64_t> a, c;
+    a.resize(e - b);
+    for (std::uint64_t i = b; i < e; ++i) {
+      if (i + 16 < e) detail::prefetch(&grid.tets[by_min[i + 16]]);
+      if (i + 8 < e) prefetch_values(grid, by_min[i + 8]);
+      const Range q = tet_range(grid, by_min[i]);
+      a[i - b] = ordered(static_cast<float>(q.lo), by_min[i]);
+      by_max[i] = static_cast<std::uint32_t>(ordered(static_cast<float>(q.hi), 0) >> 32);
+    }
+    sort_keys(a, c);
+    c.resize(e - b);
+    for (std::uint64_t i = b; i < e; ++i) c[i - b] = std::uint64_t{by_max[i]} << 32 | by_min[i];
+    for (std::uint64_t i = b; i < e; ++i) by_min[i] = static_cast<std::uint32_t>(a[i - b]);
+    sort_keys(c, a);
+    for (std::uint64_t i = b; i < e; ++i) by_max[i] = static_cast<std::uint32_t>(c[i - b]);
+    if (e - b > (std::uint64_t{1} << 16)) {  // do not keep tens of megabytes per thread
+      std::vector<std::uint64_t>().swap(a);
+      std::vector<std::uint64_t>().swap(c);
     }
   } else {
-    std::vector<std::pair<K, std::uint32_t>> keys(e - b);
-    for (std::uint64_t i = b; i < e; ++i) keys[i - b] = {key(recs[i]), recs[i].id};
-    if (large)
-      tbb::parallel_sort(keys.begin(), keys.end());
-    else
-      std::sort(keys.begin(), keys.end());
-    for (std::uint64_t i = b; i < e; ++i) list[i] = keys[i - b].second;
+    std::vector<std::pair<K, std::uint32_t>> lo(e - b), hi(e - b);
+    for (std::uint64_t i = b; i < e; ++i) {
+      const Range q = tet_range(grid, by_min[i]);
+      lo[i - b] = {q.lo, by_min[i]};
+      hi[i - b] = {q.hi, by_min[i]};
+    }
+    for (auto* keys : {&lo, &hi}) {
+      if (e - b > (std::uint64_t{1} << 16))
+        tbb::parallel_sort(keys->begin(), keys->end());
+      else
+        std::sort(keys->begin(), keys->end());
+    }
+    for (std::uint64_t i = b; i < e; ++i) {
+      by_min[i] = lo[i - b].second;
+      by_max[i] = hi[i - b].second;
+    }
   }
 }
 
-// Each node's entries by (tmin, id) into by_min and by (tmax, id) into by_max.
+// Every node's two lists sorted, largest nodes first, so the threads finish together.
 template <class K>
-void sort_lists(IntervalTree& tree, const std::vector<Record<K>>& recs) {
-  detail::resize_big(tree.by_min, recs.size());
-  detail::resize_big(tree.by_max, recs.size());
-  auto lo = [](const Record<K>& r) { return r.lo; };
-  auto hi = [](const Record<K>& r) { return r.hi; };
-  constexpr std::uint64_t kLarge = 1 << 16;
-  // Largest nodes first, so the threads finish together; both lists of a node side by side.
+void sort_lists(IntervalTree& tree, const TetGrid& grid) {
   std::vector<std::size_t> order(tree.nodes.size());
   std::iota(order.begin(), order.end(), std::size_t{0});
   auto size = [&](std::size_t i) { return tree.nodes[i].end - tree.nodes[i].begin; };
   std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return size(a) > size(b); });
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, 2 * order.size(), 1), [&](const auto& r) {
-    for (std::size_t k = r.begin(); k < r.end(); ++k) {
-      const auto& n = tree.nodes[order[k / 2]];
-      if (k % 2 == 0)
-        sort_node(recs.data(), n.begin, n.end, lo, tree.by_min.data(), n.end - n.begin > kLarge);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 1), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k < r.end(); ++k) sort_node<K>(grid, tree, tree.nodes[order[k]].begin, tree.nodes[order[k]].end);
+  });
+}
+
+// Calls f(block, t, range) for every non-constant tetrahedron and constant(t) for the others,
+// blocks of consecutive ids in parallel, each block's in id order.
+template <class F, class G = void (*)(std::uint32_t)>
+void for_each_nonconstant(
+    const TetGrid& grid, std::size_t blocks, F f, G constant = [](std::uint32_t) {}) {
+  const std::size_t T = grid.tet_count();
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    for (std::size_t t = T * b / blocks; t < T * (b + 1) / blocks; ++t) {
+      const Range q = tet_range(grid, static_cast<std::uint32_t>(t));
+      if (q.lo < q.hi)
+        f(b, static_cast<std::uint32_t>(t), q);
       else
-        sort_node(recs.data(), n.begin, n.end, hi, tree.by_max.data(), n.end - n.begin > kLarge);
+        constant(static_cast<std::uint32_t>(t));
     }
+  });
+}
+
+// The splits, from a sample of the non-constant tetrahedra: all of them up to kSampleTarget
+// tetrahedra, beyond that those whose id is a multiple of an odd stride (about kSampleTarget).
+// Sets tree.depth (reduced where there are fewer entries, or estimated entries, than leaves) and
+// every node's split.
+template <class K>
+void choose_splits(IntervalTree& tree, const TetGrid& grid, std::uint32_t depth) {
+  constexpr std::size_t kSampleTarget = std::size_t{1} << 22;
+  const std::size_t T = grid.tet_count();
+  const std::size_t stride = T <= kSampleTarget ? 1 : (T / kSampleTarget) | 1;
+  const std::size_t sampled = (T + stride - 1) / stride, blocks = (sampled + (1 << 16) - 1) >> 16;
+  std::vector<std::vector<Record<K>>> parts(blocks);
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    for (std::size_t k = b << 16; k < std::min(sampled, (b + 1) << 16); ++k) {
+      const auto t = static_cast<std::uint32_t>(k * stride);
+      const Range q = tet_range(grid, t);
+      if (q.lo < q.hi) parts[b].push_back({static_cast<K>(q.lo), static_cast<K>(q.hi), t});
+    }
+  });
+  std::vector<Record<K>> recs;
+  for (auto& p : parts) recs.insert(recs.end(), p.begin(), p.end());
+  parts.clear();
+  depth = std::min<std::uint32_t>(depth, 30);
+  while (depth > 0 && (std::uint64_t{1} << depth) > recs.size() * stride) --depth;
+  tree.depth = depth;
+  tree.nodes.resize((std::size_t{2} << depth) - 1);
+  SplitChooser<K>{tree, recs.data()}.choose(0, 0, recs.size());
+}
+
+// Lays every non-constant tetrahedron into its node's range of by_min (nodes in pre-order, ids
+// increasing within each) and sizes by_max alike: count per block and node, then place.
+void place_entries(IntervalTree& tree, const TetGrid& grid) {
+  const std::size_t nodes = tree.nodes.size();
+  // Per-block counters, at most 16 M of them in all (64 MB); 256 blocks keep both cores busy.
+  const std::size_t blocks = std::clamp<std::size_t>(std::min<std::size_t>((grid.tet_count() >> 16) + 1, 256), 1,
+                                                     std::max<std::size_t>(1, (std::size_t{1} << 24) / nodes));
+  std::vector<std::uint32_t> at(blocks * nodes, 0);
+  // Each tetrahedron's node, kept from counting to placing where it fits 16 bits (2 bytes a
+  // tetrahedron for a second walk down the splits saved); kNone for a constant one.
+  constexpr std::uint16_t kNone = 0xffff;
+  std::vector<std::uint16_t> kept;
+  if (nodes < kNone) detail::resize_big(kept, grid.tet_count());
+  for_each_nonconstant(
+      grid, blocks,
+      [&](std::size_t b, std::uint32_t t, const Range& q) {
+        const std::size_t i = node_of(tree, q);
+        ++at[b * nodes + i];
+        if (!kept.empty()) kept[t] = static_cast<std::uint16_t>(i);
+      },
+      [&](std::uint32_t t) {
+        if (!kept.empty()) kept[t] = kNone;
+      });
+  // Nodes in pre-order, each a range; then each block's start within its node's range.
+  std::uint64_t cursor = 0;
+  std::vector<std::size_t> stack{0};
+  while (!stack.empty()) {
+    const std::size_t i = stack.back();
+    stack.pop_back();
+    auto& n = tree.nodes[i];
+    n.begin = cursor;
+    for (std::size_t b = 0; b < blocks; ++b) cursor += std::exchange(at[b * nodes + i], static_cast<std::uint32_t>(cursor));
+    n.end = cursor;
+    if (!tree.is_leaf(i)) {
+      stack.push_back(2 * i + 2);
+      stack.push_back(2 * i + 1);
+    }
+  }
+  detail::resize_big(tree.by_min, cursor);
+  detail::resize_big(tree.by_max, cursor);
+  // by_max is written when the nodes are sorted.
+  if (kept.empty()) {
+    for_each_nonconstant(grid, blocks,
+                         [&](std::size_t b, std::uint32_t t, const Range& q) { tree.by_min[at[b * nodes + node_of(tree, q)]++] = t; });
+    return;
+  }
+  const std::size_t T = grid.tet_count();
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    for (std::size_t t = T * b / blocks; t < T * (b + 1) / blocks; ++t)
+      if (kept[t] != kNone) tree.by_min[at[b * nodes + kept[t]]++] = static_cast<std::uint32_t>(t);
   });
 }
 
 template <class K>
 IntervalTree build_with(const TetGrid& grid, std::uint32_t depth) {
-  const std::size_t T = grid.tet_count();
-  // Non-constant tetrahedra only: a constant one is never active. Blocks fill in parallel and
-  // are then moved together in block order, so the records come in id order.
-  const std::size_t block = 1 << 16, blocks = (T + block - 1) / block;
-  std::vector<Record<K>> recs;
-  detail::resize_big(recs, T);
-  std::vector<std::size_t> kept(blocks + 1, 0);
-  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-    std::size_t k = b * block;
-    for (std::size_t t = b * block; t < std::min(T, (b + 1) * block); ++t) {
-      const Range q = tet_range(grid, static_cast<std::uint32_t>(t));
-      if (q.lo < q.hi) recs[k++] = {static_cast<K>(q.lo), static_cast<K>(q.hi), static_cast<std::uint32_t>(t)};
-    }
-    kept[b + 1] = k - b * block;
-  });
-  for (std::size_t b = 0; b < blocks; ++b) {
-    std::copy(recs.begin() + static_cast<std::ptrdiff_t>(b * block), recs.begin() + static_cast<std::ptrdiff_t>(b * block + kept[b + 1]),
-              recs.begin() + static_cast<std::ptrdiff_t>(kept[b]));
-    kept[b + 1] += kept[b];
-  }
-  recs.resize(kept[blocks]);
   IntervalTree tree;
-  depth = std::min<std::uint32_t>(depth, 30);
-  while (depth > 0 && (std::uint64_t{1} << depth) > recs.size()) --depth;
-  tree.depth = depth;
-  tree.nodes.resize((std::size_t{2} << depth) - 1);
-  Builder<K>{tree, recs.data()}.build(0, 0, recs.size());
-  sort_lists(tree, recs);
+  choose_splits<K>(tree, grid, depth);
+  place_entries(tree, grid);
+  sort_lists<K>(tree, grid);
   return tree;
 }
 

@@ -38,30 +38,19 @@ TEST(IntervalTree, IsBalancedAndHoldsEachTetInItsSmallestNode) {
   EXPECT_THROW(validate_interval_tree(bad, g, "t"), InputError);
 }
 
-// Nodes of more than 65,536 entries are sorted by a radix sort on the key alone (equal keys keep
-// the build's order). Against a brute-force reference on a grid full of ties: every node holds the
-// tetrahedra whose smallest node it is, each list is sorted by its key, and the tree is the same
-// for one thread and for all.
-TEST(IntervalTree, LargeNodesFullOfTiesAreSortedAndTheSameForAnyThreadCount) {
-  TetGrid g;
-  std::mt19937 rng(7);
-  g.values.resize(1000);
-  for (auto& v : g.values) v = static_cast<double>(rng() % 16);  // 16 distinct values: ties everywhere
-  g.ijk.resize(g.values.size());
-  g.tets.resize(400000);
-  for (auto& t : g.tets)
-    for (auto& q : t) q = static_cast<std::uint32_t>(rng() % g.values.size());
-  const IntervalTree tree = build_interval_tree(g, 2);
-  ASSERT_GT(tree.nodes[0].end - tree.nodes[0].begin, 65536u) << "the root must take the radix sort";
-  EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
+namespace {
+
+// Against a brute-force reference: every node holds exactly the tetrahedra whose smallest node it
+// is (down from the root by the splits until one is straddled or a leaf met), and each of its
+// lists is sorted by (key, id).
+void expect_each_tet_in_its_smallest_node_sorted(const IntervalTree& tree, const TetGrid& g) {
   auto range = [&](std::uint32_t t) {
     const auto& q = g.tets[t];
     double lo = g.values[q[0]], hi = lo;
     for (auto v : q) lo = std::min(lo, g.values[v]), hi = std::max(hi, g.values[v]);
     return std::pair{lo, hi};
   };
-  // The reference: descend from the root by the splits until a split is straddled or a leaf met.
-  std::map<std::size_t, std::vector<std::uint32_t>> expected;
+  std::vector<std::vector<std::uint32_t>> expected(tree.nodes.size());
   for (std::uint32_t t = 0; t < g.tets.size(); ++t) {
     const auto [lo, hi] = range(t);
     if (!(lo < hi)) continue;
@@ -78,12 +67,33 @@ TEST(IntervalTree, LargeNodesFullOfTiesAreSortedAndTheSameForAnyThreadCount) {
       const bool by_min = list == &tree.by_min;
       for (std::size_t k = 1; k < got.size(); ++k) {
         const auto a = range(got[k - 1]), b = range(got[k]);
-        ASSERT_LE(by_min ? a.first : a.second, by_min ? b.first : b.second) << "node " << i << " entry " << k;
+        const double ka = by_min ? a.first : a.second, kb = by_min ? b.first : b.second;
+        ASSERT_TRUE(ka < kb || (ka == kb && got[k - 1] < got[k])) << "node " << i << " entry " << k;
       }
       std::sort(got.begin(), got.end());
       EXPECT_EQ(got, expected[i]) << "node " << i;
     }
   }
+}
+
+}  // namespace
+
+// Nodes are sorted by a radix sort on the key alone (equal keys keep the id order they come in).
+// On a grid full of ties: each tetrahedron in its smallest node, the lists sorted by (key, id),
+// and the tree the same for one thread and for all.
+TEST(IntervalTree, LargeNodesFullOfTiesAreSortedAndTheSameForAnyThreadCount) {
+  TetGrid g;
+  std::mt19937 rng(7);
+  g.values.resize(1000);
+  for (auto& v : g.values) v = static_cast<double>(rng() % 16);  // 16 distinct values: ties everywhere
+  g.ijk.resize(g.values.size());
+  g.tets.resize(400000);
+  for (auto& t : g.tets)
+    for (auto& q : t) q = static_cast<std::uint32_t>(rng() % g.values.size());
+  const IntervalTree tree = build_interval_tree(g, 2);
+  ASSERT_GT(tree.nodes[0].end - tree.nodes[0].begin, 65536u) << "the root must take the radix sort";
+  EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
+  expect_each_tet_in_its_smallest_node_sorted(tree, g);
   // One thread builds the same tree.
   IntervalTree one;
   {
@@ -118,6 +128,40 @@ TEST(IntervalTree, SampledSplitOfAHugeNodeStaysNearTheMedian) {
   EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
   const std::uint64_t left = tree.nodes[2].begin - tree.nodes[1].begin, total = tree.entries() - tree.nodes[0].end;
   EXPECT_LE(std::max(left, total - left), total / 2 + total / 50) << left << " of " << total;
+}
+
+// Above 2^22 tetrahedra the splits are chosen on a sample (every k-th id) and every tetrahedron
+// is then walked down them: each still lands in its smallest node with its lists sorted, the
+// root's split still nearly halves the rest, and one thread builds the same tree. A root of over
+// 2^20 entries takes the radix sort's 16-bit digits.
+TEST(IntervalTree, SplitsChosenOnASampleStillPlaceEveryTetInItsSmallestNode) {
+  TetGrid g;
+  std::mt19937 rng(13);
+  g.values.resize(100000);
+  for (auto& v : g.values) v = static_cast<double>(rng() % 4096);  // floats, with ties
+  g.ijk.resize(g.values.size());
+  g.tets.resize((std::size_t{1} << 22) + 123457);
+  for (auto& t : g.tets) {
+    // Small ranges, and one in three across the middle, so the root holds over 2^20 of them.
+    const auto base = static_cast<std::uint32_t>(rng() % (g.values.size() - 16));
+    for (auto& q : t) q = base + static_cast<std::uint32_t>(rng() % 16);
+    const auto n = static_cast<std::uint32_t>(g.values.size());
+    if (rng() % 3 == 0) t[0] = base < n / 2 ? n - 1 - rng() % 16 : rng() % 16;  // across the middle
+  }
+  std::sort(g.values.begin(), g.values.end());
+  const IntervalTree tree = build_interval_tree(g, 8);
+  EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
+  EXPECT_GT(tree.nodes[0].end - tree.nodes[0].begin, std::uint64_t{1} << 20);
+  const std::uint64_t left = tree.nodes[2].begin - tree.nodes[1].begin, total = tree.entries() - tree.nodes[0].end;
+  EXPECT_LE(std::max(left, total - left), total / 2 + total / 20) << left << " of " << total;
+  expect_each_tet_in_its_smallest_node_sorted(tree, g);
+  IntervalTree one;
+  {
+    tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
+    one = build_interval_tree(g, 8);
+  }
+  EXPECT_EQ(one.by_min, tree.by_min);
+  EXPECT_EQ(one.by_max, tree.by_max);
 }
 
 // The validator checks the lists in even chunks that cut through nodes (the root alone can hold a
