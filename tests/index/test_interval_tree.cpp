@@ -76,6 +76,17 @@ void expect_each_tet_in_its_smallest_node_sorted(const IntervalTree& tree, const
   }
 }
 
+// One thread builds the same lists as all.
+void expect_same_tree_on_one_thread(const IntervalTree& tree, const TetGrid& g, std::uint32_t depth) {
+  IntervalTree one;
+  {
+    tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
+    one = build_interval_tree(g, depth);
+  }
+  EXPECT_EQ(one.by_min, tree.by_min);
+  EXPECT_EQ(one.by_max, tree.by_max);
+}
+
 }  // namespace
 
 // Nodes are sorted by a radix sort on the key alone (equal keys keep the id order they come in).
@@ -94,14 +105,7 @@ TEST(IntervalTree, LargeNodesFullOfTiesAreSortedAndTheSameForAnyThreadCount) {
   ASSERT_GT(tree.nodes[0].end - tree.nodes[0].begin, 65536u) << "the root must take the radix sort";
   EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
   expect_each_tet_in_its_smallest_node_sorted(tree, g);
-  // One thread builds the same tree.
-  IntervalTree one;
-  {
-    tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
-    one = build_interval_tree(g, 2);
-  }
-  EXPECT_EQ(one.by_min, tree.by_min);
-  EXPECT_EQ(one.by_max, tree.by_max);
+  expect_same_tree_on_one_thread(tree, g, 2);
   // The validator still refuses a list out of order: the root's smallest and largest minimum swapped.
   IntervalTree bad = tree;
   std::swap(bad.by_min[tree.nodes[0].begin], bad.by_min[tree.nodes[0].end - 1]);
@@ -155,13 +159,7 @@ TEST(IntervalTree, SplitsChosenOnASampleStillPlaceEveryTetInItsSmallestNode) {
   const std::uint64_t left = tree.nodes[2].begin - tree.nodes[1].begin, total = tree.entries() - tree.nodes[0].end;
   EXPECT_LE(std::max(left, total - left), total / 2 + total / 20) << left << " of " << total;
   expect_each_tet_in_its_smallest_node_sorted(tree, g);
-  IntervalTree one;
-  {
-    tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
-    one = build_interval_tree(g, 8);
-  }
-  EXPECT_EQ(one.by_min, tree.by_min);
-  EXPECT_EQ(one.by_max, tree.by_max);
+  expect_same_tree_on_one_thread(tree, g, 8);
 }
 
 // The validator checks the lists in even chunks that cut through nodes (the root alone can hold a
