@@ -137,7 +137,7 @@ PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOpti
 
 // The same, taking the volume: its voxels are released once the grid no longer needs them (after
 // the gradients and the check of --verify, before the index), so the process's peak does not hold
-// the volume and the index's build at once (the CT bunny at 0.02: 189 MB of 2.2 GB). v keeps its
+// the volume and the index's build at once (the CT bunny at 0.02: 189 MB of a 2.1 GB peak). v keeps its
 // geometry and type, with no voxels.
 PreparedGrid prepare(Volume&& v, const PrepareOptions& options, const Progress& progress = {});
 PreparedGrid prepare(Volume&& v, const ValueRange& range, const PrepareOptions& options, const Progress& progress = {});
