@@ -130,9 +130,10 @@ function octahedralNormals() {
   return normalTable;
 }
 
-// Compact mesh (mesh_codec.hpp): "ADM1", u32 V, u32 T, f32 origin[3], f32 step[3], u32 vertex bytes,
-// meshopt vertex stream of 8-byte vertices (u16 x, y, z; i8 octahedral normal), u32 index bytes,
-// meshopt index stream.
+// Compact mesh (mesh_codec.hpp): "ADM2", u32 V, u32 T, f32 origin[3], f32 step[3], u32 vertex bytes,
+// meshopt vertex stream of 8-byte vertices (u16 x, y, z; i8 octahedral normal), u32 K, K × (u32
+// triangles, u32 base, u32 bytes), then K meshopt index streams of up to 2^20 triangles each,
+// encoded side by side on the server; a stream's indices are rotated down by its base (mod V).
 function decodeCompact(buffer) {
   const view = new DataView(buffer);
   const V = view.getUint32(4, true), T = view.getUint32(8, true);
@@ -140,9 +141,21 @@ function decodeCompact(buffer) {
   const vbytes = view.getUint32(36, true);
   const packed = new Uint8Array(8 * V);
   MeshoptDecoder.decodeVertexBuffer(packed, V, 8, new Uint8Array(buffer, 40, vbytes));
-  const ibytes = view.getUint32(40 + vbytes, true);
+  const K = view.getUint32(40 + vbytes, true);
   const indices = new Uint32Array(3 * T);
-  MeshoptDecoder.decodeIndexBuffer(new Uint8Array(indices.buffer), 3 * T, 4, new Uint8Array(buffer, 44 + vbytes, ibytes));
+  let at = 44 + vbytes + 12 * K, first = 0;
+  for (let k = 0; k < K; k++) {
+    const entry = 44 + vbytes + 12 * k;
+    const count = 3 * view.getUint32(entry, true), base = view.getUint32(entry + 4, true), bytes = view.getUint32(entry + 8, true);
+    const chunk = indices.subarray(first, first + count);
+    MeshoptDecoder.decodeIndexBuffer(new Uint8Array(indices.buffer, 4 * first, 4 * count), count, 4, new Uint8Array(buffer, at, bytes));
+    if (base) {
+      const wrap = V - base;
+      for (let i = 0; i < count; i++) { const x = chunk[i]; chunk[i] = x < wrap ? x + base : x - wrap; }
+    }
+    at += bytes;
+    first += count;
+  }
   const q = new Uint16Array(packed.buffer), u = new Uint8Array(packed.buffer), table = octahedralNormals();
   const pos = new Float32Array(3 * V), nrm = new Float32Array(3 * V);
   const [ox, oy, oz] = origin, [sx, sy, sz] = step;

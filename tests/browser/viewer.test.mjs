@@ -90,6 +90,49 @@ async function checkCompactDecoding(page, iso) {
   }
 }
 
+// The page's decoding of several index streams (the server sends ⌈T / 2^20⌉ of them, encoded side
+// by side), against an independent construction: a compact answer's single stream decoded here
+// with meshoptimizer's own decoder, cut into 3 streams, each rotated down by its base (1 + the
+// largest index before it) and encoded with meshoptimizer's encoder, the buffer laid out as
+// mesh_codec.hpp says. The page must give back the same triangles (corners possibly rotated).
+async function checkStreamedDecoding(page, iso) {
+  const { MeshoptDecoder, MeshoptEncoder } = await import(join(web, 'node_modules', 'meshoptimizer', 'index.module.js'));
+  await MeshoptDecoder.ready;
+  await MeshoptEncoder.ready;
+  const one = new Uint8Array(await (await fetch(`${url}api/surface?iso=${encodeURIComponent(iso)}&client=test-streams&format=compact`)).arrayBuffer());
+  const view = new DataView(one.buffer);
+  const V = view.getUint32(4, true), T = view.getUint32(8, true), vbytes = view.getUint32(36, true);
+  if (view.getUint32(40 + vbytes, true) !== 1 || T < 30) fail(`streamed decoding: expected one index stream of a few triangles, got T = ${T}`);
+  const ibytes = view.getUint32(44 + vbytes + 8, true);
+  const indices = new Uint32Array(3 * T);
+  MeshoptDecoder.decodeIndexBuffer(new Uint8Array(indices.buffer), 3 * T, 4, one.subarray(56 + vbytes, 56 + vbytes + ibytes));
+  const cuts = [0, Math.floor(T / 3), Math.floor((2 * T) / 3), T], table = [], streams = [];
+  let top = -1;
+  for (let k = 0; k < 3; k++) {
+    const part = indices.slice(3 * cuts[k], 3 * cuts[k + 1]);
+    const base = k === 0 ? 0 : top + 1;
+    for (const x of part) top = Math.max(top, x);
+    const rotated = part.map((x) => (x >= base ? x - base : x + (V - base)));
+    const bytes = MeshoptEncoder.encodeIndexBuffer(new Uint8Array(rotated.buffer), rotated.length, 4);
+    table.push(cuts[k + 1] - cuts[k], base, bytes.length);
+    streams.push(bytes);
+  }
+  const head = one.subarray(0, 40 + vbytes);
+  const out = new Uint8Array(head.length + 4 + 4 * table.length + streams.reduce((s, b) => s + b.length, 0));
+  out.set(head);
+  new DataView(out.buffer).setUint32(head.length, 3, true);
+  table.forEach((x, i) => new DataView(out.buffer).setUint32(head.length + 4 + 4 * i, x, true));
+  let at = head.length + 4 + 4 * table.length;
+  for (const b of streams) { out.set(b, at); at += b.length; }
+  const got = await page.evaluate(async (bytes) => Array.from((await window.adaptisoDecodeCompact(new Uint8Array(bytes).buffer)).indices),
+                                  Array.from(out));
+  if (got.length !== 3 * T) fail(`streamed decoding: ${got.length / 3} triangles, expected ${T}`);
+  for (let t = 0; t < T; t++) {
+    const same = [0, 1, 2].some((r) => [0, 1, 2].every((c) => got[3 * t + (c + r) % 3] === indices[3 * t + c]));
+    if (!same) fail(`streamed decoding: triangle ${t} is [${got.slice(3 * t, 3 * t + 3)}], expected [${indices.slice(3 * t, 3 * t + 3)}]`);
+  }
+}
+
 try {
   browser = await chromium.launch({ executablePath: chromiumPath, headless: true,
     args: ['--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'] });
@@ -104,6 +147,7 @@ try {
   const t1 = Number(first.text.match(/triangles: (\d+)/)[1]);
   if (t1 !== await apiTriangles(first.iso)) fail(`stats say ${t1} triangles, the API ${await apiTriangles(first.iso)} at iso ${first.iso}`);
   await checkCompactDecoding(page, first.iso);
+  await checkStreamedDecoding(page, first.iso);
   // Drag the slider to 80 % of the range (input events, as a user's drag produces).
   await page.evaluate(() => {
     const s = document.getElementById('iso');

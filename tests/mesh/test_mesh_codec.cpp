@@ -1,6 +1,7 @@
 // The compact wire encoding of meshes (mesh_codec.hpp): the same triangles, positions within half a
 // quantization step, normals within the octahedral grid's angle, and far fewer bytes.
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include <cmath>
 #include <map>
@@ -25,6 +26,23 @@ Mesh sphere_mesh(std::int64_t n) {
   Extractor ex(std::make_shared<const PreparedGrid>(prepare(v, o)));
   ex.extract(700);
   return ex.mesh();
+}
+
+// A plane of w × h unit squares, two triangles each, row by row (neighbouring rows share vertices).
+Mesh plane_mesh(std::uint32_t w, std::uint32_t h) {
+  Mesh m;
+  for (std::uint32_t y = 0; y <= h; ++y)
+    for (std::uint32_t x = 0; x <= w; ++x) {
+      m.positions.push_back({static_cast<float>(x), static_cast<float>(y), 0});
+      m.normals.push_back({0, 0, 1});
+    }
+  for (std::uint32_t y = 0; y < h; ++y)
+    for (std::uint32_t x = 0; x < w; ++x) {
+      const std::uint32_t a = y * (w + 1) + x;
+      m.triangles.push_back({a, a + 1, a + w + 2});
+      m.triangles.push_back({a, a + w + 2, a + w + 1});
+    }
+  return m;
 }
 
 }  // namespace
@@ -133,4 +151,36 @@ TEST(MeshCodec, AnOrderEncodesTheTrianglesSoReorderedAndACoherentOneIsSmaller) {
   outside[T / 2] = static_cast<std::uint32_t>(T);
   EXPECT_THROW(encode_mesh_compact(m, outside), std::invalid_argument);
   EXPECT_EQ(decode_mesh_compact(encode_mesh_compact(m)).triangle_count(), T);  // the pool's scratch is still sound
+}
+
+// Above 2^20 triangles the index goes out as several streams, encoded side by side, each rotated by
+// the first vertex it uses first. A plane of 3 streams whose boundaries cut through shared rows,
+// then a fourth stream of repeated triangles that uses no new vertex (its base is the vertex
+// count): every triangle decodes to its own corners, and one thread encodes the same bytes.
+TEST(MeshCodec, ManyIndexStreamsDecodeToTheSameTriangles) {
+  Mesh m = plane_mesh(1024, 1025);  // 2,099,200 triangles: 2 full streams and part of a third
+  const std::size_t T0 = m.triangle_count();
+  const std::size_t streams = 3;
+  for (std::size_t t = 0; m.triangle_count() < streams * (std::size_t{1} << 20) + 500; ++t) m.triangles.push_back(m.triangles[t % T0]);
+  const std::string bytes = encode_mesh_compact(m);
+  const Mesh d = decode_mesh_compact(bytes);
+  ASSERT_EQ(d.triangle_count(), m.triangle_count());
+  ASSERT_EQ(d.vertex_count(), m.vertex_count());
+  const float half_step = 0.5f * 1025.0f / 65535.0f + 1e-3f;  // and float rounding at 1,000
+  auto same = [&](const std::array<float, 3>& p, const std::array<float, 3>& q) {
+    return std::abs(p[0] - q[0]) <= half_step && std::abs(p[1] - q[1]) <= half_step && p[2] == q[2];
+  };
+  for (std::size_t t = 0; t < m.triangle_count(); ++t) {
+    bool found = false;
+    for (int r = 0; r < 3 && !found; ++r) {
+      bool all = true;
+      for (int k = 0; k < 3; ++k) all = all && same(m.positions[m.triangles[t][k]], d.positions[d.triangles[t][(k + r) % 3]]);
+      found = all;
+    }
+    ASSERT_TRUE(found) << "triangle " << t << " moved";
+  }
+  // Rotating by the base keeps the streams as small as one: about the bytes of the plane alone.
+  EXPECT_LT(static_cast<double>(bytes.size()) / static_cast<double>(m.triangle_count()), 2.5);
+  tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
+  EXPECT_EQ(encode_mesh_compact(m), bytes);
 }
