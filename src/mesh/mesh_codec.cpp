@@ -99,7 +99,7 @@ std::vector<IndexChunk> encode_index_chunks(unsigned int* indices, std::size_t T
     const std::size_t b = 3 * k * kChunkTriangles, e = 3 * std::min(T, (k + 1) * kChunkTriangles);
     top[k] = *std::max_element(indices + b, indices + e);
   });
-  const std::size_t per_chunk = meshopt_encodeIndexBufferBound(3 * kChunkTriangles, used);
+  const std::size_t per_chunk = meshopt_encodeIndexBufferBound(3 * std::min(T, kChunkTriangles), used);  // no larger than the mesh
   for (std::size_t k = 0; k < K; ++k) {
     chunks[k].triangles = static_cast<std::uint32_t>(std::min(T, (k + 1) * kChunkTriangles) - k * kChunkTriangles);
     chunks[k].base = k == 0 ? 0 : std::max(chunks[k - 1].base, top[k - 1] + 1);
