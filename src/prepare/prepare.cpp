@@ -7,9 +7,7 @@
 #include <tbb/parallel_reduce.h>
 
 #include <chrono>
-#include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
 
@@ -18,6 +16,7 @@
 #include "adaptiso/error.hpp"
 #include "adaptiso/gradients.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "util/memory.hpp"
 
 namespace adaptiso {
 namespace {
@@ -27,13 +26,7 @@ using Clock = std::chrono::steady_clock;
 // Peak resident memory of this process so far (Linux: VmHWM; 0 elsewhere). Never reset (writing
 // to /proc/self/clear_refs would give per-stage peaks, but it also resets what getrusage, time(1)
 // and wait4 report for the whole process: the bunny's 2.8 GB index peak read as 2.0 GB).
-std::uint64_t peak_rss() {
-  std::uint64_t kb = 0;
-  std::ifstream status("/proc/self/status");
-  for (std::string line; std::getline(status, line);)
-    if (line.rfind("VmHWM:", 0) == 0) kb = std::strtoull(line.c_str() + 6, nullptr, 10);
-  return kb * 1024;
-}
+std::uint64_t peak_rss() { return detail::process_status_bytes("VmHWM"); }
 
 // Times one stage and records the process's peak at its end into stats.
 class StageClock {

@@ -13,6 +13,14 @@
 
 namespace adaptiso::detail {
 
+std::uint64_t process_status_bytes(const std::string& field) {
+  std::ifstream status("/proc/self/status");
+  const std::string key = field + ":";
+  for (std::string line; std::getline(status, line);)
+    if (line.rfind(key, 0) == 0) return std::strtoull(line.c_str() + key.size(), nullptr, 10) * 1024;
+  return 0;
+}
+
 namespace {
 
 // The address space left under `ulimit -v` (RLIMIT_AS): a cap the machine's free memory knows
@@ -20,16 +28,7 @@ namespace {
 std::uint64_t address_space_left() {
   struct rlimit lim {};
   if (getrlimit(RLIMIT_AS, &lim) != 0 || lim.rlim_cur == RLIM_INFINITY) return ~std::uint64_t{0};
-  std::ifstream status("/proc/self/status");
-  std::uint64_t used_kb = 0;
-  for (std::string key; status >> key;) {
-    if (key == "VmSize:") {
-      status >> used_kb;
-      break;
-    }
-    status.ignore(256, '\n');
-  }
-  const std::uint64_t used = used_kb * 1024;
+  const std::uint64_t used = process_status_bytes("VmSize");
   return lim.rlim_cur > used ? lim.rlim_cur - used : 0;
 }
 

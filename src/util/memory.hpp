@@ -11,6 +11,10 @@ namespace adaptiso::detail {
 // ADAPTISO_MEMORY_LIMIT (bytes).
 std::uint64_t available_memory();
 
+// A memory field of /proc/self/status ("VmHWM", "VmSize", …: kB there) in bytes; 0 where there is
+// none (other systems).
+std::uint64_t process_status_bytes(const std::string& field);
+
 // Throws OptionError(option, "<what> needs about X GB, Y GB are available; <advice>") when `bytes`
 // exceed the available memory (InputError when no option can help: option empty).
 // "17 s", "3 min", "2.5 h".
