@@ -12,8 +12,10 @@
 // keep the rest. Each node's tetrahedra appear twice: in `by_min` sorted by (tmin, id) and in
 // `by_max` by (tmax, id), in the same [begin, end) range of both arrays. The build allocates
 // little beyond the lists (per thread, 16 bytes an entry of the node it sorts; 2 bytes a
-// tetrahedron while placing): the CT bunny's 52 M entries at 0.02 add 0.6 GB at the peak, where
-// records of every tetrahedron added 1.3 GB.
+// tetrahedron while placing, before by_max exists): the CT bunny's 52 M entries at 0.02 add 0.6 GB
+// at the peak, where records of every tetrahedron added 1.3 GB. Under a scratch budget the nodes
+// too large for it take 2 bytes an entry instead (one at a time, each in parallel), at about 1.5
+// times the time: prepare's budget keeps its peak within the saved grid plus 2.5 volumes.
 //
 // The tree is immutable and shared; a SweepState holds one client's position in it (the paper's
 // per-node positions of the iso-value in both lists and the per-tetrahedron flags, indexed by
@@ -46,9 +48,14 @@ struct IntervalTree {
 
 constexpr std::uint32_t kDefaultTreeDepth = 12;  // bench_extract: query time flat from depth 8 to 20 (README)
 
+// The scratch memory the build may hold at once by default, beyond the lists themselves (bytes).
+constexpr std::size_t kDefaultIndexScratch = std::size_t{1} << 30;
 // Builds the tree over grid.tets and grid.values; depth is reduced when the grid has fewer
-// tetrahedra than leaves. Parallel.
-IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth = kDefaultTreeDepth);
+// tetrahedra than leaves. Parallel. scratch_bytes bounds what sorting the lists holds at once:
+// nodes too large for a thread's share of it at 16 bytes an entry (32 for values that are not all
+// floats) are sorted one at a time with 2 bytes an entry, computing each key twice (slower).
+IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth = kDefaultTreeDepth,
+                                 std::size_t scratch_bytes = kDefaultIndexScratch);
 
 // Checks a tree loaded from disk against its grid: sizes, ranges nested in pre-order, every
 // non-constant tetrahedron exactly once in each list, lists sorted, entries straddling their split.

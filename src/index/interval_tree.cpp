@@ -7,6 +7,7 @@
 #include <tbb/parallel_invoke.h>
 #include <tbb/parallel_reduce.h>
 #include <tbb/parallel_sort.h>
+#include <tbb/task_arena.h>
 
 #include <fmt/format.h>
 #include <algorithm>
@@ -20,6 +21,7 @@
 
 #include "adaptiso/error.hpp"
 #include "util/big_array.hpp"
+#include "util/memory.hpp"
 #include "util/prefetch.hpp"
 #include "util/radix_sort.hpp"
 
@@ -190,14 +192,158 @@ void sort_node(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, std::ui
   }
 }
 
-// Every node's two lists sorted, largest nodes first, so the threads finish together.
+// A (key, id) pair as one comparable value: a 64-bit integer for float keys, a pair otherwise.
 template <class K>
-void sort_lists(IntervalTree& tree, const TetGrid& grid) {
+using SortKey = std::conditional_t<std::is_same_v<K, float>, std::uint64_t, std::pair<double, std::uint32_t>>;
+
+template <class K>
+SortKey<K> sort_key(double key, std::uint32_t id) {
+  if constexpr (std::is_same_v<K, float>)
+    return ordered(static_cast<float>(key), id);
+  else
+    return {key, id};
+}
+
+template <class K>
+std::uint32_t id_of(const SortKey<K>& k) {
+  if constexpr (std::is_same_v<K, float>)
+    return static_cast<std::uint32_t>(k);
+  else
+    return k.second;
+}
+
+// Sorts (key, id) pairs: for float keys a radix sort, by the key alone (stable) when the ids come
+// in increasing order, by key and id otherwise.
+template <class K>
+void sort_pairs(std::vector<SortKey<K>>& keys, std::vector<SortKey<K>>& scratch, bool ids_increasing) {
+  if constexpr (std::is_same_v<K, float>) {
+    if (ids_increasing)
+      sort_keys(keys, scratch);
+    else if (keys.size() > 256)
+      detail::radix_sort(keys, scratch, 0, 11);
+    else
+      std::sort(keys.begin(), keys.end());
+  } else {
+    std::sort(keys.begin(), keys.end());
+  }
+}
+
+// sort_node's result without a key per entry held: the memory-lean sort of the nodes too large
+// for sort_node's 16 bytes an entry (the MR head's largest node holds 28 M entries: 426 MiB).
+// Each entry gets a bucket by minimum and one by maximum, one byte each, from (key, id) splitters
+// of a sample, in one read of the ranges in id order. The ids are then grouped by bucket, by
+// maximum into by_max (a scatter) and by minimum within by_min (a permutation in place), and each
+// bucket, n / 256 entries, is sorted on its own from its keys read again. Parallel but for the
+// permutation.
+template <class K>
+void sort_node_lean(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, std::uint64_t e) {
+  using Key = SortKey<K>;
+  constexpr std::size_t kBuckets = 256;
+  std::uint32_t* by_min = tree.by_min.data() + b;
+  std::uint32_t* by_max = tree.by_max.data() + b;
+  const std::uint64_t n = e - b;
+  auto key_lo = [&](std::uint32_t t) { return sort_key<K>(tet_min(grid, t), t); };
+  auto key_hi = [&](std::uint32_t t) { return sort_key<K>(tet_max(grid, t), t); };
+  // Splitters: bucket j holds the keys k with splitter[j - 1] <= k < splitter[j].
+  auto splitters_of = [&](auto key_of) {
+    const std::uint64_t stride = std::max<std::uint64_t>(1, n / (kBuckets * 64));
+    std::vector<Key> sample;
+    for (std::uint64_t i = 0; i < n; i += stride) sample.push_back(key_of(by_min[i]));
+    std::sort(sample.begin(), sample.end());
+    std::vector<Key> splitters(kBuckets - 1);
+    for (std::size_t j = 1; j < kBuckets; ++j) splitters[j - 1] = sample[sample.size() * j / kBuckets];
+    return splitters;
+  };
+  const std::vector<Key> split_lo = splitters_of(key_lo), split_hi = splitters_of(key_hi);
+  // The number of splitters <= k, branch-free (std::upper_bound's branches mispredict).
+  auto bucket_of = [](const std::vector<Key>& splitters, const Key& k) {
+    std::size_t j = 0;
+    for (std::size_t half = kBuckets / 2; half > 0; half /= 2) j += splitters[j + half - 1] <= k ? half : 0;
+    return static_cast<std::uint8_t>(j);
+  };
+  const std::size_t chunks = std::clamp<std::size_t>(n >> 16, 1, 256);
+  auto chunk = [&](std::size_t c) { return std::pair{n * c / chunks, n * (c + 1) / chunks}; };
+  std::vector<std::uint8_t> lo_bucket, hi_bucket;
+  detail::resize_big(lo_bucket, n);
+  detail::resize_big(hi_bucket, n);
+  std::vector<std::uint64_t> at_hi(chunks * kBuckets, 0), count_lo(chunks * kBuckets, 0);
+  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t c) {
+    const auto [cb, ce] = chunk(c);
+    for (std::uint64_t i = cb; i < ce; ++i) {
+      if (i + 16 < ce) detail::prefetch(&grid.tets[by_min[i + 16]]);
+      if (i + 8 < ce) prefetch_values(grid, by_min[i + 8]);
+      const Range q = tet_range(grid, by_min[i]);
+      ++count_lo[c * kBuckets + (lo_bucket[i] = bucket_of(split_lo, sort_key<K>(q.lo, by_min[i])))];
+      ++at_hi[c * kBuckets + (hi_bucket[i] = bucket_of(split_hi, sort_key<K>(q.hi, by_min[i])))];
+    }
+  });
+  // Bucket starts; at_hi becomes each chunk's place within its bucket.
+  std::vector<std::uint64_t> start_lo(kBuckets + 1, 0), start_hi(kBuckets + 1, 0);
+  for (std::size_t j = 0; j < kBuckets; ++j) {
+    start_lo[j + 1] = start_lo[j];
+    start_hi[j + 1] = start_hi[j];
+    for (std::size_t c = 0; c < chunks; ++c) {
+      start_lo[j + 1] += count_lo[c * kBuckets + j];
+      start_hi[j + 1] += std::exchange(at_hi[c * kBuckets + j], start_hi[j + 1]);
+    }
+  }
+  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t c) {
+    const auto [cb, ce] = chunk(c);
+    for (std::uint64_t i = cb; i < ce; ++i) by_max[at_hi[c * kBuckets + hi_bucket[i]]++] = by_min[i];
+  });
+  std::vector<std::uint8_t>().swap(hi_bucket);
+  // by_min grouped by bucket in place: each misplaced entry is swapped into the next free place of
+  // its bucket until the entry that belongs here arrives (American flag sort's permutation).
+  std::vector<std::uint64_t> next(start_lo.begin(), start_lo.end() - 1);
+  for (std::size_t j = 0; j < kBuckets; ++j)
+    for (std::uint64_t i = next[j]; i < start_lo[j + 1]; i = ++next[j]) {
+      std::uint32_t id = by_min[i];
+      std::uint8_t k = lo_bucket[i];
+      while (k != j) {
+        const std::uint64_t to = next[k]++;
+        std::swap(id, by_min[to]);
+        std::swap(k, lo_bucket[to]);
+      }
+      by_min[i] = id;
+    }
+  std::vector<std::uint8_t>().swap(lo_bucket);
+  // The scatter kept by_max's buckets in id order; the permutation did not keep by_min's.
+  auto sort_buckets = [&](std::uint32_t* ids, const std::vector<std::uint64_t>& start, bool ids_increasing, auto key_of) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, kBuckets, 1), [&](const auto& r) {
+      std::vector<Key> keys, scratch;
+      for (std::size_t j = r.begin(); j < r.end(); ++j) {
+        const std::uint64_t jb = start[j], je = start[j + 1];
+        keys.resize(je - jb);
+        for (std::uint64_t i = jb; i < je; ++i) {
+          if (i + 16 < je) detail::prefetch(&grid.tets[ids[i + 16]]);
+          if (i + 8 < je) prefetch_values(grid, ids[i + 8]);
+          keys[i - jb] = key_of(ids[i]);
+        }
+        sort_pairs<K>(keys, scratch, ids_increasing);
+        for (std::uint64_t i = jb; i < je; ++i) ids[i] = id_of<K>(keys[i - jb]);
+      }
+    });
+  };
+  sort_buckets(by_min, start_lo, false, key_lo);
+  sort_buckets(by_max, start_hi, true, key_hi);
+}
+
+// Every node's two lists sorted. Nodes whose sort_node would take more than this thread's share
+// of scratch_bytes (16 bytes an entry; 32 for double keys) are sorted first, one at a time, each
+// in parallel, by sort_node_lean (2 bytes an entry); the others in parallel, largest first, so the
+// threads finish together.
+template <class K>
+void sort_lists(IntervalTree& tree, const TetGrid& grid, std::size_t scratch_bytes) {
   std::vector<std::size_t> order(tree.nodes.size());
   std::iota(order.begin(), order.end(), std::size_t{0});
   auto size = [&](std::size_t i) { return tree.nodes[i].end - tree.nodes[i].begin; };
   std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return size(a) > size(b); });
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 1), [&](const auto& r) {
+  const std::size_t share = scratch_bytes / static_cast<std::size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+  const std::size_t per_entry = std::is_same_v<K, float> ? 16 : 32;
+  std::size_t lean = 0;
+  while (lean < order.size() && size(order[lean]) * per_entry > share) ++lean;
+  for (std::size_t k = 0; k < lean; ++k) sort_node_lean<K>(grid, tree, tree.nodes[order[k]].begin, tree.nodes[order[k]].end);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(lean, order.size(), 1), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) sort_node<K>(grid, tree, tree.nodes[order[k]].begin, tree.nodes[order[k]].end);
   });
 }
@@ -286,32 +432,37 @@ void place_entries(IntervalTree& tree, const TetGrid& grid) {
     }
   }
   detail::resize_big(tree.by_min, cursor);
-  detail::resize_big(tree.by_max, cursor);
-  // by_max is written when the nodes are sorted.
   if (kept.empty()) {
     for_each_nonconstant(grid, blocks,
                          [&](std::size_t b, std::uint32_t t, const Range& q) { tree.by_min[at[b * nodes + node_of(tree, q)]++] = t; });
-    return;
+  } else {
+    const std::size_t T = grid.tet_count();
+    tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+      for (std::size_t t = T * b / blocks; t < T * (b + 1) / blocks; ++t)
+        if (kept[t] != kNone) tree.by_min[at[b * nodes + kept[t]]++] = static_cast<std::uint32_t>(t);
+    });
   }
-  const std::size_t T = grid.tet_count();
-  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-    for (std::size_t t = T * b / blocks; t < T * (b + 1) / blocks; ++t)
-      if (kept[t] != kNone) tree.by_min[at[b * nodes + kept[t]]++] = static_cast<std::uint32_t>(t);
-  });
+  // by_max, written when the nodes are sorted, only once the nodes kept are gone: the two never
+  // add to the peak together (the MR head: 160 MiB of nodes, 321 MiB of by_max).
+  std::vector<std::uint16_t>().swap(kept);
+  detail::resize_big(tree.by_max, cursor);
 }
 
 template <class K>
-IntervalTree build_with(const TetGrid& grid, std::uint32_t depth) {
+IntervalTree build_with(const TetGrid& grid, std::uint32_t depth, std::size_t scratch_bytes) {
   IntervalTree tree;
   choose_splits<K>(tree, grid, depth);
   place_entries(tree, grid);
-  sort_lists<K>(tree, grid);
+  // The sample's records and the counters, freed in the worker threads' heaps, would otherwise
+  // stay resident through the sort (the MR head: 77 MiB).
+  detail::release_free_heap();
+  sort_lists<K>(tree, grid, scratch_bytes);
   return tree;
 }
 
 }  // namespace
 
-IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth) {
+IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth, std::size_t scratch_bytes) {
   if (grid.tet_count() > std::numeric_limits<std::uint32_t>::max()) throw InputError("too many tetrahedra for the interval tree");
   const bool floats = tbb::parallel_reduce(
       tbb::blocked_range<std::size_t>(0, grid.values.size(), 1 << 16), true,
@@ -321,7 +472,7 @@ IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth) {
         return ok;
       },
       [](bool a, bool b) { return a && b; });
-  IntervalTree tree = floats ? build_with<float>(grid, depth) : build_with<double>(grid, depth);
+  IntervalTree tree = floats ? build_with<float>(grid, depth, scratch_bytes) : build_with<double>(grid, depth, scratch_bytes);
   compute_bounds(tree, grid);
   return tree;
 }

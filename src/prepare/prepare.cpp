@@ -48,6 +48,30 @@ private:
   PrepareStats& stats_;
 };
 
+// Bytes of the grid's arrays and its hierarchy in memory (as saved, but for the index).
+std::uint64_t resident_grid_bytes(const PreparedGrid& p) {
+  const TetGrid& g = p.grid;
+  std::uint64_t bytes = g.ijk.size() * sizeof(g.ijk[0]) + g.values.size() * sizeof(double) + g.gradients.size() * sizeof(g.gradients[0]) +
+                        g.tets.size() * sizeof(g.tets[0]);
+  if (p.hierarchy)
+    bytes += p.hierarchy->error_code.size() + p.hierarchy->displacement_code.size() +
+             p.hierarchy->value_span.size() * sizeof(p.hierarchy->value_span[0]);
+  return bytes;
+}
+
+// What the index's build may hold beyond its lists. prepare keeps its peak within the saved grid
+// plus 2.5 times the volume's bytes (README) where it can: the grid is resident by now, and what
+// else the process holds (its code and libraries, the heap's remains) comes out of the 2.5
+// volumes. At least 64 MiB. The bunny's nodes all sort the fast way within it; the MR head's
+// noisy scan, whose largest node alone would take 426 MiB that way, sorts its largest nodes with
+// 2 bytes an entry.
+std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes) {
+  const std::uint64_t resident = detail::process_status_bytes("VmRSS");
+  const std::uint64_t other = resident > grid_bytes ? resident - grid_bytes : 0;
+  const std::uint64_t allowance = volume_bytes / 2 * 5;
+  return std::max<std::uint64_t>(std::uint64_t{64} << 20, allowance > other ? allowance - other : 0);
+}
+
 void check_options(const PrepareOptions& o) {
   if (o.max_error && (!(*o.max_error >= 0) || (!std::isfinite(*o.max_error) && o.grid == GridKind::delaunay)))
     throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", *o.max_error));
@@ -149,10 +173,13 @@ PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const Prepar
       throw std::logic_error(fmt::format("bisection grid: error {} exceeds its guaranteed bound {}", pl.max, stats.error_bound));
   }
   stats.voxels = v.voxel_count();
+  const std::uint64_t volume_bytes = v.bytes.size();
   if (release) release->bytes = VoxelBuffer();
+  detail::release_free_heap();  // what the selection freed in the worker threads' heaps
+  const std::size_t scratch = index_scratch(volume_bytes, resident_grid_bytes(p));
   p.index = clock.run("index", [&] {
     report(progress, "index", 0);
-    return build_interval_tree(p.grid, o.tree_depth);
+    return build_interval_tree(p.grid, o.tree_depth, scratch);
   });
   stats.kept = p.grid.vertex_count();
   stats.tetrahedra = p.grid.tet_count();

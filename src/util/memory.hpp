@@ -15,6 +15,10 @@ std::uint64_t available_memory();
 // none (other systems).
 std::uint64_t process_status_bytes(const std::string& field);
 
+// Returns the heap's free memory to the system (glibc's malloc_trim; nothing elsewhere): what a
+// stage freed in the worker threads' arenas otherwise stays resident beside the next stage's.
+void release_free_heap();
+
 // Throws OptionError(option, "<what> needs about X GB, Y GB are available; <advice>") when `bytes`
 // exceed the available memory (InputError when no option can help: option empty).
 // "17 s", "3 min", "2.5 h".

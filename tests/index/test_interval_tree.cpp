@@ -162,6 +162,37 @@ TEST(IntervalTree, SplitsChosenOnASampleStillPlaceEveryTetInItsSmallestNode) {
   expect_same_tree_on_one_thread(tree, g, 8);
 }
 
+// Under a scratch budget, the nodes too large for it are sorted the memory-lean way (buckets by
+// sampled splitters, a scatter and a permutation in place; interval_tree.hpp): the same lists as
+// the fast way, on float values full of ties, on values that are not floats (pair keys) and with
+// one thread. A budget of one byte sends every non-empty node, down to single entries, that way.
+TEST(IntervalTree, NodesSortedWithTwoBytesAnEntryUnderAScratchBudgetGiveTheSameLists) {
+  std::mt19937 rng(17);
+  for (const bool floats : {true, false}) {
+    TetGrid g;
+    g.values.resize(50000);
+    for (auto& v : g.values) v = floats ? static_cast<double>(rng() % 64) : (rng() % 64) + 1e-12 * (rng() % 1000);
+    g.ijk.resize(g.values.size());
+    g.tets.resize(700000);
+    for (auto& t : g.tets)
+      for (auto& q : t) q = static_cast<std::uint32_t>(rng() % g.values.size());
+    const IntervalTree fast = build_interval_tree(g, 3);
+    for (const std::size_t budget : {std::size_t{1}, std::size_t{4} << 20}) {
+      const IntervalTree lean = build_interval_tree(g, 3, budget);
+      EXPECT_EQ(lean.by_min, fast.by_min) << "floats " << floats << ", budget " << budget;
+      EXPECT_EQ(lean.by_max, fast.by_max) << "floats " << floats << ", budget " << budget;
+    }
+    expect_each_tet_in_its_smallest_node_sorted(fast, g);
+    IntervalTree one;
+    {
+      tbb::global_control only(tbb::global_control::max_allowed_parallelism, 1);
+      one = build_interval_tree(g, 3, 1);
+    }
+    EXPECT_EQ(one.by_min, fast.by_min);
+    EXPECT_EQ(one.by_max, fast.by_max);
+  }
+}
+
 // The validator checks the lists in even chunks that cut through nodes (the root alone can hold a
 // tenth of the entries), so the order of two neighbours on either side of a cut must still be
 // checked. TBB cuts [0, E) first at E/2 (then E/4, 3E/4, …): two neighbours swapped there, in one
