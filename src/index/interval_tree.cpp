@@ -453,8 +453,8 @@ IntervalTree build_with(const TetGrid& grid, std::uint32_t depth, std::size_t sc
   IntervalTree tree;
   choose_splits<K>(tree, grid, depth);
   place_entries(tree, grid);
-  // The sample's records and the counters, freed in the worker threads' heaps, would otherwise
-  // stay resident through the sort (the MR head: 77 MiB).
+  // What choosing and placing freed (the sample's records, the counters) can stay in the heap's
+  // arenas, resident through the sort: returning it lowered the MR head's peak by 51 MiB.
   detail::release_free_heap();
   sort_lists<K>(tree, grid, scratch_bytes);
   return tree;
