@@ -43,6 +43,14 @@ inline Range tet_range(const TetGrid& grid, std::uint32_t t) {
 inline double tet_min(const TetGrid& grid, std::uint32_t t) { return tet_range(grid, t).lo; }
 inline double tet_max(const TetGrid& grid, std::uint32_t t) { return tet_range(grid, t).hi; }
 
+// The range of ids[i], in a loop over ids[begin, end) that reads ahead: the tetrahedra and their
+// values lie at scattered places, so later ones are prefetched.
+inline Range range_reading_ahead(const TetGrid& grid, const std::uint32_t* ids, std::uint64_t i, std::uint64_t end) {
+  if (i + 16 < end) detail::prefetch(&grid.tets[ids[i + 16]]);
+  if (i + 8 < end) prefetch_values(grid, ids[i + 8]);
+  return tet_range(grid, ids[i]);
+}
+
 // Fills lo/hi of every node bottom-up from its own entries and its children.
 void compute_bounds(IntervalTree& tree, const TetGrid& grid) {
   for (std::size_t i = tree.nodes.size(); i-- > 0;) {
@@ -156,9 +164,7 @@ void sort_node(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, std::ui
     thread_local std::vector<std::uint64_t> a, c;
     a.resize(e - b);
     for (std::uint64_t i = b; i < e; ++i) {
-      if (i + 16 < e) detail::prefetch(&grid.tets[by_min[i + 16]]);
-      if (i + 8 < e) prefetch_values(grid, by_min[i + 8]);
-      const Range q = tet_range(grid, by_min[i]);
+      const Range q = range_reading_ahead(grid, by_min, i, e);
       a[i - b] = ordered(static_cast<float>(q.lo), by_min[i]);
       by_max[i] = static_cast<std::uint32_t>(ordered(static_cast<float>(q.hi), 0) >> 32);
     }
@@ -242,13 +248,13 @@ void sort_node_lean(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, st
   std::uint32_t* by_min = tree.by_min.data() + b;
   std::uint32_t* by_max = tree.by_max.data() + b;
   const std::uint64_t n = e - b;
-  auto key_lo = [&](std::uint32_t t) { return sort_key<K>(tet_min(grid, t), t); };
-  auto key_hi = [&](std::uint32_t t) { return sort_key<K>(tet_max(grid, t), t); };
+  auto key_lo = [](const Range& q, std::uint32_t t) { return sort_key<K>(q.lo, t); };
+  auto key_hi = [](const Range& q, std::uint32_t t) { return sort_key<K>(q.hi, t); };
   // Splitters: bucket j holds the keys k with splitter[j - 1] <= k < splitter[j].
   auto splitters_of = [&](auto key_of) {
     const std::uint64_t stride = std::max<std::uint64_t>(1, n / (kBuckets * 64));
     std::vector<Key> sample;
-    for (std::uint64_t i = 0; i < n; i += stride) sample.push_back(key_of(by_min[i]));
+    for (std::uint64_t i = 0; i < n; i += stride) sample.push_back(key_of(tet_range(grid, by_min[i]), by_min[i]));
     std::sort(sample.begin(), sample.end());
     std::vector<Key> splitters(kBuckets - 1);
     for (std::size_t j = 1; j < kBuckets; ++j) splitters[j - 1] = sample[sample.size() * j / kBuckets];
@@ -270,11 +276,9 @@ void sort_node_lean(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, st
   tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t c) {
     const auto [cb, ce] = chunk(c);
     for (std::uint64_t i = cb; i < ce; ++i) {
-      if (i + 16 < ce) detail::prefetch(&grid.tets[by_min[i + 16]]);
-      if (i + 8 < ce) prefetch_values(grid, by_min[i + 8]);
-      const Range q = tet_range(grid, by_min[i]);
-      ++count_lo[c * kBuckets + (lo_bucket[i] = bucket_of(split_lo, sort_key<K>(q.lo, by_min[i])))];
-      ++at_hi[c * kBuckets + (hi_bucket[i] = bucket_of(split_hi, sort_key<K>(q.hi, by_min[i])))];
+      const Range q = range_reading_ahead(grid, by_min, i, ce);
+      ++count_lo[c * kBuckets + (lo_bucket[i] = bucket_of(split_lo, key_lo(q, by_min[i])))];
+      ++at_hi[c * kBuckets + (hi_bucket[i] = bucket_of(split_hi, key_hi(q, by_min[i])))];
     }
   });
   // Bucket starts; at_hi becomes each chunk's place within its bucket.
@@ -314,11 +318,7 @@ void sort_node_lean(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, st
       for (std::size_t j = r.begin(); j < r.end(); ++j) {
         const std::uint64_t jb = start[j], je = start[j + 1];
         keys.resize(je - jb);
-        for (std::uint64_t i = jb; i < je; ++i) {
-          if (i + 16 < je) detail::prefetch(&grid.tets[ids[i + 16]]);
-          if (i + 8 < je) prefetch_values(grid, ids[i + 8]);
-          keys[i - jb] = key_of(ids[i]);
-        }
+        for (std::uint64_t i = jb; i < je; ++i) keys[i - jb] = key_of(range_reading_ahead(grid, ids, i, je), ids[i]);
         sort_pairs<K>(keys, scratch, ids_increasing);
         for (std::uint64_t i = jb; i < je; ++i) ids[i] = id_of<K>(keys[i - jb]);
       }

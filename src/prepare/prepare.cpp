@@ -48,11 +48,9 @@ private:
   PrepareStats& stats_;
 };
 
-// Bytes of the grid's arrays and its hierarchy in memory (as saved, but for the index).
+// Bytes of the grid's arrays (grid_bytes_per_vertex, without an index) and its hierarchy in memory.
 std::uint64_t resident_grid_bytes(const PreparedGrid& p) {
-  const TetGrid& g = p.grid;
-  std::uint64_t bytes = g.ijk.size() * sizeof(g.ijk[0]) + g.values.size() * sizeof(double) + g.gradients.size() * sizeof(g.gradients[0]) +
-                        g.tets.size() * sizeof(g.tets[0]);
+  auto bytes = static_cast<std::uint64_t>(grid_bytes_per_vertex(p.grid, IntervalTree{}) * static_cast<double>(p.grid.vertex_count()));
   if (p.hierarchy)
     bytes += p.hierarchy->error_code.size() + p.hierarchy->displacement_code.size() +
              p.hierarchy->value_span.size() * sizeof(p.hierarchy->value_span[0]);
