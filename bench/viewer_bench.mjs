@@ -1,7 +1,9 @@
 // The viewer in a real browser (Debian's chromium, headless, SwiftShader), driven like a user:
 // `adaptiso view GRID.adg`, wait until the coarser levels are built, drag the iso slider for a few
 // seconds (input events at 60 Hz), release it, and read the page's own timings
-// (window.adaptisoSurfaces: request, server extraction, decode, upload + draw, from the input).
+// (window.adaptisoSurfaces: request, server extraction, decode, upload + draw, from the input),
+// and the page's main thread blocked (long tasks, during the measured drag). The page draws a
+// surface only once the GPU has drawn the previous one, so "drawn" is on screen, not queued.
 //
 // Usage: node bench/viewer_bench.mjs ADAPTISO_CLI GRID.adg [--budget N] [--from F --to T] [--seconds S]
 // F and T are slider positions (0–1000). Prints one JSON object.
@@ -30,6 +32,11 @@ const median = (xs) => { const s = [...xs].sort((a, b) => a - b); return s.lengt
 const p90 = (xs) => { const s = [...xs].sort((a, b) => a - b); return s.length ? s[Math.min(s.length - 1, Math.floor(0.9 * s.length))] : null; };
 try {
   const page = await browser.newPage({ viewport: { width: 1000, height: 700 } });
+  await page.addInitScript(() => {
+    window.benchLongTasks = [];
+    new PerformanceObserver((l) => { for (const e of l.getEntries()) window.benchLongTasks.push([e.startTime, e.duration]); })
+      .observe({ type: 'longtask', buffered: true });
+  });
   await page.goto(`${url}?budget=${budget}`);
   await page.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 600000 });
   const t0 = Date.now();
@@ -39,9 +46,9 @@ try {
   const info = await (await fetch(`${url}api/info`)).json();
   // Warm every level's extractor once (a first extraction on a level is a fresh march), as a user's
   // first drag would; then the measured drag.
-  let firstMeasured = 0;
+  let firstMeasured = 0, dragStart = 0;
   for (const pass of ['warm', 'measure']) {
-    if (pass === 'measure') firstMeasured = await page.evaluate(() => window.adaptisoSurfaces.length);
+    if (pass === 'measure') [firstMeasured, dragStart] = await page.evaluate(() => [window.adaptisoSurfaces.length, performance.now()]);
     await page.evaluate(async ([a, b, s]) => {
       const el = document.getElementById('iso');
       const steps = Math.round(60 * s);
@@ -57,6 +64,7 @@ try {
   await page.waitForTimeout(1000);  // the last answers of the drag arrive
   const during = await page.evaluate(([n, end]) => window.adaptisoSurfaces.slice(n).filter((r) => r.coarse && r.at <= end + 1000),
                                      [firstMeasured, dragEnd]);
+  const blocked = await page.evaluate(([a, b]) => window.benchLongTasks.filter(([t]) => t >= a && t <= b).map(([, d]) => d), [dragStart, dragEnd + 1000]);
   const lastDrag = await page.evaluate(() => window.adaptisoSurfaces.length);
   const released = await page.evaluate(() => { document.getElementById('iso').dispatchEvent(new Event('change')); return performance.now(); });
   await page.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), lastDrag, { timeout: 120000 });
@@ -74,9 +82,13 @@ try {
       levels: [...new Set(measured.map((r) => r.level))], error_median: median(measured.map((r) => r.error)),
       triangles_median: median(measured.map((r) => r.triangles)),
       from_input_ms: { median: median(measured.map((r) => r.fromInput)), p90: p90(measured.map((r) => r.fromInput)) },
+      from_input_uploaded_ms: { median: median(measured.map((r) => r.fromInputUploaded)), p90: p90(measured.map((r) => r.fromInputUploaded)) },
       from_input_drawn_ms: { median: median(measured.map((r) => r.fromInputDrawn)), p90: p90(measured.map((r) => r.fromInputDrawn)) },
       server_ms: median(measured.map((r) => r.server)), request_ms: median(measured.map((r) => r.request)),
-      decode_ms: median(measured.map((r) => r.decode)), draw_ms: median(measured.map((r) => r.draw)),
+      decode_ms: median(measured.map((r) => r.decode)), gpu_wait_ms: median(measured.map((r) => r.gpuWait)),
+      draw_ms: median(measured.map((r) => r.draw)),
+      // The page's thread busy for over 50 ms at a time (the slider then does not move).
+      long_tasks: blocked.length, longest_task_ms: blocked.length ? Math.max(...blocked) : 0,
       bytes_per_triangle: median(measured.map((r) => r.bytes / Math.max(r.triangles, 1))),
     },
     rest: {

@@ -23,7 +23,19 @@ const givenVector = (v) => v.length === 3 && v.every(Number.isFinite) && v.some(
 // Every surface shown, with its timings, for scripts and the browser benchmark.
 const record = (window.adaptisoSurfaces = []);
 const canvas = $('view');
-const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+// Software rasterisers (SwiftShader, llvmpipe: headless browsers, virtual machines, remote
+// desktops) resolve 4-sample antialiasing on the CPU: the bunny's 8 M triangles at rest took
+// 9.7-10.0 s to draw with it and 2.4-3.5 s without (bench/viewer_bench.mjs). GPUs keep it.
+function softwareRendering() {
+  const gl = document.createElement('canvas').getContext('webgl2');
+  if (!gl) return false;
+  const info = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+  gl.getExtension('WEBGL_lose_context')?.loseContext();
+  return /swiftshader|llvmpipe|softpipe|software/i.test(name);
+}
+const software = softwareRendering();
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: !software, preserveDrawingBuffer: true });
 renderer.setPixelRatio(window.devicePixelRatio);
 const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x15171c);
@@ -65,6 +77,27 @@ let renderQueued = false, renderWanted = false;
 function renderNow() {
   renderWanted = false;
   renderer.render(scene, camera);
+}
+
+// Resolves when the GPU has finished everything drawn so far (a WebGL2 fence, polled between
+// tasks; at once without WebGL2). Drawing calls return as soon as they are queued: a page that
+// sends the next surface before the GPU has drawn the last piles frames up, and with software
+// rendering the queue then blocked the page's thread for 0.7-4.3 s at a time while the slider
+// was dragged over the bunny (long tasks inside renderNow, 12 in a 4 s drag).
+function gpuDone() {
+  const gl = renderer.getContext();
+  if (typeof gl.fenceSync !== 'function') return Promise.resolve();
+  const sync = gl.fenceSync(gl.SYNC_GPU_COMMANDS_COMPLETE, 0);
+  gl.flush();
+  return new Promise((resolve) => {
+    const poll = () => {
+      if (gl.isContextLost() || gl.getSyncParameter(sync, gl.SYNC_STATUS) === gl.SIGNALED) {
+        gl.deleteSync(sync);
+        resolve();
+      } else setTimeout(poll, 2);
+    };
+    poll();
+  });
 }
 function requestRender() {
   renderWanted = true;
@@ -204,7 +237,7 @@ function showError() {
 // At most one surface request in flight; while it runs only the latest wanted request is kept, so
 // requests never go stale and dragging updates the surface as fast as the server answers. A
 // request while dragging (coarse) asks for the triangle budget; a request at rest for the error.
-let wanted = null, inFlight = false, shownIso = null;
+let wanted = null, inFlight = false, shownIso = null, drawn = Promise.resolve();
 function requestSurface(iso, coarse = false) {
   wanted = { iso, coarse: coarse && $('lod').checked, input: performance.now() };
   if (!inFlight) pump();
@@ -241,16 +274,26 @@ async function pump() {
     stats.guaranteed = r.headers.get('X-Error-Guaranteed') === '1';
     stats.level = Number(r.headers.get('X-Level'));
     stats.coarse = coarse;
-    replaceGeometry(surface, geometry);
-    // Upload and draw now (three.js uploads a geometry when it is first drawn), so the timing
-    // covers the geometry on the GPU; SwiftShader's drawing is CPU work and reported with it.
+    // The GPU is never given a surface before it has drawn the last one; a surface while dragging
+    // is drawn while the next is requested, one at rest before the page says it is ready.
+    await drawn;
+    const t2b = performance.now();
+    replaceGeometry(surface, geometry);  // uploaded when first drawn, now
     renderNow();
-    const t3 = performance.now();
+    const shown = (drawn = gpuDone());
     shownIso = iso;
-    record.push({ iso, coarse, level: stats.level, error: stats.error, triangles: stats.triangles, bytes: stats.bytes,
-                  request: t1 - t0, server: 1000 * stats.extract, wait: stats.wait, encode: stats.encode, decode: t2 - t1, draw: t3 - t2, fromInput: t2 - input,
-                  fromInputDrawn: t3 - input, at: t3 });
-    updateStats();
+    // Timings (SwiftShader's drawing is CPU work, reported with the upload as draw), taken now:
+    // the next request rewrites stats before a dragged surface is drawn.
+    const entry = { iso, coarse, level: stats.level, error: stats.error, triangles: stats.triangles, bytes: stats.bytes,
+                    request: t1 - t0, server: 1000 * stats.extract, wait: stats.wait, encode: stats.encode, decode: t2 - t1,
+                    gpuWait: t2b - t2, fromInput: t2 - input, fromInputUploaded: t2b - input };
+    const note = () => {
+      const t3 = performance.now();
+      record.push({ ...entry, draw: t3 - t2b, fromInputDrawn: t3 - input, at: t3 });
+    };
+    if (coarse) shown.then(note);
+    else note(await shown);
+    updateStats();  // after a surface at rest is recorded: tests read the record once the panel shows it
     const layers = [];
     if ($('show-tets').checked) layers.push(loadTetrahedra(iso));
     if ($('show-reference').checked) layers.push(loadReference(iso));

@@ -223,6 +223,13 @@ try {
     info.error_bound, { timeout: 30000 });
   const settled = await lod.evaluate(() => window.adaptisoSurfaces.at(-1));
   if (settled.coarse || settled.level !== 0) fail(`the surface at rest is not the prepared one: ${JSON.stringify(settled)}`);
+  // Frame pacing: no surface goes to the GPU (at - draw) before the previous one is drawn (at).
+  const shown = await lod.evaluate((n) => window.adaptisoSurfaces.slice(n), before);
+  const early = shown.findIndex((r, i) => i > 0 && r.at - r.draw < shown[i - 1].at - 0.5);
+  if (early > 0) fail(`a surface went to the GPU before the previous was drawn: ${JSON.stringify(shown.slice(early - 1, early + 1))}`);
+  // A software renderer (SwiftShader here) draws without antialiasing.
+  if (await lod.evaluate(() => document.getElementById('view').getContext('webgl2').getContextAttributes().antialias))
+    fail('the page antialiases on a software renderer');
   console.log(`level of detail: ${coarse.length} of ${dragged.length} dragged surfaces coarse (levels ` +
               `${[...new Set(coarse.map((r) => r.level))].join(',')}, errors up to ${Math.max(...coarse.map((r) => r.error)).toPrecision(3)}), ` +
               `settled at error ${settled.error.toPrecision(4)} with ${settled.triangles} triangles, ${(settled.bytes / Math.max(settled.triangles, 1)).toFixed(2)} bytes/triangle`);
