@@ -82,8 +82,8 @@ function renderNow() {
 // Resolves when the GPU has finished everything drawn so far (a WebGL2 fence, polled between
 // tasks; at once without WebGL2). Drawing calls return as soon as they are queued: a page that
 // sends the next surface before the GPU has drawn the last piles frames up, and with software
-// rendering the queue then blocked the page's thread for 0.7-4.3 s at a time while the slider
-// was dragged over the bunny (long tasks inside renderNow, 12 in a 4 s drag).
+// rendering the queue then blocked the page's thread for up to 5.0 s at a time while the slider
+// was dragged over the bunny (10 long tasks inside renderNow in a 4 s drag).
 function gpuDone() {
   const gl = renderer.getContext();
   if (typeof gl.fenceSync !== 'function') return Promise.resolve();
