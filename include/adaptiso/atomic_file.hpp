@@ -16,4 +16,9 @@ namespace adaptiso {
 // otherwise kill the process (their handlers are left alone when the host installed its own).
 void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write);
 
+// Throws InputError now for what write_file_atomically(path, ...) would refuse before writing (a
+// missing folder, something at path that is not a regular file), so that long work is not done
+// for an output that cannot be written.
+void check_output_path(const std::string& path);
+
 }  // namespace adaptiso

@@ -369,26 +369,44 @@ void for_each_nonconstant(
 // tetrahedra, beyond that those whose id is a multiple of an odd stride (about kSampleTarget).
 // Sets tree.depth (reduced where there are fewer entries, or estimated entries, than leaves) and
 // every node's split.
+constexpr std::size_t kSampleTarget = std::size_t{1} << 22;
+// Odd, so a stride does not fall in step with the bisection grid's tetrahedra, 6 or 8 to a cube;
+// rounded up, so at most about kSampleTarget records are held (the chest CT at 0.05, 7.6 M
+// tetrahedra, held 60 MiB of them at every id).
+std::size_t sample_stride(std::size_t tets) { return tets <= kSampleTarget ? 1 : ((tets + kSampleTarget - 1) / kSampleTarget) | 1; }
+
+// The depth asked for, reduced while there would be more leaves than entries (estimated from the
+// non-constant tetrahedra among the sampled ones).
+std::uint32_t reduced_depth(std::uint32_t depth, std::uint64_t sampled_nonconstant, std::size_t stride) {
+  depth = std::min<std::uint32_t>(depth, 30);
+  while (depth > 0 && (std::uint64_t{1} << depth) > sampled_nonconstant * stride) --depth;
+  return depth;
+}
+
 template <class K>
 void choose_splits(IntervalTree& tree, const TetGrid& grid, std::uint32_t depth) {
-  constexpr std::size_t kSampleTarget = std::size_t{1} << 22;
   const std::size_t T = grid.tet_count();
-  const std::size_t stride = T <= kSampleTarget ? 1 : (T / kSampleTarget) | 1;
+  const std::size_t stride = sample_stride(T);
   const std::size_t sampled = (T + stride - 1) / stride, blocks = (sampled + (1 << 16) - 1) >> 16;
-  std::vector<std::vector<Record<K>>> parts(blocks);
-  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+  // Counted, then written in place: the records are held once (not per block and then gathered,
+  // which freed blocks in the worker threads' arenas would keep resident beside the whole).
+  std::vector<std::uint64_t> at(blocks + 1, 0);
+  auto for_each_sampled = [&](std::size_t b, auto f) {
     for (std::size_t k = b << 16; k < std::min(sampled, (b + 1) << 16); ++k) {
       const auto t = static_cast<std::uint32_t>(k * stride);
       const Range q = tet_range(grid, t);
-      if (q.lo < q.hi) parts[b].push_back({static_cast<K>(q.lo), static_cast<K>(q.hi), t});
+      if (q.lo < q.hi) f(t, q);
     }
-  });
+  };
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) { for_each_sampled(b, [&](std::uint32_t, const Range&) { ++at[b + 1]; }); });
+  std::partial_sum(at.begin(), at.end(), at.begin());
   std::vector<Record<K>> recs;
-  for (auto& p : parts) recs.insert(recs.end(), p.begin(), p.end());
-  parts.clear();
-  depth = std::min<std::uint32_t>(depth, 30);
-  while (depth > 0 && (std::uint64_t{1} << depth) > recs.size() * stride) --depth;
-  tree.depth = depth;
+  detail::resize_big(recs, at.back());
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    for_each_sampled(b, [&](std::uint32_t t, const Range& q) { recs[at[b]++] = {static_cast<K>(q.lo), static_cast<K>(q.hi), t}; });
+  });
+  tree.depth = reduced_depth(depth, recs.size(), stride);
+  depth = tree.depth;
   tree.nodes.resize((std::size_t{2} << depth) - 1);
   SplitChooser<K>{tree, recs.data()}.choose(0, 0, recs.size());
 }
@@ -445,6 +463,7 @@ void place_entries(IntervalTree& tree, const TetGrid& grid) {
   // by_max, written when the nodes are sorted, only once the nodes kept are gone: the two never
   // add to the peak together (the MR head: 160 MiB of nodes, 321 MiB of by_max).
   std::vector<std::uint16_t>().swap(kept);
+  detail::release_free_heap();  // the nodes kept, from the heap (under 32 MiB, the chest's 20 MiB)
   detail::resize_big(tree.by_max, cursor);
 }
 
@@ -452,6 +471,9 @@ template <class K>
 IntervalTree build_with(const TetGrid& grid, std::uint32_t depth, std::size_t scratch_bytes) {
   IntervalTree tree;
   choose_splits<K>(tree, grid, depth);
+  // The sample's records, and what earlier stages freed, can stay in the heap once those stages
+  // have raised glibc's mmap threshold (15–31 MiB on the chest CT), under the lists otherwise.
+  detail::release_free_heap();
   place_entries(tree, grid);
   // What choosing and placing freed (the sample's records, the counters) can stay in the heap's
   // arenas, resident through the sort: returning it lowered the MR head's peak by 51 MiB.
@@ -475,6 +497,24 @@ IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth, std::
   IntervalTree tree = floats ? build_with<float>(grid, depth, scratch_bytes) : build_with<double>(grid, depth, scratch_bytes);
   compute_bounds(tree, grid);
   return tree;
+}
+
+IntervalTreeShape interval_tree_shape(const TetGrid& grid, std::uint32_t depth) {
+  const std::size_t T = grid.tet_count(), stride = sample_stride(T);
+  auto count = [&](std::size_t step) {
+    return tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, (T + step - 1) / step, 1 << 16), std::uint64_t{0},
+        [&](const auto& r, std::uint64_t n) {
+          for (std::size_t k = r.begin(); k < r.end(); ++k) {
+            const Range q = tet_range(grid, static_cast<std::uint32_t>(k * step));
+            n += q.lo < q.hi;
+          }
+          return n;
+        },
+        std::plus<>());
+  };
+  const std::uint64_t entries = count(1);
+  return {reduced_depth(depth, stride == 1 ? entries : count(stride), stride), entries};
 }
 
 void finish_interval_tree(IntervalTree& tree, const TetGrid& grid) { compute_bounds(tree, grid); }

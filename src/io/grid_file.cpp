@@ -12,7 +12,9 @@
 #include <nlohmann/json.hpp>
 
 #include "adaptiso/atomic_file.hpp"
+#include "io/grid_file_stream.hpp"
 #include "util/big_array.hpp"
+#include "util/memory.hpp"
 #include "volume/io_util.hpp"
 
 namespace adaptiso {
@@ -38,6 +40,7 @@ public:
   explicit CrcWriter(std::ostream& o) : out_(o) {}
   void write(const void* p, std::size_t n) {
     crc_ = libdeflate_crc32(crc_, p, n);
+    written_ += n;
     out_.write(static_cast<const char*>(p), static_cast<std::streamsize>(n));
   }
   template <class T>
@@ -45,10 +48,12 @@ public:
     write(&x, sizeof x);
   }
   std::uint32_t crc() const { return crc_; }
+  std::uint64_t written() const { return written_; }
 
 private:
   std::ostream& out_;
   std::uint32_t crc_ = 0;
+  std::uint64_t written_ = 0;
 };
 
 // A hierarchy read from a file: scales and thresholds that codes can have, a root cube that is the
@@ -68,60 +73,123 @@ void validate_hierarchy(const BisectionHierarchy& h, const TetGrid& grid, const 
 
 }  // namespace
 
-void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) {
-  const TetGrid& grid = p.grid;
-  const IntervalTree* index = with_index ? &p.index : nullptr;
-  // Timings and memory peaks vary from run to run: the file keeps the rest, so the same input and
-  // options give the same bytes.
-  nlohmann::json stats = nlohmann::json::parse(to_json(p.stats));
-  stats.erase("seconds");
-  stats.erase("peak_bytes");
-  const nlohmann::json meta = {{"source", source_json(grid.source)}, {"prepare", stats}};
-  const std::string m = meta.dump();
-  write_file_atomically(path, [&](std::ostream& out) {
-    CrcWriter w(out);
-    w.write(kMagic, 16);
+namespace {
+
+// A grid file's parts, in their order. Its counts come first (in the header): the streaming
+// writer knows the index's shape before the index exists.
+class GridFileWriter {
+public:
+  explicit GridFileWriter(std::ostream& out) : out_(out), w_(out) {}
+
+  // Header and metadata. Timings and memory peaks vary from run to run: the file keeps the rest
+  // of the statistics, so the same input and options give the same bytes.
+  void head(const PreparedGrid& p, const IntervalTreeShape* index) {
+    nlohmann::json stats = nlohmann::json::parse(to_json(p.stats));
+    stats.erase("seconds");
+    stats.erase("peak_bytes");
+    const std::string m = nlohmann::json{{"source", source_json(p.grid.source)}, {"prepare", stats}}.dump();
     const BisectionHierarchy* h = p.hierarchy ? &*p.hierarchy : nullptr;
     const bool moves = h && !h->displacement_code.empty();
-    w.put(kVersion);
-    w.put((index ? kHasIndex : 0) | (h ? kHasHierarchy : 0) | (moves ? kHasDisplacement : 0));
-    w.put(static_cast<std::uint64_t>(m.size()));
-    w.put(static_cast<std::uint64_t>(grid.vertex_count()));
-    w.put(static_cast<std::uint64_t>(grid.tet_count()));
-    w.put(static_cast<std::uint64_t>(index ? index->entries() : 0));
-    w.put(index ? index->depth : std::uint32_t{0});
-    w.put(std::uint32_t{0});
-    w.write(m.data(), m.size());
-    w.write(grid.ijk.data(), grid.ijk.size() * sizeof grid.ijk[0]);
-    w.write(grid.values.data(), grid.values.size() * sizeof(double));
-    w.write(grid.gradients.data(), grid.gradients.size() * sizeof grid.gradients[0]);
-    w.write(grid.tets.data(), grid.tets.size() * sizeof grid.tets[0]);
-    if (index) {
-      for (const auto& n : index->nodes) {
-        w.put(n.split);
-        w.put(n.begin);
-        w.put(n.end);
-      }
-      w.write(index->by_min.data(), index->by_min.size() * 4);
-      w.write(index->by_max.data(), index->by_max.size() * 4);
+    w_.write(kMagic, 16);
+    w_.put(kVersion);
+    w_.put((index ? kHasIndex : 0) | (h ? kHasHierarchy : 0) | (moves ? kHasDisplacement : 0));
+    w_.put(static_cast<std::uint64_t>(m.size()));
+    w_.put(static_cast<std::uint64_t>(p.grid.vertex_count()));
+    w_.put(static_cast<std::uint64_t>(p.grid.tet_count()));
+    w_.put(static_cast<std::uint64_t>(index ? index->entries : 0));
+    w_.put(index ? index->depth : std::uint32_t{0});
+    w_.put(std::uint32_t{0});
+    w_.write(m.data(), m.size());
+  }
+  void grid(const TetGrid& grid) {
+    w_.write(grid.ijk.data(), grid.ijk.size() * sizeof grid.ijk[0]);
+    w_.write(grid.values.data(), grid.values.size() * sizeof(double));
+    w_.write(grid.gradients.data(), grid.gradients.size() * sizeof grid.gradients[0]);
+    w_.write(grid.tets.data(), grid.tets.size() * sizeof grid.tets[0]);
+  }
+  void index(const IntervalTree& index) {
+    for (const auto& n : index.nodes) {
+      w_.put(n.split);
+      w_.put(n.begin);
+      w_.put(n.end);
     }
-    if (h) {
-      w.put(h->root_size);
-      w.put(h->error_threshold);
-      w.put(h->displacement_threshold);
-      w.put(std::uint16_t{0});
-      w.put(h->codes.scale);
-      w.put(h->codes.zero);
-      w.put(h->displacement_codes.scale);
-      w.put(h->displacement_codes.zero);
-      w.write(h->error_code.data(), h->error_code.size());
-      if (moves) w.write(h->displacement_code.data(), h->displacement_code.size());
-      w.write(h->value_span.data(), h->value_span.size() * 8);
-    }
-    std::uint32_t c = w.crc();
-    out.write(reinterpret_cast<const char*>(&c), 4);
+    w_.write(index.by_min.data(), index.by_min.size() * 4);
+    w_.write(index.by_max.data(), index.by_max.size() * 4);
+  }
+  void hierarchy(const std::optional<BisectionHierarchy>& hierarchy) {
+    if (!hierarchy) return;
+    const BisectionHierarchy& h = *hierarchy;
+    w_.put(h.root_size);
+    w_.put(h.error_threshold);
+    w_.put(h.displacement_threshold);
+    w_.put(std::uint16_t{0});
+    w_.put(h.codes.scale);
+    w_.put(h.codes.zero);
+    w_.put(h.displacement_codes.scale);
+    w_.put(h.displacement_codes.zero);
+    w_.write(h.error_code.data(), h.error_code.size());
+    if (!h.displacement_code.empty()) w_.write(h.displacement_code.data(), h.displacement_code.size());
+    w_.write(h.value_span.data(), h.value_span.size() * 8);
+  }
+  void checksum() {
+    const std::uint32_t c = w_.crc();
+    out_.write(reinterpret_cast<const char*>(&c), 4);
+    checksum_written_ = true;
+  }
+  std::uint64_t written() const { return w_.written() + (checksum_written_ ? 4 : 0); }
+
+private:
+  std::ostream& out_;
+  CrcWriter w_;
+  bool checksum_written_ = false;
+};
+
+}  // namespace
+
+void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) {
+  const IntervalTreeShape shape{p.index.depth, p.index.entries()};
+  write_file_atomically(path, [&](std::ostream& out) {
+    GridFileWriter w(out);
+    w.head(p, with_index ? &shape : nullptr);
+    w.grid(p.grid);
+    if (with_index) w.index(p.index);
+    w.hierarchy(p.hierarchy);
+    w.checksum();
   });
 }
+
+namespace detail {
+
+void save_grid_building_index(PreparedGrid& p, const std::string& path, const IntervalTreeShape& shape,
+                              const std::function<IntervalTree(const TetGrid&, std::uint64_t)>& build_index) {
+  std::uint64_t hierarchy_bytes = 0;
+  if (const auto& h = p.hierarchy)
+    hierarchy_bytes = kHierarchyHeader + h->error_code.size() + h->displacement_code.size() + h->value_span.size() * 8;
+  write_file_atomically(path, [&](std::ostream& out) {
+    GridFileWriter w(out);
+    w.head(p, &shape);
+    w.grid(p.grid);
+    const std::uint64_t file_bytes = w.written() + shape.nodes() * kNodeBytes + shape.entries * 8 + hierarchy_bytes + 4;
+    out.flush();  // the writer's buffers go back to the system while the index is built
+    std::vector<std::array<std::uint32_t, 3>>().swap(p.grid.ijk);
+    std::vector<std::array<float, 3>>().swap(p.grid.gradients);
+    release_free_heap();
+    const IntervalTree index = build_index(p.grid, file_bytes);
+    if (index.depth != shape.depth || index.entries() != shape.entries)
+      throw std::logic_error(fmt::format("grid file: the index has depth {} and {} entries where its shape promised {} and {}", index.depth,
+                                         index.entries(), shape.depth, shape.entries));
+    std::vector<std::array<std::uint32_t, 4>>().swap(p.grid.tets);  // nothing reads the grid any more
+    std::vector<double>().swap(p.grid.values);
+    release_free_heap();
+    w.index(index);
+    w.hierarchy(p.hierarchy);
+    w.checksum();
+    if (w.written() != file_bytes)
+      throw std::logic_error(fmt::format("grid file: wrote {} bytes where {} were expected", w.written(), file_bytes));
+  });
+}
+
+}  // namespace detail
 
 PreparedGrid load_grid(const std::string& path) {
   detail::file_size_or_throw(path);  // a FIFO or device would block or never end
@@ -264,10 +332,22 @@ PreparedGrid load_grid(const std::string& path) {
   return p;
 }
 
-double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index) {
-  const double bytes = grid.vertex_count() * (12.0 + 8 + 12) + grid.tet_count() * 16.0 + index.entries() * 8.0 + index.nodes.size() * 24.0;
+namespace {
+double bytes_per_vertex(const TetGrid& grid, std::uint64_t entries, std::uint64_t nodes) {
+  const double bytes = grid.vertex_count() * (12.0 + 8 + 12) + grid.tet_count() * 16.0 + entries * 8.0 + nodes * 24.0;
   return grid.vertex_count() ? bytes / static_cast<double>(grid.vertex_count()) : 0;
 }
+}  // namespace
+
+double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index) {
+  return bytes_per_vertex(grid, index.entries(), index.nodes.size());
+}
+
+namespace detail {
+double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTreeShape& shape) {
+  return bytes_per_vertex(grid, shape.entries, shape.nodes());
+}
+}  // namespace detail
 
 void write_vtu(const TetGrid& grid, const std::string& path) {
   const std::uint64_t n = grid.vertex_count(), t = grid.tet_count();

@@ -11,11 +11,13 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 
+#include "adaptiso/atomic_file.hpp"
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/delaunay.hpp"
 #include "adaptiso/error.hpp"
 #include "adaptiso/gradients.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "io/grid_file_stream.hpp"
 #include "util/memory.hpp"
 
 namespace adaptiso {
@@ -146,8 +148,10 @@ TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const Prepa
 
 namespace {
 
-// The pipeline; `release`, when given, is v itself, whose voxels go once nothing reads them.
-PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress, Volume* release) {
+// Every stage before the index; `release`, when given, is v itself, whose voxels go once nothing
+// reads them.
+PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress,
+                               Volume* release) {
   check_options(o);
   PreparedGrid p;
   PrepareStats& stats = p.stats;
@@ -171,19 +175,54 @@ PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const Prepar
       throw std::logic_error(fmt::format("bisection grid: error {} exceeds its guaranteed bound {}", pl.max, stats.error_bound));
   }
   stats.voxels = v.voxel_count();
-  const std::uint64_t volume_bytes = v.bytes.size();
-  if (release) release->bytes = VoxelBuffer();
-  detail::release_free_heap();  // what the selection freed in the heap's arenas (the MR head: 9 MiB)
-  const std::size_t scratch = index_scratch(volume_bytes, resident_grid_bytes(p));
-  p.index = clock.run("index", [&] {
-    report(progress, "index", 0);
-    return build_interval_tree(p.grid, o.tree_depth, scratch);
-  });
   stats.kept = p.grid.vertex_count();
   stats.tetrahedra = p.grid.tet_count();
-  stats.index_depth = p.index.depth;
-  stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
+  if (release) release->bytes = VoxelBuffer();
+  detail::release_free_heap();  // what the selection freed in the heap's arenas (the MR head: 9 MiB)
   return p;
+}
+
+IntervalTree build_index(const TetGrid& grid, const PrepareOptions& o, std::size_t scratch, PrepareStats& stats, const Progress& progress) {
+  return StageClock(stats).run("index", [&] {
+    report(progress, "index", 0);
+    return build_interval_tree(grid, o.tree_depth, scratch);
+  });
+}
+
+PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress, Volume* release) {
+  const std::uint64_t volume_bytes = v.bytes.size();
+  PreparedGrid p = prepare_unindexed(v, range, o, progress, release);
+  p.index = build_index(p.grid, o, index_scratch(volume_bytes, resident_grid_bytes(p)), p.stats, progress);
+  p.stats.index_depth = p.index.depth;
+  p.stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
+  return p;
+}
+
+// The index's scratch when the grid file is written as it is made: the peak may reach the file's
+// bytes plus 2.5 volumes (README), and what is resident now (the tetrahedra, values and hierarchy
+// still to be read or written) and the lists take their part of it. At least 16 MiB: the nodes
+// that do not fit sort with 2 bytes an entry.
+std::size_t streaming_index_scratch(std::uint64_t volume_bytes, std::uint64_t file_bytes, const IntervalTreeShape& shape) {
+  const std::uint64_t allowance = volume_bytes / 2 * 5 + file_bytes;
+  const std::uint64_t held = detail::process_status_bytes("VmRSS") + shape.entries * 8 + shape.nodes() * sizeof(IntervalTree::Node);
+  return std::max<std::uint64_t>(std::uint64_t{16} << 20, allowance > held ? allowance - held : 0);
+}
+
+PrepareStats prepare_file(const Volume& v, const ValueRange& range, const PrepareOptions& o, const std::string& path,
+                          const Progress& progress, Volume* release) {
+  check_output_path(path);  // before minutes of work, not after
+  const std::uint64_t volume_bytes = v.bytes.size();
+  PreparedGrid p = prepare_unindexed(v, range, o, progress, release);
+  const IntervalTreeShape shape = interval_tree_shape(p.grid, o.tree_depth);
+  p.stats.index_depth = shape.depth;
+  p.stats.grid_bytes_per_vertex = detail::grid_bytes_per_vertex(p.grid, shape);
+  const auto t0 = Clock::now();
+  detail::save_grid_building_index(p, path, shape, [&](const TetGrid& grid, std::uint64_t file_bytes) {
+    return build_index(grid, o, streaming_index_scratch(volume_bytes, file_bytes, shape), p.stats, progress);
+  });
+  const double seconds = std::chrono::duration<double>(Clock::now() - t0).count() - p.stats.seconds("index");
+  p.stats.stages.push_back({"save", seconds, peak_rss()});
+  return std::move(p.stats);
 }
 
 }  // namespace
@@ -199,6 +238,16 @@ PreparedGrid prepare(Volume&& v, const ValueRange& range, const PrepareOptions& 
 PreparedGrid prepare(Volume&& v, const PrepareOptions& o, const Progress& progress) {
   const ValueRange range = value_range(v);
   return prepare_grid(v, range, o, progress, &v);
+}
+
+PrepareStats prepare_to_file(Volume&& v, const ValueRange& range, const PrepareOptions& o, const std::string& path,
+                             const Progress& progress) {
+  return prepare_file(v, range, o, path, progress, &v);
+}
+
+PrepareStats prepare_to_file(Volume&& v, const PrepareOptions& o, const std::string& path, const Progress& progress) {
+  const ValueRange range = value_range(v);
+  return prepare_file(v, range, o, path, progress, &v);
 }
 
 namespace {

@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -19,6 +20,7 @@
 #include <random>
 #include <streambuf>
 #include <utility>
+#include <vector>
 
 #include "adaptiso/error.hpp"
 
@@ -82,7 +84,9 @@ private:
 // cost (as for big arrays, util/big_array.hpp). The caller fills one aligned buffer while a thread
 // writes the other. The last partial block is written through the cache (O_DIRECT wants whole
 // blocks); a file system that refuses O_DIRECT, at open or at any write, gets ordinary writes
-// from there on.
+// from there on. A flush writes the whole blocks buffered and gives both buffers back to the
+// system, keeping the few bytes past the last block aside: a writer that pauses between parts
+// (prepare_to_file builds the index between the grid and the index) holds 32 MiB less meanwhile.
 class DirectFileBuf : public std::streambuf {
 public:
   static constexpr std::size_t kBuffer = std::size_t{16} << 20, kBlock = 4096;
@@ -112,6 +116,19 @@ public:
   }
 
 protected:
+  int sync() override {
+    if (error_ != 0) return -1;
+    if (!current_) return 0;
+    const std::size_t n = static_cast<std::size_t>(pptr() - pbase()), whole = n / kBlock * kBlock;
+    settle();
+    if (error_ == 0) error_ = write_all(current_.get(), whole);
+    if (error_ != 0) return -1;
+    tail_.assign(current_.get() + whole, current_.get() + n);
+    current_.reset();
+    spare_.reset();
+    setp(nullptr, nullptr);
+    return 0;
+  }
   int_type overflow(int_type ch) override {
     if (error_ != 0 || !hand_over(true)) return traits_type::eof();
     if (!traits_type::eq_int_type(ch, traits_type::eof())) {
@@ -133,15 +150,17 @@ protected:
   }
 
 private:
-  struct Free {
-    void operator()(char* p) const { std::free(p); }
+  // Mapped, not from the heap: page aligned as O_DIRECT wants, and given back whole when freed
+  // (glibc would keep a freed 16 MiB block in its heap once its mmap threshold has grown past it).
+  struct Unmap {
+    void operator()(char* p) const { ::munmap(p, kBuffer); }
   };
-  using Buffer = std::unique_ptr<char, Free>;
+  using Buffer = std::unique_ptr<char, Unmap>;
 
   static Buffer allocate() {
-    Buffer b(static_cast<char*>(std::aligned_alloc(kBlock, kBuffer)));
-    if (!b) throw std::bad_alloc();
-    return b;
+    void* p = ::mmap(nullptr, kBuffer, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (p == MAP_FAILED) throw std::bad_alloc();
+    return Buffer(static_cast<char*>(p));
   }
   // Waits for the write in flight and keeps its error.
   void settle() {
@@ -161,11 +180,20 @@ private:
       if (!spare_) spare_ = allocate();
       std::swap(current_, spare_);
     } else if (!more) {
-      return true;  // an empty file
+      // The end after a flush (or of an empty file): what the flush kept aside.
+      settle();
+      if (error_ == 0 && !tail_.empty()) error_ = write_out(tail_.data(), tail_.size(), true);
+      tail_.clear();
+      return error_ == 0;
     } else {
       current_ = allocate();
     }
     setp(current_.get(), current_.get() + kBuffer);
+    if (!tail_.empty()) {  // the bytes a flush kept aside lead the new buffer, so writes stay whole blocks
+      std::memcpy(current_.get(), tail_.data(), tail_.size());
+      pbump(static_cast<int>(tail_.size()));
+      tail_.clear();
+    }
     return true;
   }
   // Writes n bytes at the file's end: whole blocks directly, a last partial one (only at the end)
@@ -202,6 +230,7 @@ private:
   bool direct_ = false;  // O_DIRECT is on
   int error_ = 0;
   Buffer current_, spare_;
+  std::vector<char> tail_;  // after a flush: the bytes past its last whole block (< kBlock)
   std::future<int> pending_;
 };
 
@@ -237,11 +266,18 @@ void sync_folder(const fs::path& dir) {
   ::close(fd);
 }
 
-void write_and_rename(const std::string& path, const std::function<void(std::ostream&)>& write) {
-  const fs::path target = resolve_target(path);
+// The folder the target is written in, which must exist.
+fs::path target_folder(const fs::path& target, const std::string& path) {
   const fs::path dir = target.parent_path().empty() ? fs::path(".") : target.parent_path();
   std::error_code ec;
   if (!fs::is_directory(dir, ec)) throw InputError(fmt::format("{}: folder {} does not exist", path, dir.string()));
+  return dir;
+}
+
+void write_and_rename(const std::string& path, const std::function<void(std::ostream&)>& write) {
+  const fs::path target = resolve_target(path);
+  const fs::path dir = target_folder(target, path);
+  std::error_code ec;
   struct stat old {};
   const bool replacing = ::stat(target.c_str(), &old) == 0;
 
@@ -274,6 +310,14 @@ void write_and_rename(const std::string& path, const std::function<void(std::ost
 }
 
 }  // namespace
+
+void check_output_path(const std::string& path) {
+  try {
+    target_folder(resolve_target(path), path);
+  } catch (const fs::filesystem_error& e) {
+    throw InputError(fmt::format("{}: cannot write ({})", path, e.code().message()));
+  }
+}
 
 void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
   try {

@@ -230,3 +230,47 @@ TEST(IntervalTree, ValidatorRefusesNeighboursOutOfOrderAcrossItsChunks) {
   }
   EXPECT_GE(tried, 4);
 }
+
+// A grid file streamed as it is made (prepare_to_file) writes the index's depth and entries before
+// the index exists: interval_tree_shape must give what the build will, where the depth is reduced
+// (few entries for the leaves asked for: counted exactly, or estimated from every k-th
+// tetrahedron above 2^23 of them), where every tetrahedron is constant and where there are none.
+TEST(IntervalTree, ShapeKnownBeforeTheBuildIsTheBuiltTreesDepthAndEntries) {
+  std::mt19937 rng(29);
+  auto random_grid = [&](std::size_t tets, std::size_t vertices, int nonconstant_one_in) {
+    TetGrid g;
+    g.values.resize(vertices);
+    for (auto& v : g.values) v = static_cast<double>(rng() % 50);
+    g.ijk.resize(vertices);
+    g.tets.resize(tets);
+    for (auto& t : g.tets) {
+      if (rng() % nonconstant_one_in == 0)
+        for (auto& q : t) q = static_cast<std::uint32_t>(rng() % vertices);
+      else
+        t = {0, 0, 0, 0};
+    }
+    return g;
+  };
+  struct Case {
+    std::size_t tets, vertices;
+    int one_in;
+    std::uint32_t depth;
+  };
+  for (const Case& c : {Case{0, 1, 1, 12}, Case{1, 4, 1, 12}, Case{100, 4, 1000000, 5}, Case{5000, 300, 1, 0}, Case{5000, 300, 1, 12},
+                        Case{5000, 300, 3, 30}, Case{200000, 1000, 7, 20}}) {
+    const TetGrid g = random_grid(c.tets, c.vertices, c.one_in);
+    const IntervalTree tree = build_interval_tree(g, c.depth);
+    const IntervalTreeShape shape = interval_tree_shape(g, c.depth);
+    EXPECT_EQ(shape.depth, tree.depth) << c.tets << " tetrahedra, depth " << c.depth;
+    EXPECT_EQ(shape.entries, tree.entries()) << c.tets << " tetrahedra, depth " << c.depth;
+    EXPECT_EQ(shape.nodes(), tree.nodes.size());
+  }
+  // Sampled: 2^23 tetrahedra (every third one sampled), one in 4,000 non-constant, so the depth
+  // asked for (16) comes down to what the sample estimates.
+  TetGrid big = random_grid(std::size_t{1} << 23, 64, 4000);
+  const IntervalTree tree = build_interval_tree(big, 16);
+  const IntervalTreeShape shape = interval_tree_shape(big, 16);
+  EXPECT_LT(tree.depth, 16u);
+  EXPECT_EQ(shape.depth, tree.depth);
+  EXPECT_EQ(shape.entries, tree.entries());
+}

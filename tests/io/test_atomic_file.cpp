@@ -23,9 +23,11 @@ std::string read_all(const std::string& path) {
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
-// Writes `bytes` in pieces of varying sizes (single characters among them, through overflow).
+// Writes `bytes` in pieces of varying sizes (single characters among them, through overflow),
+// flushing now and then (the writer then gives its buffers back and keeps a partial block aside).
 void write_in_pieces(std::ostream& out, const std::string& bytes, std::mt19937& rng) {
   for (std::size_t at = 0; at < bytes.size();) {
+    if (rng() % 5 == 0) out.flush();
     const std::size_t piece = rng() % 3 == 0 ? 1 : std::min<std::size_t>(bytes.size() - at, 1 + rng() % (std::size_t{5} << 20));
     if (piece == 1)
       out.put(bytes[at]);

@@ -1,13 +1,18 @@
-// prepare() as a whole: what it reports about memory, and taking the volume.
+// prepare() as a whole: what it reports about memory, taking the volume, and writing the grid
+// file as it is made (prepare_to_file).
 #include <gtest/gtest.h>
 #include <sys/mman.h>
 
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <string>
 
+#include "adaptiso/error.hpp"
+#include "adaptiso/grid_file.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/synthetic.hpp"
+#include "test_util.hpp"
 
 using namespace adaptiso;
 
@@ -68,4 +73,68 @@ TEST(Prepare, TakingTheVolumeReleasesItsVoxelsAndGivesTheSameGrid) {
   EXPECT_EQ(taken.grid.gradients, lent.grid.gradients);
   EXPECT_EQ(taken.index.by_min, lent.index.by_min);
   EXPECT_EQ(taken.stats.voxels, lent.stats.voxels);
+}
+
+// prepare_to_file writes the grid as it is made (the positions and gradients freed before the
+// index): the file must be save_grid(prepare(...))'s, byte for byte, on both grids, with the
+// displacement criterion, on values that are not floats (the index's double keys), on a constant
+// volume (no index entries), on a single cell, a 2-voxel slab and an odd anisotropic box, at a reduced
+// and an unreduced tree depth; and the statistics must be prepare's.
+TEST(PrepareToFile, WritesTheBytesOfPrepareThenSave) {
+  testutil::TempDir dir("prepare_to_file");
+  struct Case {
+    std::string name;
+    Volume volume;
+    PrepareOptions options;
+  };
+  auto options = [](GridKind grid, double max_error, double displacement = 0, std::uint32_t depth = kDefaultTreeDepth) {
+    PrepareOptions o;
+    o.grid = grid;
+    o.max_error = max_error;
+    o.relative = true;
+    o.max_displacement = displacement;
+    o.tree_depth = depth;
+    return o;
+  };
+  Volume slab = testutil::pattern_volume({9, 7, 2}, ScalarType::i16);
+  Volume odd = testutil::pattern_volume({6, 11, 5}, ScalarType::u8);
+  odd.spacing = {0.5, 1.0, 2.5};
+  Volume constant = make_volume({5, 5, 5}, ScalarType::f32);
+  std::vector<Case> cases;
+  cases.push_back({"sphere bisection", make_synthetic("sphere", 17, ScalarType::i16), options(GridKind::bisection, 0.05)});
+  cases.push_back({"marschner-lobb f64", make_synthetic("marschner-lobb", 20, ScalarType::f64), options(GridKind::bisection, 0.02)});
+  cases.push_back({"displacement", make_synthetic("marschner-lobb", 16, ScalarType::f32), options(GridKind::bisection, 0.1, 0.5)});
+  cases.push_back({"delaunay", make_synthetic("sphere", 12, ScalarType::f32), options(GridKind::delaunay, 0.1)});
+  cases.push_back({"depth 3", make_synthetic("torus", 16, ScalarType::f32), options(GridKind::bisection, 0.05, 0, 3)});
+  cases.push_back({"slab", std::move(slab), options(GridKind::bisection, 0)});
+  cases.push_back({"odd anisotropic", std::move(odd), options(GridKind::bisection, 0.1)});
+  cases.push_back({"constant", std::move(constant), options(GridKind::bisection, 0)});
+  cases.push_back({"one cell", make_volume({2, 2, 2}, ScalarType::u8), options(GridKind::bisection, 0)});
+  for (auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    const PreparedGrid p = prepare(c.volume, c.options);
+    const std::string saved = (dir.path / "saved.adg").string(), streamed = (dir.path / "streamed.adg").string();
+    save_grid(p, saved);
+    const PrepareStats stats = prepare_to_file(std::move(c.volume), c.options, streamed);
+    EXPECT_TRUE(c.volume.bytes.empty());  // NOLINT(bugprone-use-after-move): released on purpose
+    EXPECT_TRUE(testutil::read_bytes(streamed) == testutil::read_bytes(saved));
+    EXPECT_EQ(stats.index_depth, p.stats.index_depth);
+    EXPECT_EQ(stats.grid_bytes_per_vertex, p.stats.grid_bytes_per_vertex);
+    EXPECT_EQ(stats.kept, p.stats.kept);
+    EXPECT_EQ(stats.tetrahedra, p.stats.tetrahedra);
+    EXPECT_GT(stats.seconds("save"), 0);
+    EXPECT_GT(stats.seconds("index"), 0);
+  }
+}
+
+// Bad options and an unwritable path fail as prepare and save_grid do (the path before any work),
+// and leave no file behind.
+TEST(PrepareToFile, FailuresLeaveNoFile) {
+  testutil::TempDir dir("prepare_to_file_fail");
+  PrepareOptions bad;
+  bad.max_error = -1;
+  EXPECT_THROW(prepare_to_file(make_synthetic("sphere", 9, ScalarType::f32), bad, (dir.path / "a.adg").string()), OptionError);
+  EXPECT_THROW(prepare_to_file(make_synthetic("sphere", 9, ScalarType::f32), PrepareOptions{}, (dir.path / "no" / "a.adg").string()),
+               InputError);
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path));
 }

@@ -1,0 +1,25 @@
+// The grid file written while the index is built (prepare_to_file, prepare.hpp): the grid's
+// positions and gradients are on disk and freed before the index takes its memory, so the peak
+// holds the grid file's parts one after another rather than all at once.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include "adaptiso/interval_tree.hpp"
+#include "adaptiso/prepare.hpp"
+
+namespace adaptiso::detail {
+
+// Writes what save_grid(p with its index) writes, byte for byte, atomically: the header (with the
+// index's shape, known before the index), the metadata and the grid; then frees p's positions and
+// gradients and calls build_index(grid, bytes the whole file will have); then frees the grid and
+// writes the index and the hierarchy. p's grid is empty afterwards. Throws what build_index
+// throws, and std::logic_error if the index does not have the shape promised.
+void save_grid_building_index(PreparedGrid& p, const std::string& path, const IntervalTreeShape& shape,
+                              const std::function<IntervalTree(const TetGrid&, std::uint64_t file_bytes)>& build_index);
+
+// grid_bytes_per_vertex (grid_file.hpp) for an index of that shape, before it is built.
+double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTreeShape& shape);
+
+}  // namespace adaptiso::detail
