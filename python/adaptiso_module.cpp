@@ -372,25 +372,34 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
         return d;
       });
 
+  // prepare's and prepare_file's options, by the command line's names.
+  auto prepare_options = [](const std::string& grid, std::optional<double> max_error, bool relative, double max_displacement,
+                            const std::string& gradients, const std::string& method, double threshold,
+                            const std::string& structural_gradient, double sigma, int kernel, std::uint32_t tree_depth, bool verify,
+                            bool parallel_delaunay) {
+    PrepareOptions o;
+    o.grid = grid_kind(grid);
+    o.max_error = max_error;
+    o.relative = relative;
+    o.max_displacement = max_displacement;
+    o.gradients = gradient_method(gradients);
+    o.method = reduce_method(method);
+    o.threshold = threshold;
+    o.structural_gradient = gradient_operator(structural_gradient);
+    o.sigma = sigma;
+    o.kernel = kernel;
+    o.tree_depth = tree_depth;
+    o.verify = verify;
+    o.parallel_delaunay = parallel_delaunay;
+    return o;
+  };
   m.def(
       "prepare",
-      [](const Volume& v, const std::string& grid, std::optional<double> max_error, bool relative, double max_displacement,
-         const std::string& gradients, const std::string& method, double threshold, const std::string& structural_gradient, double sigma,
-         int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay) {
-        PrepareOptions o;
-        o.grid = grid_kind(grid);
-        o.max_error = max_error;
-        o.relative = relative;
-        o.max_displacement = max_displacement;
-        o.gradients = gradient_method(gradients);
-        o.method = reduce_method(method);
-        o.threshold = threshold;
-        o.structural_gradient = gradient_operator(structural_gradient);
-        o.sigma = sigma;
-        o.kernel = kernel;
-        o.tree_depth = tree_depth;
-        o.verify = verify;
-        o.parallel_delaunay = parallel_delaunay;
+      [=](const Volume& v, const std::string& grid, std::optional<double> max_error, bool relative, double max_displacement,
+          const std::string& gradients, const std::string& method, double threshold, const std::string& structural_gradient, double sigma,
+          int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay) {
+        const PrepareOptions o = prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
+                                                 structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay);
         py::gil_scoped_release release;
         return Grid{std::make_shared<const PreparedGrid>(prepare(v, o)), nullptr};
       },
@@ -405,6 +414,24 @@ data units or a fraction of the value range with relative=True; None: DEFAULT_RE
 the range. max_displacement (bisection): voxels an iso-surface may move, to first order.
 gradients: "auto", "lsq" or "central". method, threshold, structural_gradient, sigma, kernel: the
 Delaunay grid's reduction. verify: measure the error voxel by voxel. ValueError on a bad option.)");
+
+  m.def(
+      "prepare_file",
+      [=](const Volume& v, const std::string& path, const std::string& grid, std::optional<double> max_error, bool relative,
+          double max_displacement, const std::string& gradients, const std::string& method, double threshold,
+          const std::string& structural_gradient, double sigma, int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay) {
+        const PrepareOptions o = prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
+                                                 structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay);
+        const PrepareStats stats = file_call([&] { return prepare_to_file(v, o, path); });
+        return json_object(to_json(stats));
+      },
+      py::arg("volume"), py::arg("path"), py::kw_only(), py::arg("grid") = "bisection", py::arg("max_error") = py::none(),
+      py::arg("relative") = false, py::arg("max_displacement") = 0.0, py::arg("gradients") = "auto", py::arg("method") = "reconstruction",
+      py::arg("threshold") = 0.0, py::arg("structural_gradient") = "central", py::arg("sigma") = 1.0, py::arg("kernel") = 0,
+      py::arg("tree_depth") = kDefaultTreeDepth, py::arg("verify") = false, py::arg("parallel_delaunay") = true,
+      R"(prepare(volume, ...) and Grid.save(path) in one (the command line's `prepare`): the same file,
+written as it is made, so the grid and its index are never in memory at once. Returns the
+statistics (Grid.stats). ValueError on a bad option, OSError when the path cannot be written.)");
 
   m.def(
       "load",

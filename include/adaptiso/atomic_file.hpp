@@ -1,11 +1,16 @@
 // adaptiso/atomic_file.hpp — every output is written to a temporary file beside the target and
 // renamed over it only when complete, so a failure never leaves a half-written file.
 #pragma once
+#include <cstddef>
 #include <functional>
 #include <ostream>
 #include <string>
 
 namespace adaptiso {
+
+// What a file being written holds in memory: two buffers of 16 MiB, one filled while the other
+// goes to the disk (given back by a flush of the stream).
+constexpr std::size_t kAtomicFileBufferBytes = std::size_t{32} << 20;
 
 // Calls write(stream) on a temporary file in the target's folder, flushes and fsyncs it, then
 // renames it to `path`. A symbolic link is written through (its target is replaced, the link

@@ -152,6 +152,8 @@ PreparedGrid prepare(Volume&& v, const ValueRange& range, const PrepareOptions& 
 PrepareStats prepare_to_file(Volume&& v, const PrepareOptions& options, const std::string& path, const Progress& progress = {});
 PrepareStats prepare_to_file(Volume&& v, const ValueRange& range, const PrepareOptions& options, const std::string& path,
                              const Progress& progress = {});
+// The same, lending the volume (it keeps its voxels, which then stay resident: the Python module).
+PrepareStats prepare_to_file(const Volume& v, const PrepareOptions& options, const std::string& path, const Progress& progress = {});
 
 // A bisection grid at a coarser bound (data units; +∞: the coarsest) from a prepared one, without
 // the volume: what prepare would give at that bound, with its own index (the viewer's levels of

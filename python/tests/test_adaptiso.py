@@ -322,3 +322,18 @@ def test_the_gil_is_released_while_preparing():
     done.set()
     t.join()
     assert during > 3, "the other thread did not run while prepare() worked"
+
+
+def test_prepare_file_writes_what_prepare_then_save_writes(tmp_path):
+    v = adaptiso.Volume(sphere_distance())
+    saved, streamed = str(tmp_path / "saved.adg"), str(tmp_path / "streamed.adg")
+    adaptiso.prepare(v, max_error=0.02, relative=True).save(saved)
+    stats = adaptiso.prepare_file(v, streamed, max_error=0.02, relative=True)
+    assert open(saved, "rb").read() == open(streamed, "rb").read()
+    assert stats["tetrahedra"] == adaptiso.load(streamed).tetrahedron_count
+    assert "save" in stats["seconds"] and "index" in stats["seconds"]
+    assert v.array.shape == sphere_distance().shape  # lent, not taken
+    with pytest.raises(OSError):
+        adaptiso.prepare_file(v, str(tmp_path / "missing" / "x.adg"))
+    with pytest.raises(ValueError):
+        adaptiso.prepare_file(v, streamed, max_error=-1)

@@ -198,14 +198,13 @@ PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const Prepar
   return p;
 }
 
-// The index's scratch when the grid file is written as it is made: the peak may reach the file's
-// bytes plus 2.5 volumes (README), and what is resident now (the tetrahedra, values and hierarchy
-// still to be read or written) and the lists take their part of it. At least 16 MiB: the nodes
-// that do not fit sort with 2 bytes an entry.
+// What the index may hold beyond its lists when the grid file is written as it is made: the peak
+// may reach the file's bytes plus 2.5 volumes (README), and what is resident now (the tetrahedra,
+// values and hierarchy still to be read or written) and the lists take their part of it.
 std::size_t streaming_index_scratch(std::uint64_t volume_bytes, std::uint64_t file_bytes, const IntervalTreeShape& shape) {
   const std::uint64_t allowance = volume_bytes / 2 * 5 + file_bytes;
   const std::uint64_t held = detail::process_status_bytes("VmRSS") + shape.entries * 8 + shape.nodes() * sizeof(IntervalTree::Node);
-  return std::max<std::uint64_t>(std::uint64_t{16} << 20, allowance > held ? allowance - held : 0);
+  return allowance > held ? allowance - held : 0;
 }
 
 PrepareStats prepare_file(const Volume& v, const ValueRange& range, const PrepareOptions& o, const std::string& path,
@@ -217,9 +216,12 @@ PrepareStats prepare_file(const Volume& v, const ValueRange& range, const Prepar
   p.stats.index_depth = shape.depth;
   p.stats.grid_bytes_per_vertex = detail::grid_bytes_per_vertex(p.grid, shape);
   const auto t0 = Clock::now();
-  detail::save_grid_building_index(p, path, shape, [&](const TetGrid& grid, std::uint64_t file_bytes) {
-    return build_index(grid, o, streaming_index_scratch(volume_bytes, file_bytes, shape), p.stats, progress);
-  });
+  detail::save_grid_building_index(
+      p, path, shape, [&](std::uint64_t file_bytes) { return streaming_index_scratch(volume_bytes, file_bytes, shape); },
+      [&](const TetGrid& grid, std::size_t scratch) {
+        // At least 16 MiB: the nodes that do not fit sort with 2 bytes an entry.
+        return build_index(grid, o, std::max(scratch, std::size_t{16} << 20), p.stats, progress);
+      });
   const double seconds = std::chrono::duration<double>(Clock::now() - t0).count() - p.stats.seconds("index");
   p.stats.stages.push_back({"save", seconds, peak_rss()});
   return std::move(p.stats);
@@ -243,6 +245,10 @@ PreparedGrid prepare(Volume&& v, const PrepareOptions& o, const Progress& progre
 PrepareStats prepare_to_file(Volume&& v, const ValueRange& range, const PrepareOptions& o, const std::string& path,
                              const Progress& progress) {
   return prepare_file(v, range, o, path, progress, &v);
+}
+
+PrepareStats prepare_to_file(const Volume& v, const PrepareOptions& o, const std::string& path, const Progress& progress) {
+  return prepare_file(v, value_range(v), o, path, progress, nullptr);
 }
 
 PrepareStats prepare_to_file(Volume&& v, const PrepareOptions& o, const std::string& path, const Progress& progress) {

@@ -89,7 +89,7 @@ private:
 // (prepare_to_file builds the index between the grid and the index) holds 32 MiB less meanwhile.
 class DirectFileBuf : public std::streambuf {
 public:
-  static constexpr std::size_t kBuffer = std::size_t{16} << 20, kBlock = 4096;
+  static constexpr std::size_t kBuffer = kAtomicFileBufferBytes / 2, kBlock = 4096;
 
   explicit DirectFileBuf(const fs::path& p) {
     // ADAPTISO_NO_DIRECT_IO set: through the cache, for file systems where O_DIRECT misbehaves.

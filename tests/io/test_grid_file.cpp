@@ -1,16 +1,20 @@
 // The grid file: bit-identical round trips, every truncation and random corruption refused, older
-// files (without the index, version 1) still read.
+// files (without the index, version 1) still read; written while its index is built, the same bytes.
 #include <gtest/gtest.h>
 #include <zlib.h>
 
 #include <cstring>
+#include <filesystem>
 #include <random>
 
 #include "adaptiso/prepare.hpp"
 
+#include "adaptiso/atomic_file.hpp"
+#include "adaptiso/error.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
+#include "io/grid_file_stream.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
@@ -141,4 +145,52 @@ TEST(GridFile, BisectionGridsKeepTheirHierarchy) {
       EXPECT_THROW(load_grid(t / "e.adg"), InputError) << len;
     }
   }
+}
+
+// The grid file written while its index is built (detail::save_grid_building_index, under
+// prepare_to_file): the same bytes as save_grid whether the tetrahedra are written before the
+// index (little scratch left) or while it is built (plenty), with the grid's arrays freed; an
+// index that fails, or does not have the shape promised, leaves no file.
+TEST(GridFile, WrittenWhileTheIndexIsBuiltGivesTheSameBytesAndFailsCleanly) {
+  testutil::TempDir t("grid_stream");
+  PrepareOptions o;
+  o.max_error = 0.02;
+  o.relative = true;
+  const PreparedGrid reference = prepare(make_synthetic("marschner-lobb", 24, ScalarType::f32), o);
+  save_grid(reference, t / "saved.adg");
+  const IntervalTreeShape shape{reference.index.depth, reference.index.entries()};
+  for (const std::size_t left : {std::size_t{0}, std::size_t{1} << 40}) {
+    PreparedGrid p = reference;
+    p.index = IntervalTree{};
+    std::size_t scratch_seen = 0;
+    detail::save_grid_building_index(
+        p, t / "streamed.adg", shape, [&](std::uint64_t) { return left; },
+        [&](const TetGrid& grid, std::size_t scratch) {
+          EXPECT_TRUE(grid.ijk.empty() && grid.gradients.empty());  // freed once written
+          EXPECT_EQ(grid.tets, reference.grid.tets);
+          scratch_seen = scratch;
+          return build_interval_tree(grid, o.tree_depth);
+        });
+    EXPECT_EQ(scratch_seen, left ? left - kAtomicFileBufferBytes : 0);  // the writer's buffers held while it writes
+    EXPECT_TRUE(p.grid.tets.empty() && p.grid.values.empty());
+    EXPECT_TRUE(testutil::read_bytes(t / "streamed.adg") == testutil::read_bytes(t / "saved.adg")) << "scratch left " << left;
+    std::filesystem::remove(t / "streamed.adg");
+    for (const bool wrong_shape : {false, true}) {
+      PreparedGrid q = reference;
+      auto build = [&](const TetGrid& grid, std::size_t) -> IntervalTree {
+        if (!wrong_shape) throw InputError("the index failed");
+        return build_interval_tree(grid, o.tree_depth + 1);
+      };
+      auto call = [&] {
+        detail::save_grid_building_index(
+            q, t / "failed.adg", shape, [&](std::uint64_t) { return left; }, build);
+      };
+      if (wrong_shape)
+        EXPECT_THROW(call(), std::logic_error);
+      else
+        EXPECT_THROW(call(), InputError);
+      EXPECT_FALSE(std::filesystem::exists(t / "failed.adg"));
+    }
+  }
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(t.path), std::filesystem::directory_iterator{}), 1);  // no temporaries
 }
