@@ -365,13 +365,9 @@ void for_each_nonconstant(
   });
 }
 
-// The splits, from a sample of the non-constant tetrahedra: all of them up to kSampleTarget
-// tetrahedra, beyond that those whose id is a multiple of an odd stride (about kSampleTarget).
-// Sets tree.depth (reduced where there are fewer entries, or estimated entries, than leaves) and
-// every node's split.
 constexpr std::size_t kSampleTarget = std::size_t{1} << 22;
-// Odd, so a stride does not fall in step with the bisection grid's tetrahedra, 6 or 8 to a cube;
-// rounded up, so at most about kSampleTarget records are held (the chest CT at 0.05, 7.6 M
+// Odd (an even stride in step with a periodic order of the tetrahedra would sample one kind of
+// them only), rounded up, so at most about kSampleTarget records are held (the chest CT at 0.05, 7.6 M
 // tetrahedra, held 60 MiB of them at every id).
 std::size_t sample_stride(std::size_t tets) { return tets <= kSampleTarget ? 1 : ((tets + kSampleTarget - 1) / kSampleTarget) | 1; }
 
@@ -383,6 +379,10 @@ std::uint32_t reduced_depth(std::uint32_t depth, std::uint64_t sampled_nonconsta
   return depth;
 }
 
+// The splits, from a sample of the non-constant tetrahedra: all of them up to kSampleTarget
+// tetrahedra, beyond that those whose id is a multiple of an odd stride (at most about kSampleTarget).
+// Sets tree.depth (reduced where there are fewer entries, or estimated entries, than leaves) and
+// every node's split.
 template <class K>
 void choose_splits(IntervalTree& tree, const TetGrid& grid, std::uint32_t depth) {
   const std::size_t T = grid.tet_count();
