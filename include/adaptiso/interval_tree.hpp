@@ -6,8 +6,8 @@
 // never active and are left out. The tree is binary with a fixed depth over the value range; each
 // node has a split value chosen as the median of the midpoints of the tetrahedra that reach it (of
 // an evenly spaced sample of 65,536 of them where more than 2^20 reach it; so the tree is as
-// balanced as the data allows; above 2^22 tetrahedra the splits are chosen on a sample of about
-// 2^22 of them, every k-th id), and a tetrahedron lives in the shallowest node whose
+// balanced as the data allows; above 2^22 tetrahedra the splits are chosen on a sample of at most
+// about 2^22 of them, every k-th id), and a tetrahedron lives in the shallowest node whose
 // split it straddles (tmin < split < tmax), i.e. the smallest node whose interval covers it; leaves
 // keep the rest. Each node's tetrahedra appear twice: in `by_min` sorted by (tmin, id) and in
 // `by_max` by (tmax, id), in the same [begin, end) range of both arrays. The build allocates
