@@ -383,31 +383,48 @@ std::uint32_t reduced_depth(std::uint32_t depth, std::uint64_t sampled_nonconsta
 // tetrahedra, beyond that those whose id is a multiple of an odd stride (at most about kSampleTarget).
 // Sets tree.depth (reduced where there are fewer entries, or estimated entries, than leaves) and
 // every node's split.
+// The tetrahedra with ids k·stride, taken in blocks of 2^16 k: f(t, range) for each non-constant
+// one of block b, in id order.
+constexpr std::size_t kSampleBlock = std::size_t{1} << 16;
+template <class F>
+void for_each_sampled(const TetGrid& grid, std::size_t stride, std::size_t b, F f) {
+  const std::size_t sampled = (grid.tet_count() + stride - 1) / stride;
+  for (std::size_t k = b * kSampleBlock; k < std::min(sampled, (b + 1) * kSampleBlock); ++k) {
+    const auto t = static_cast<std::uint32_t>(k * stride);
+    const Range q = tet_range(grid, t);
+    if (q.lo < q.hi) f(t, q);
+  }
+}
+
+// Where each block's non-constant sampled tetrahedra start among all of them (blocks + 1 values,
+// the last their count). Parallel.
+std::vector<std::uint64_t> sampled_starts(const TetGrid& grid, std::size_t stride) {
+  const std::size_t blocks = ((grid.tet_count() + stride - 1) / stride + kSampleBlock - 1) / kSampleBlock;
+  std::vector<std::uint64_t> at(blocks + 1, 0);
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
+    std::uint64_t n = 0;  // counted here, stored once: neighbouring blocks' counters share cache lines
+    for_each_sampled(grid, stride, b, [&](std::uint32_t, const Range&) { ++n; });
+    at[b + 1] = n;
+  });
+  std::partial_sum(at.begin(), at.end(), at.begin());
+  return at;
+}
+
 template <class K>
 void choose_splits(IntervalTree& tree, const TetGrid& grid, std::uint32_t depth) {
-  const std::size_t T = grid.tet_count();
-  const std::size_t stride = sample_stride(T);
-  const std::size_t sampled = (T + stride - 1) / stride, blocks = (sampled + (1 << 16) - 1) >> 16;
+  const std::size_t stride = sample_stride(grid.tet_count());
   // Counted, then written in place: the records are held once (not per block and then gathered,
   // which freed blocks in the worker threads' arenas would keep resident beside the whole).
-  std::vector<std::uint64_t> at(blocks + 1, 0);
-  auto for_each_sampled = [&](std::size_t b, auto f) {
-    for (std::size_t k = b << 16; k < std::min(sampled, (b + 1) << 16); ++k) {
-      const auto t = static_cast<std::uint32_t>(k * stride);
-      const Range q = tet_range(grid, t);
-      if (q.lo < q.hi) f(t, q);
-    }
-  };
-  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) { for_each_sampled(b, [&](std::uint32_t, const Range&) { ++at[b + 1]; }); });
-  std::partial_sum(at.begin(), at.end(), at.begin());
+  std::vector<std::uint64_t> at = sampled_starts(grid, stride);
   std::vector<Record<K>> recs;
   detail::resize_big(recs, at.back());
-  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t b) {
-    for_each_sampled(b, [&](std::uint32_t t, const Range& q) { recs[at[b]++] = {static_cast<K>(q.lo), static_cast<K>(q.hi), t}; });
+  tbb::parallel_for(std::size_t{0}, at.size() - 1, [&](std::size_t b) {
+    for_each_sampled(grid, stride, b, [&](std::uint32_t t, const Range& q) {
+      recs[at[b]++] = {static_cast<K>(q.lo), static_cast<K>(q.hi), t};
+    });
   });
   tree.depth = reduced_depth(depth, recs.size(), stride);
-  depth = tree.depth;
-  tree.nodes.resize((std::size_t{2} << depth) - 1);
+  tree.nodes.resize((std::size_t{2} << tree.depth) - 1);
   SplitChooser<K>{tree, recs.data()}.choose(0, 0, recs.size());
 }
 
@@ -500,21 +517,10 @@ IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth, std::
 }
 
 IntervalTreeShape interval_tree_shape(const TetGrid& grid, std::uint32_t depth) {
-  const std::size_t T = grid.tet_count(), stride = sample_stride(T);
-  auto count = [&](std::size_t step) {
-    return tbb::parallel_reduce(
-        tbb::blocked_range<std::size_t>(0, (T + step - 1) / step, 1 << 16), std::uint64_t{0},
-        [&](const auto& r, std::uint64_t n) {
-          for (std::size_t k = r.begin(); k < r.end(); ++k) {
-            const Range q = tet_range(grid, static_cast<std::uint32_t>(k * step));
-            n += q.lo < q.hi;
-          }
-          return n;
-        },
-        std::plus<>());
-  };
-  const std::uint64_t entries = count(1);
-  return {reduced_depth(depth, stride == 1 ? entries : count(stride), stride), entries};
+  const std::size_t stride = sample_stride(grid.tet_count());
+  // The entries are every non-constant tetrahedron; the depth, choose_splits' from its sample.
+  const std::uint64_t entries = sampled_starts(grid, 1).back();
+  return {reduced_depth(depth, stride == 1 ? entries : sampled_starts(grid, stride).back(), stride), entries};
 }
 
 void finish_interval_tree(IntervalTree& tree, const TetGrid& grid) { compute_bounds(tree, grid); }

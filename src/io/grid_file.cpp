@@ -30,6 +30,13 @@ constexpr std::uint32_t kHasIndex = 1, kHasHierarchy = 2, kHasDisplacement = 4;
 constexpr std::uint64_t kHierarchyHeader = 40;  // i32 root size, u8 thresholds ×2, u16 reserved, f64 ×4
 constexpr std::uint64_t kNodeBytes = 24;        // f64 split, u64 begin, u64 end
 
+// The layout's bytes per vertex, and what follows the metadata for these counts (the checksum
+// included): what the loader checks a file's size against and the streaming writer promises.
+std::uint64_t bytes_per_vertex_on_disk(bool hierarchy, bool moves) { return 12 + 8 + 12 + (hierarchy ? 1 + 8 : 0) + (moves ? 1 : 0); }
+std::uint64_t body_bytes(std::uint64_t N, std::uint64_t T, std::uint64_t nodes, std::uint64_t E, bool hierarchy, bool moves) {
+  return N * bytes_per_vertex_on_disk(hierarchy, moves) + T * 16 + nodes * kNodeBytes + E * 8 + (hierarchy ? kHierarchyHeader : 0) + 4;
+}
+
 nlohmann::json source_json(const GridSource& s) {
   return {{"dims", s.dims}, {"spacing", s.spacing}, {"origin", s.origin}, {"direction", s.direction}, {"type", s.type},
           {"min", s.min},   {"max", s.max},         {"method", s.method}, {"max_error", s.max_error}, {"threshold", s.threshold},
@@ -132,17 +139,16 @@ public:
     if (!h.displacement_code.empty()) w_.write(h.displacement_code.data(), h.displacement_code.size());
     w_.write(h.value_span.data(), h.value_span.size() * 8);
   }
+  // The checksum, not in the count of bytes written (written()), being no part of itself.
   void checksum() {
     const std::uint32_t c = w_.crc();
     out_.write(reinterpret_cast<const char*>(&c), 4);
-    checksum_written_ = true;
   }
-  std::uint64_t written() const { return w_.written() + (checksum_written_ ? 4 : 0); }
+  std::uint64_t written() const { return w_.written(); }
 
 private:
   std::ostream& out_;
   CrcWriter w_;
-  bool checksum_written_ = false;
 };
 
 }  // namespace
@@ -165,15 +171,13 @@ namespace detail {
 void save_grid_building_index(PreparedGrid& p, const std::string& path, const IntervalTreeShape& shape,
                               const std::function<std::size_t(std::uint64_t)>& scratch_left,
                               const std::function<IntervalTree(const TetGrid&, std::size_t)>& build_index) {
-  std::uint64_t hierarchy_bytes = 0;
-  if (const auto& h = p.hierarchy)
-    hierarchy_bytes = kHierarchyHeader + h->error_code.size() + h->displacement_code.size() + h->value_span.size() * 8;
+  const bool moves = p.hierarchy && !p.hierarchy->displacement_code.empty();
   write_file_atomically(path, [&](std::ostream& out) {
     GridFileWriter w(out);
     w.head(p, &shape);
-    w.vertices(p.grid);
     const std::uint64_t file_bytes =
-        w.written() + p.grid.tet_count() * 16 + shape.nodes() * kNodeBytes + shape.entries * 8 + hierarchy_bytes + 4;
+        w.written() + body_bytes(p.grid.vertex_count(), p.grid.tet_count(), shape.nodes(), shape.entries, p.hierarchy.has_value(), moves);
+    w.vertices(p.grid);
     std::vector<std::array<std::uint32_t, 3>>().swap(p.grid.ijk);
     std::vector<std::array<float, 3>>().swap(p.grid.gradients);
     release_free_heap();
@@ -210,8 +214,8 @@ void save_grid_building_index(PreparedGrid& p, const std::string& path, const In
     w.index(index);
     w.hierarchy(p.hierarchy);
     w.checksum();
-    if (w.written() != file_bytes)
-      throw std::logic_error(fmt::format("grid file: wrote {} bytes where {} were expected", w.written(), file_bytes));
+    if (w.written() + 4 != file_bytes)
+      throw std::logic_error(fmt::format("grid file: wrote {} bytes where {} were expected", w.written() + 4, file_bytes));
   });
 }
 
@@ -252,9 +256,9 @@ PreparedGrid load_grid(const std::string& path) {
     throw InputError(fmt::format("{}: grid file is corrupt (bad header flags)", path));
   const std::uint64_t nodes = has_index ? (std::uint64_t{2} << depth) - 1 : 0;
   // The size the counts imply must be the file's size; checked without overflow before allocating.
-  const std::uint64_t per_vertex = 12 + 8 + 12 + (has_hierarchy ? 1 + 8 : 0) + (has_moves ? 1 : 0), per_tet = 16;
+  const std::uint64_t per_vertex = bytes_per_vertex_on_disk(has_hierarchy, has_moves), per_tet = 16;
   if (M > size || N > size / per_vertex || T > size / per_tet || E > T || nodes > size / kNodeBytes ||
-      header + 4 + M + N * per_vertex + T * per_tet + nodes * kNodeBytes + E * 8 + (has_hierarchy ? kHierarchyHeader : 0) != size)
+      header + M + body_bytes(N, T, nodes, E, has_hierarchy, has_moves) != size)
     throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
   if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
     throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));

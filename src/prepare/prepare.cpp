@@ -59,17 +59,17 @@ std::uint64_t resident_grid_bytes(const PreparedGrid& p) {
   return bytes;
 }
 
-// What the index's build may hold beyond its lists. prepare keeps its peak within the saved grid
-// plus 2.5 times the volume's bytes (README) where it can: the grid is resident by now, and what
-// else the process holds (its code and libraries, the heap's remains) comes out of the 2.5
-// volumes. At least 64 MiB. The bunny's nodes all sort the fast way within it; the MR head's
-// noisy scan, whose largest node alone would take 426 MiB that way, sorts its largest nodes with
-// 2 bytes an entry.
+// What the index's build may hold beyond its lists for the peak to stay within the saved grid
+// plus 2.5 times the volume's bytes (README): grid_bytes are the grid's bytes besides the lists
+// (resident in memory, or still to be written to the file), and what else the process holds now
+// (its code and libraries, the heap's remains; from VmRSS) comes out of the 2.5 volumes. The
+// bunny's nodes all sort the fast way within it; the MR head's noisy scan, whose largest node
+// alone would take 426 MiB that way, sorts its largest nodes with 2 bytes an entry.
 std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes) {
   const std::uint64_t resident = detail::process_status_bytes("VmRSS");
   const std::uint64_t other = resident > grid_bytes ? resident - grid_bytes : 0;
   const std::uint64_t allowance = volume_bytes / 2 * 5;
-  return std::max<std::uint64_t>(std::uint64_t{64} << 20, allowance > other ? allowance - other : 0);
+  return allowance > other ? allowance - other : 0;
 }
 
 void check_options(const PrepareOptions& o) {
@@ -192,19 +192,12 @@ IntervalTree build_index(const TetGrid& grid, const PrepareOptions& o, std::size
 PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress, Volume* release) {
   const std::uint64_t volume_bytes = v.bytes.size();
   PreparedGrid p = prepare_unindexed(v, range, o, progress, release);
-  p.index = build_index(p.grid, o, index_scratch(volume_bytes, resident_grid_bytes(p)), p.stats, progress);
+  // At least 64 MiB: prepare's grid in memory may not fit its allowance at all (the chest CT).
+  const std::size_t scratch = std::max(index_scratch(volume_bytes, resident_grid_bytes(p)), std::size_t{64} << 20);
+  p.index = build_index(p.grid, o, scratch, p.stats, progress);
   p.stats.index_depth = p.index.depth;
   p.stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
   return p;
-}
-
-// What the index may hold beyond its lists when the grid file is written as it is made: the peak
-// may reach the file's bytes plus 2.5 volumes (README), and what is resident now (the tetrahedra,
-// values and hierarchy still to be read or written) and the lists take their part of it.
-std::size_t streaming_index_scratch(std::uint64_t volume_bytes, std::uint64_t file_bytes, const IntervalTreeShape& shape) {
-  const std::uint64_t allowance = volume_bytes / 2 * 5 + file_bytes;
-  const std::uint64_t held = detail::process_status_bytes("VmRSS") + shape.entries * 8 + shape.nodes() * sizeof(IntervalTree::Node);
-  return allowance > held ? allowance - held : 0;
 }
 
 PrepareStats prepare_file(const Volume& v, const ValueRange& range, const PrepareOptions& o, const std::string& path,
@@ -217,7 +210,12 @@ PrepareStats prepare_file(const Volume& v, const ValueRange& range, const Prepar
   p.stats.grid_bytes_per_vertex = detail::grid_bytes_per_vertex(p.grid, shape);
   const auto t0 = Clock::now();
   detail::save_grid_building_index(
-      p, path, shape, [&](std::uint64_t file_bytes) { return streaming_index_scratch(volume_bytes, file_bytes, shape); },
+      p, path, shape,
+      [&](std::uint64_t file_bytes) {
+        // The grid's part of the file: what the lists and the nodes (as held in memory) leave.
+        const std::uint64_t index_bytes = shape.entries * 8 + shape.nodes() * sizeof(IntervalTree::Node);
+        return index_scratch(volume_bytes, file_bytes > index_bytes ? file_bytes - index_bytes : 0);
+      },
       [&](const TetGrid& grid, std::size_t scratch) {
         // At least 16 MiB: the nodes that do not fit sort with 2 bytes an entry.
         return build_index(grid, o, std::max(scratch, std::size_t{16} << 20), p.stats, progress);
