@@ -111,18 +111,13 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
     double worst = 0;
     std::size_t seen = 0;
     walk.visit(
-        top.roots[f],
-        [&](const Tet& t, std::int64_t voxel) {
+        top.roots[f], index_->numbers, g.values,
+        [&](const Tet&, const Corners& c, std::int64_t voxel) {
           ++seen;
-          Quad q;
-          double lo = std::numeric_limits<double>::infinity(), hi = -lo;
-          for (int k = 0; k < 4; ++k) {
-            q[k] = index_->numbers.id(index_->lat.index(t[k]));
-            lo = std::min(lo, g.values[q[k]]);
-            hi = std::max(hi, g.values[q[k]]);
-          }
+          const double lo = std::min({c.value[0], c.value[1], c.value[2], c.value[3]});
+          const double hi = std::max({c.value[0], c.value[1], c.value[2], c.value[3]});
           if (lo < iso && iso <= hi) {
-            out.push_back(q);
+            out.push_back(c.id);
             if (voxel >= 0) {
               const std::uint32_t id = index_->numbers.find(voxel);
               worst = std::max(worst, id == VertexNumbers::kNone ? unsplit_bound : h.codes.error(h.error_code[id]));
@@ -130,7 +125,7 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
           }
           return ValueSpan{};
         },
-        [&](std::int64_t, const Tet&, const ValueSpan&) { ++seen; });
+        [&](std::int64_t, std::uint32_t, const Tet&, const ValueSpan&) { ++seen; });
     bound[f] = worst;
     visited[f] = seen;
   });

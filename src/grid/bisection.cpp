@@ -545,6 +545,7 @@ void atomic_max(T& target, T v) {
 
 // The selection at a bound: split where a diamond's codes exceed the thresholds.
 struct CodedSplits {
+  static constexpr bool kUpwardClosed = true;  // the codes are saturated
   const std::vector<std::uint8_t>& code;
   std::uint8_t threshold;
   const std::vector<std::uint8_t>* displacement;  // displacement codes, when that criterion is used
@@ -554,6 +555,7 @@ struct CodedSplits {
     return code[i] > threshold || (displacement && (*displacement)[i] > displacement_threshold);
   }
   Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
+  void prefetch(std::int64_t voxel) const { __builtin_prefetch(code.data() + voxel); }
 };
 
 // The selection under a cell floor: a diamond centred at (x, y, z) splits cubes of side 2^(t+1)
@@ -562,6 +564,7 @@ struct CodedSplits {
 // and so do their ancestors'). The largest codes of the diamonds the floor kept whole are the
 // grid's measured bounds.
 struct FlooredSplits {
+  static constexpr bool kUpwardClosed = false;  // a diamond below the floor stays whole, though its parents split
   CodedSplits coded;
   std::int64_t nx, nxy;
   std::int64_t below;                                          // 2^floor − 1: a centre with any of these bits set is below the floor
@@ -616,6 +619,32 @@ BisectionErrors bisection_errors(const Volume& v, const ValueRange& range, bool 
 namespace detail {
 namespace {
 
+// The grid's vertices under a rule whose splits are closed upwards (a split diamond's parents
+// split too: the codes are saturated), without a walk: the centres of the split diamonds in the
+// box and the root cube's corners in it. A split tetrahedron's midpoint is a vertex of both
+// halves, and of every descendant that contains it, so of the leaves that cover it; and every
+// vertex of a leaf is a root corner or the midpoint of an ancestor's split.
+template <class Rule>
+std::vector<std::uint64_t> split_centres(const Lattice& lat, const Rule& rule, std::size_t voxels) {
+  std::vector<std::uint64_t> bits;
+  assign_big(bits, (voxels + 63) / 64, std::uint64_t{0});
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bits.size(), 4096), [&](const auto& r) {
+    for (std::size_t w = r.begin(); w < r.end(); ++w) {
+      std::uint64_t word = 0;
+      const std::size_t n = std::min<std::size_t>(64, voxels - w * 64);
+      for (std::size_t b = 0; b < n; ++b) word |= std::uint64_t{rule.split(static_cast<std::int64_t>(w * 64 + b))} << b;
+      bits[w] = word;
+    }
+  });
+  for (int corner = 0; corner < 8; ++corner) {
+    const Coord c{corner & 1 ? lat.S : 0, corner & 2 ? lat.S : 0, corner & 4 ? lat.S : 0};
+    if (!lat.in_box(c)) continue;
+    const auto v = static_cast<std::size_t>(lat.index(c));
+    bits[v >> 6] |= std::uint64_t{1} << (v & 63);
+  }
+  return bits;
+}
+
 // The grid of a traversal's leaves inside the box. The vertices they use are marked among the
 // `voxels` voxels a byte each (a relaxed atomic byte store is a plain store; a bit would need a
 // locked read-modify-write), numbered in voxel order, size(count) sizes the arrays and
@@ -633,34 +662,48 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   const Traversal<Rule> walk(lat, rule);
   const Frontier top = walk.frontier(12);
   const std::vector<Subtree>& roots = top.roots;
-  std::vector<std::uint8_t> used;
-  assign_big(used, voxels, std::uint8_t{0});
   std::vector<std::uint64_t> leaves(roots.size() + 1, 0);
   report(progress, "select", 0);
-  tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
-    std::uint64_t count = 0;
-    walk.visit(
-        roots[f],
-        [&](const Tet& t, std::int64_t) {
-          ++count;
-          for (const Coord& c : t)
-            std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
-          return ValueSpan{};
-        },
-        [](std::int64_t, const Tet&, const ValueSpan&) {});
-    leaves[f + 1] = count;
-  });
-  for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
   VertexNumbers numbers;  // over the voxels
-  numbers.bits.assign((used.size() + 63) / 64, 0);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 4096), [&](const auto& r) {
-    for (std::size_t w = r.begin(); w < r.end(); ++w) {
-      std::uint64_t bits = 0;
-      for (std::size_t b = 0; b < 64 && w * 64 + b < used.size(); ++b) bits |= std::uint64_t{used[w * 64 + b]} << b;
-      numbers.bits[w] = bits;
-    }
-  });
-  std::vector<std::uint8_t>().swap(used);
+  if constexpr (Rule::kUpwardClosed) {
+    tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
+      std::uint64_t count = 0;
+      walk.visit(
+          roots[f],
+          [&](const Tet&, std::int64_t) {
+            ++count;
+            return ValueSpan{};
+          },
+          [](std::int64_t, const Tet&, const ValueSpan&) {});
+      leaves[f + 1] = count;
+    });
+    numbers.bits = split_centres(lat, rule, voxels);
+  } else {
+    std::vector<std::uint8_t> used;
+    assign_big(used, voxels, std::uint8_t{0});
+    tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
+      std::uint64_t count = 0;
+      walk.visit(
+          roots[f],
+          [&](const Tet& t, std::int64_t) {
+            ++count;
+            for (const Coord& c : t)
+              std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
+            return ValueSpan{};
+          },
+          [](std::int64_t, const Tet&, const ValueSpan&) {});
+      leaves[f + 1] = count;
+    });
+    numbers.bits.assign((used.size() + 63) / 64, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 4096), [&](const auto& r) {
+      for (std::size_t w = r.begin(); w < r.end(); ++w) {
+        std::uint64_t bits = 0;
+        for (std::size_t b = 0; b < 64 && w * 64 + b < used.size(); ++b) bits |= std::uint64_t{used[w * 64 + b]} << b;
+        numbers.bits[w] = bits;
+      }
+    });
+  }
+  for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
   numbers.count();
   const std::uint64_t vertices = numbers.before.back(), tets = leaves.back();
   // The grid and the rest of the preparation: tetrahedra (16 bytes), their index (8 bytes, and
@@ -683,8 +726,8 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   if (own_code) resize_big(out.tet_code, tets);
   auto& spans = out.hierarchy.value_span;
   assign_big(spans, vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
-  auto merge = [&](std::int64_t voxel, const ValueSpan& s) {
-    auto& span = spans[numbers.id(voxel)];
+  auto merge = [&](std::uint32_t id, const ValueSpan& s) {
+    auto& span = spans[id];
     atomic_min(span[0], down(s.lo));
     atomic_max(span[1], up(s.hi));
   };
@@ -692,25 +735,20 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
     std::uint64_t at = leaves[f];
     root_spans[f] = walk.visit(
-        roots[f],
-        [&](const Tet& t, std::int64_t split_at) {
+        roots[f], numbers, g.values,
+        [&](const Tet&, const Corners& c, std::int64_t split_at) {
           if (own_code)
             out.tet_code[at] = split_at >= 0 ? std::max((*own_code)[static_cast<std::size_t>(split_at)], own_least) : std::uint8_t{0};
-          auto& q = g.tets[at++];
-          ValueSpan s;
-          for (int k = 0; k < 4; ++k) {
-            q[k] = numbers.id(lat.index(t[k]));
-            s.lo = std::min(s.lo, g.values[q[k]]);
-            s.hi = std::max(s.hi, g.values[q[k]]);
-          }
-          return s;
+          g.tets[at++] = c.id;
+          return ValueSpan{std::min({c.value[0], c.value[1], c.value[2], c.value[3]}),
+                           std::max({c.value[0], c.value[1], c.value[2], c.value[3]})};
         },
-        [&](std::int64_t voxel, const Tet&, const ValueSpan& s) { merge(voxel, s); });
+        [&](std::int64_t, std::uint32_t id, const Tet&, const ValueSpan& s) { merge(id, s); });
   });
   for (const auto& split : top.splits) {  // children first: the spans of the subtrees below
     ValueSpan s;
     for (std::size_t r = split.first; r < split.last; ++r) s.add(root_spans[r]);
-    merge(split.voxel, s);
+    merge(numbers.id(split.voxel), s);
   }
   report(progress, "select", 1);
   out.hierarchy.root_size = lat.S;

@@ -10,6 +10,8 @@
 #include <bit>
 #include <cstdint>
 #include <limits>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "adaptiso/error.hpp"
@@ -163,6 +165,40 @@ struct Frontier {
   std::vector<Split> splits;
 };
 
+// Without a popcount instruction in the baseline instruction set, std::popcount is a library
+// call; numbering asks it for every vertex of every tetrahedron.
+inline int bit_count(std::uint64_t x) {
+  x = x - ((x >> 1) & 0x5555555555555555ull);
+  x = (x & 0x3333333333333333ull) + ((x >> 2) & 0x3333333333333333ull);
+  x = (x + (x >> 4)) & 0x0f0f0f0f0f0f0f0full;
+  return static_cast<int>((x * 0x0101010101010101ull) >> 56);
+}
+
+// Vertex numbers from a bitmap of used voxels: the rank of a voxel among the used ones (ascending
+// linear index, the grid's vertex order).
+struct VertexNumbers {
+  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
+  std::vector<std::uint64_t> bits;
+  std::vector<std::uint64_t> before;  // used voxels in the words before each word
+  std::uint32_t id(std::int64_t voxel) const {
+    const std::size_t w = static_cast<std::size_t>(voxel) >> 6;
+    const std::uint64_t below = bits[w] & ((std::uint64_t{1} << (voxel & 63)) - 1);
+    return static_cast<std::uint32_t>(before[w] + static_cast<std::uint64_t>(bit_count(below)));
+  }
+  void prefetch(std::int64_t voxel) const {
+    const std::size_t w = static_cast<std::size_t>(voxel) >> 6;
+    __builtin_prefetch(bits.data() + w);
+    __builtin_prefetch(before.data() + w);
+  }
+  bool used(std::int64_t voxel) const { return (bits[static_cast<std::size_t>(voxel) >> 6] >> (voxel & 63)) & 1; }
+  // kNone for a voxel that is no vertex.
+  std::uint32_t find(std::int64_t voxel) const { return used(voxel) ? id(voxel) : kNone; }
+  void count() {
+    assign_big(before, bits.size() + 1, std::uint64_t{0});
+    for (std::size_t w = 0; w < bits.size(); ++w) before[w + 1] = before[w] + static_cast<std::uint64_t>(bit_count(bits[w]));
+  }
+};
+
 // What a rule says of a tetrahedron inside the box, by the voxel at its refinement edge's midpoint.
 enum class Decision { leaf, descend, prune };
 
@@ -171,6 +207,12 @@ enum class Decision { leaf, descend, prune };
 // tetrahedra across the box's faces, whose midpoint lies in the box)? Diamonds that cross the
 // box's far faces are always split (no tetrahedron reaches outside the volume); the leaves inside
 // the box are the grid, and a leaf that is not inside lies beyond a far face.
+// A numbered walk's tetrahedron: its vertices' numbers and values, in the slots of its corners.
+struct Corners {
+  std::array<std::uint32_t, 4> id;
+  std::array<double, 4> value;
+};
+
 template <class Rule>
 class Traversal {
 public:
@@ -191,7 +233,15 @@ public:
   // span the leaves below it returned. Returns the span of the whole subtree.
   template <class Leaf, class Split>
   ValueSpan visit(const Subtree& root, Leaf&& leaf, Split&& split) const {
-    return visit(root.tet, root.order, leaf, split);
+    return visit(root.tet, root.order, Plain{}, leaf, split);
+  }
+
+  // The same walk over a grid's vertices (every corner of a tetrahedron walked inside the box is
+  // one of them): leaf(t, corners, voxel) and split(voxel, id, t, span), with the numbers and
+  // values carried down from the splits, so a leaf looks up none of its four.
+  template <class Leaf, class Split>
+  ValueSpan visit(const Subtree& root, const VertexNumbers& numbers, const std::vector<double>& values, Leaf&& leaf, Split&& split) const {
+    return visit(root.tet, root.order, Numbered{numbers, values}, leaf, split);
   }
 
   const Lattice& lattice() const { return lat_; }
@@ -200,34 +250,110 @@ private:
   const Lattice& lat_;
   const Rule& rule_;
 
-  template <class Leaf, class Split>
-  ValueSpan visit(const Tet& t, OrderState o, Leaf& leaf, Split& split) const {
-    if (inside(t)) return visit_inside(t, o, leaf, split);
+  struct Plain {};
+  struct Numbered {
+    const VertexNumbers& numbers;
+    const std::vector<double>& values;
+  };
+
+  template <class Walk, class Leaf, class Split>
+  ValueSpan visit(const Tet& t, OrderState o, const Walk& walk, Leaf& leaf, Split& split) const {
+    if (inside(t)) {
+      Tet scratch = t;
+      if constexpr (std::is_same_v<Walk, Plain>) {
+        return visit_in_place(scratch, o, leaf, split);
+      } else {
+        Corners corners;
+        for (int k = 0; k < 4; ++k) {
+          corners.id[k] = walk.numbers.id(lat_.index(t[k]));
+          corners.value[k] = walk.values[corners.id[k]];
+        }
+        return visit_in_place(scratch, corners, o, walk, leaf, split);
+      }
+    }
     if (outside(t)) return {};
     Coord m;
     int i, j;
     if (!refinement(t, o, m, i, j) || !split_across(m)) return {};  // a leaf not inside is beyond the box
     const auto [a, b] = halves(t, o, m, i, j);
-    ValueSpan s = visit(a.tet, a.order, leaf, split);
-    s.add(visit(b.tet, b.order, leaf, split));
+    ValueSpan s = visit(a.tet, a.order, walk, leaf, split);
+    s.add(visit(b.tet, b.order, walk, leaf, split));
     return s;
   }
 
-  // Inside the box, so are the halves: no more checks against it.
+  // Inside the box, so are the halves: no more checks against it. The halves are made in t
+  // itself, one vertex replaced by the midpoint and put back after: copying two tetrahedra a node
+  // was a fifth of the walk's time.
   template <class Leaf, class Split>
-  ValueSpan visit_inside(const Tet& t, OrderState o, Leaf& leaf, Split& split) const {
+  ValueSpan visit_in_place(Tet& t, OrderState o, Leaf& leaf, Split& split) const {
     Coord m;
     int i, j;
-    if (!refinement(t, o, m, i, j)) return leaf(t, std::int64_t{-1});
+    if (!refinement(t, o, m, i, j)) return leaf(std::as_const(t), std::int64_t{-1});
     const std::int64_t voxel = lat_.index(m);
     const Decision d = rule_.decide(voxel);
-    if (d == Decision::leaf) return leaf(t, voxel);
+    if (d == Decision::leaf) return leaf(std::as_const(t), voxel);
     if (d == Decision::prune) return {};
-    const auto [a, b] = halves(t, o, m, i, j);
-    ValueSpan s = visit_inside(a.tet, a.order, leaf, split);
-    s.add(visit_inside(b.tet, b.order, leaf, split));
-    split(voxel, t, s);
+    const auto& e = order_table::kTable[o];
+    prefetch_halves(t, m, i, j, e);
+    const Coord end_j = t[static_cast<std::size_t>(j)], end_i = t[static_cast<std::size_t>(i)];
+    t[static_cast<std::size_t>(j)] = m;
+    ValueSpan s = visit_in_place(t, e.at_j, leaf, split);
+    t[static_cast<std::size_t>(j)] = end_j;
+    t[static_cast<std::size_t>(i)] = m;
+    s.add(visit_in_place(t, e.at_i, leaf, split));
+    t[static_cast<std::size_t>(i)] = end_i;
+    split(voxel, std::as_const(t), s);
     return s;
+  }
+
+  // The numbered walk: the midpoint's number and value are looked up once, at its split.
+  template <class Leaf, class Split>
+  ValueSpan visit_in_place(Tet& t, Corners& c, OrderState o, const Numbered& walk, Leaf& leaf, Split& split) const {
+    Coord m;
+    int i, j;
+    if (!refinement(t, o, m, i, j)) return leaf(std::as_const(t), std::as_const(c), std::int64_t{-1});
+    const std::int64_t voxel = lat_.index(m);
+    const Decision d = rule_.decide(voxel);
+    if (d == Decision::leaf) return leaf(std::as_const(t), std::as_const(c), voxel);
+    if (d == Decision::prune) return {};
+    const auto& e = order_table::kTable[o];
+    prefetch_halves(t, m, i, j, e, &walk.numbers);
+    const std::uint32_t id = walk.numbers.id(voxel);
+    const double value = walk.values[id];
+    const auto si = static_cast<std::size_t>(i), sj = static_cast<std::size_t>(j);
+    const Coord end_j = t[sj], end_i = t[si];
+    const std::uint32_t id_j = c.id[sj], id_i = c.id[si];
+    const double value_j = c.value[sj], value_i = c.value[si];
+    t[sj] = m, c.id[sj] = id, c.value[sj] = value;
+    ValueSpan s = visit_in_place(t, c, e.at_j, walk, leaf, split);
+    t[sj] = end_j, c.id[sj] = id_j, c.value[sj] = value_j;
+    t[si] = m, c.id[si] = id, c.value[si] = value;
+    s.add(visit_in_place(t, c, e.at_i, walk, leaf, split));
+    t[si] = end_i, c.id[si] = id_i, c.value[si] = value_i;
+    split(voxel, id, std::as_const(t), s);
+    return s;
+  }
+
+  // The rule's data at the halves' midpoints, asked for ahead when the rule says where it is:
+  // the decisions' reads at scattered voxels are most of a walk's time.
+  void prefetch_halves(const Tet& t, const Coord& m, int i, int j, const order_table::Entry& e,
+                       const VertexNumbers* numbers = nullptr) const {
+    prefetch_midpoint(t, j, m, e.at_j, numbers);
+    prefetch_midpoint(t, i, m, e.at_i, numbers);
+  }
+  void prefetch_midpoint(const Tet& t, int at, const Coord& m, OrderState o, const VertexNumbers* numbers) const {
+    const auto& e = order_table::kTable[o];
+    const Coord& p = e.i == at ? m : t[e.i];
+    const Coord& q = e.j == at ? m : t[e.j];
+    Coord mid;
+    for (int a = 0; a < 3; ++a) {
+      const std::int32_t sum = p[a] + q[a];
+      if (sum & 1) return;
+      mid[a] = sum / 2;
+    }
+    const std::int64_t voxel = lat_.index(mid);
+    if constexpr (requires(const Rule& r) { r.prefetch(std::int64_t{}); }) rule_.prefetch(voxel);
+    if (numbers) numbers->prefetch(voxel);
   }
 
   void collect(const Tet& t, OrderState o, int depth, Frontier& f) const {
@@ -266,35 +392,6 @@ private:
   bool split_across(const Coord& m) const {
     if (lat_.in_box(m)) return rule_.split(lat_.index(m));
     return placement(classify(m, lat_.k), lat_).forced;
-  }
-};
-
-// Without a popcount instruction in the baseline instruction set, std::popcount is a library
-// call; numbering asks it for every vertex of every tetrahedron.
-inline int bit_count(std::uint64_t x) {
-  x = x - ((x >> 1) & 0x5555555555555555ull);
-  x = (x & 0x3333333333333333ull) + ((x >> 2) & 0x3333333333333333ull);
-  x = (x + (x >> 4)) & 0x0f0f0f0f0f0f0f0full;
-  return static_cast<int>((x * 0x0101010101010101ull) >> 56);
-}
-
-// Vertex numbers from a bitmap of used voxels: the rank of a voxel among the used ones (ascending
-// linear index, the grid's vertex order).
-struct VertexNumbers {
-  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
-  std::vector<std::uint64_t> bits;
-  std::vector<std::uint64_t> before;  // used voxels in the words before each word
-  std::uint32_t id(std::int64_t voxel) const {
-    const std::size_t w = static_cast<std::size_t>(voxel) >> 6;
-    const std::uint64_t below = bits[w] & ((std::uint64_t{1} << (voxel & 63)) - 1);
-    return static_cast<std::uint32_t>(before[w] + static_cast<std::uint64_t>(bit_count(below)));
-  }
-  bool used(std::int64_t voxel) const { return (bits[static_cast<std::size_t>(voxel) >> 6] >> (voxel & 63)) & 1; }
-  // kNone for a voxel that is no vertex.
-  std::uint32_t find(std::int64_t voxel) const { return used(voxel) ? id(voxel) : kNone; }
-  void count() {
-    assign_big(before, bits.size() + 1, std::uint64_t{0});
-    for (std::size_t w = 0; w < bits.size(); ++w) before[w + 1] = before[w] + static_cast<std::uint64_t>(bit_count(bits[w]));
   }
 };
 

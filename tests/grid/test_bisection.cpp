@@ -70,7 +70,7 @@ Check brute_force(const Volume& v, const TetGrid& g) {
 }
 
 struct Conformity {
-  std::size_t unpaired_interior = 0, same_orientation = 0, shared_by_more = 0, nonpositive = 0, hanging = 0;
+  std::size_t unpaired_interior = 0, same_orientation = 0, shared_by_more = 0, nonpositive = 0, hanging = 0, unused_vertices = 0;
   bool volume_is_box = false;
 };
 
@@ -109,6 +109,12 @@ Conformity conformity(const Volume& v, const TetGrid& g) {
     }
   }
   c.volume_is_box = six_volume == 6 * (v.dims[0] - 1) * (v.dims[1] - 1) * (v.dims[2] - 1);
+  // The selection finds its vertices from the split diamonds, not from the leaves: each must be a
+  // leaf's corner.
+  std::vector<bool> used(g.vertex_count(), false);
+  for (const auto& t : g.tets)
+    for (std::uint32_t i : t) used[i] = true;
+  c.unused_vertices = static_cast<std::size_t>(std::count(used.begin(), used.end(), false));
   if (g.vertex_count() <= 4000) {
     std::set<I3> vertices;
     for (std::uint32_t i = 0; i < g.vertex_count(); ++i) vertices.insert(at(g, i));
@@ -133,6 +139,7 @@ void expect_conforming(const Volume& v, const TetGrid& g, const std::string& wha
   EXPECT_EQ(c.same_orientation, 0u) << what;
   EXPECT_EQ(c.shared_by_more, 0u) << what;
   EXPECT_EQ(c.hanging, 0u) << what;
+  EXPECT_EQ(c.unused_vertices, 0u) << what;
   EXPECT_TRUE(c.volume_is_box) << what;
 }
 
@@ -214,8 +221,9 @@ TEST(Bisection, LinearFieldGivesTheCoarsestMeshAtErrorZero) {
     const BisectionGrid coarsest = grid_of(v, 1e300);  // only the splits the box forces
     EXPECT_EQ(exact.grid.tets, coarsest.grid.tets) << d[0];
     EXPECT_LE(brute_force(v, exact.grid).max_error, 1e-9);
-    if (d[0] == d[1] && d[1] == d[2] && std::has_single_bit(static_cast<std::uint64_t>(d[0] - 1)))
+    if (d[0] == d[1] && d[1] == d[2] && std::has_single_bit(static_cast<std::uint64_t>(d[0] - 1))) {
       EXPECT_EQ(exact.grid.tet_count(), 6u) << "a 2^k+1 cube is the 6 root tetrahedra";
+    }
   }
 }
 
