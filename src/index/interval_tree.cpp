@@ -11,6 +11,7 @@
 
 #include <fmt/format.h>
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <functional>
@@ -154,22 +155,25 @@ void sort_keys(std::vector<std::uint64_t>& keys, std::vector<std::uint64_t>& scr
 // Sorts one node's entries, in by_min[b, e) and by_max[b, e) in increasing id order, by (tmin, id)
 // and (tmax, id). Each tetrahedron's range is read once (its tetrahedron and four values, from
 // scattered places: prefetched ahead) for both keys.
+//
+// For float keys, two arrays of keys, not three: while the keys by minimum are sorted, the keys by
+// maximum wait in by_max (32 bits) and the ids in by_min. They are the caller's, one pair per
+// worker: not thread_local, since a thread waiting inside the nested parallel_for that populates
+// a large array may run another node's sort meanwhile.
 template <class K>
-void sort_node(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, std::uint64_t e) {
+void sort_node(const TetGrid& grid, IntervalTree& tree, std::uint64_t b, std::uint64_t e, std::vector<std::uint64_t>& a,
+               std::vector<std::uint64_t>& c) {
   std::uint32_t* by_min = tree.by_min.data();
   std::uint32_t* by_max = tree.by_max.data();
   if constexpr (std::is_same_v<K, float>) {
-    // Two arrays of keys per thread, not three: while the keys by minimum are sorted, the keys by
-    // maximum wait in by_max (32 bits) and the ids in by_min.
-    thread_local std::vector<std::uint64_t> a, c;
-    a.resize(e - b);
+    detail::resize_big(a, e - b);  // a node of millions: faulted in on huge pages, not page by page
     for (std::uint64_t i = b; i < e; ++i) {
       const Range q = range_reading_ahead(grid, by_min, i, e);
       a[i - b] = ordered(static_cast<float>(q.lo), by_min[i]);
       by_max[i] = static_cast<std::uint32_t>(ordered(static_cast<float>(q.hi), 0) >> 32);
     }
     sort_keys(a, c);
-    c.resize(e - b);
+    detail::resize_big(c, e - b);
     for (std::uint64_t i = b; i < e; ++i) c[i - b] = std::uint64_t{by_max[i]} << 32 | by_min[i];
     for (std::uint64_t i = b; i < e; ++i) by_min[i] = static_cast<std::uint32_t>(a[i - b]);
     sort_keys(c, a);
@@ -343,8 +347,17 @@ void sort_lists(IntervalTree& tree, const TetGrid& grid, std::size_t scratch_byt
   std::size_t lean = 0;
   while (lean < order.size() && size(order[lean]) * per_entry > share) ++lean;
   for (std::size_t k = 0; k < lean; ++k) sort_node_lean<K>(grid, tree, tree.nodes[order[k]].begin, tree.nodes[order[k]].end);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(lean, order.size(), 1), [&](const auto& r) {
-    for (std::size_t k = r.begin(); k < r.end(); ++k) sort_node<K>(grid, tree, tree.nodes[order[k]].begin, tree.nodes[order[k]].end);
+  // Each worker takes the largest node left. A parallel_for over the nodes did not: its threads
+  // steal the far half of each other's ranges, the small nodes, and it left the two largest (the
+  // bunny's 12 and 11 M entries) to one thread, one after the other, while the other idled. Each
+  // node's sort is isolated, so that a worker waiting in its nested populate does not start
+  // another worker's loop in the meantime.
+  std::atomic<std::size_t> next{lean};
+  const int threads = tbb::this_task_arena::max_concurrency();
+  tbb::parallel_for(0, threads, [&](int) {
+    std::vector<std::uint64_t> a, c;
+    for (std::size_t k; (k = next.fetch_add(1, std::memory_order_relaxed)) < order.size();)
+      tbb::this_task_arena::isolate([&] { sort_node<K>(grid, tree, tree.nodes[order[k]].begin, tree.nodes[order[k]].end, a, c); });
   });
 }
 

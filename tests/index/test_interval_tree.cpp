@@ -162,6 +162,31 @@ TEST(IntervalTree, SplitsChosenOnASampleStillPlaceEveryTetInItsSmallestNode) {
   expect_same_tree_on_one_thread(tree, g, 8);
 }
 
+// A node of over 2^22 entries takes key arrays of over 32 MiB, populated by a nested parallel
+// loop while the other worker sorts the small nodes: a worker waiting in that loop must not start
+// another node's sort on the arrays in use (they were thread_local once), nor leave the largest
+// nodes to one thread. The lists are those of one thread, each tetrahedron in its smallest node.
+TEST(IntervalTree, NodesOfMillionsSortedBesideSmallOnesByEachWorkerGiveTheListsOfOneThread) {
+  TetGrid g;
+  std::mt19937 rng(19);
+  g.values.resize(100000);
+  for (auto& v : g.values) v = static_cast<double>(rng() % 8192);
+  std::sort(g.values.begin(), g.values.end());
+  g.ijk.resize(g.values.size());
+  g.tets.resize((std::size_t{1} << 22) + (std::size_t{1} << 21));
+  const auto n = static_cast<std::uint32_t>(g.values.size());
+  for (std::size_t t = 0; t < g.tets.size(); ++t) {
+    const auto base = static_cast<std::uint32_t>(rng() % (n - 16));
+    for (auto& q : g.tets[t]) q = base + static_cast<std::uint32_t>(rng() % 16);
+    if (t % 5 != 0) g.tets[t][0] = base < n / 2 ? n - 1 - rng() % 16 : rng() % 16;  // four in five across the middle
+  }
+  const IntervalTree tree = build_interval_tree(g, 8);
+  ASSERT_GT(tree.nodes[0].end - tree.nodes[0].begin, (std::uint64_t{32} << 20) / 8) << "the root's keys must take a populated array";
+  EXPECT_NO_THROW(validate_interval_tree(tree, g, "t"));
+  expect_each_tet_in_its_smallest_node_sorted(tree, g);
+  expect_same_tree_on_one_thread(tree, g, 8);
+}
+
 // Under a scratch budget, the nodes too large for it are sorted the memory-lean way (buckets by
 // sampled splitters, a scatter and a permutation in place; interval_tree.hpp): the same lists as
 // the fast way, on float values full of ties, on values that are not floats (pair keys) and with
