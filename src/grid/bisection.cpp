@@ -645,13 +645,15 @@ std::vector<std::uint64_t> split_centres(const Lattice& lat, const Rule& rule, s
   return bits;
 }
 
-// The grid of a traversal's leaves inside the box. The vertices they use are marked among the
-// `voxels` voxels a byte each (a relaxed atomic byte store is a plain store; a bit would need a
-// locked read-modify-write), numbered in voxel order, size(count) sizes the arrays and
-// fill(voxel, id) gives each vertex its data (out.grid.values at least); then the tetrahedra are
-// written with their final numbers, and each split diamond gets the span of the values beneath
-// it. Both walks cut the hierarchy 12 splits below the roots into subtrees run in parallel and
-// placed in depth-first order, so the grid is the same for any thread count.
+// The grid of a traversal's leaves inside the box. A first walk counts the leaves of each subtree.
+// The vertices are the split diamonds' centres (split_centres) under a rule closed upwards; under
+// another, the first walk marks the leaves' corners among the `voxels` voxels, a byte each (a
+// relaxed atomic byte store is a plain store; a bit would need a locked read-modify-write). They
+// are numbered in voxel order, size(count) sizes the arrays and fill(voxel, id) gives each vertex
+// its data (out.grid.values at least); then a second walk writes the tetrahedra with their final
+// numbers, and each split diamond gets the span of the values beneath it. Both walks cut the
+// hierarchy 12 splits below the roots into subtrees run in parallel and placed in depth-first
+// order, so the grid is the same for any thread count.
 //
 // With `own_code` (the codes by voxel), each tetrahedron's own bound is kept too, in
 // out.tet_code: the code of the diamond it would split at, at least `own_least` (0 for a unit
@@ -664,36 +666,25 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   const std::vector<Subtree>& roots = top.roots;
   std::vector<std::uint64_t> leaves(roots.size() + 1, 0);
   report(progress, "select", 0);
-  VertexNumbers numbers;  // over the voxels
-  if constexpr (Rule::kUpwardClosed) {
-    tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
-      std::uint64_t count = 0;
-      walk.visit(
-          roots[f],
-          [&](const Tet&, std::int64_t) {
-            ++count;
-            return ValueSpan{};
-          },
-          [](std::int64_t, const Tet&, const ValueSpan&) {});
-      leaves[f + 1] = count;
-    });
-    numbers.bits = split_centres(lat, rule, voxels);
-  } else {
-    std::vector<std::uint8_t> used;
-    assign_big(used, voxels, std::uint8_t{0});
-    tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
-      std::uint64_t count = 0;
-      walk.visit(
-          roots[f],
-          [&](const Tet& t, std::int64_t) {
-            ++count;
+  constexpr bool kMarked = !Rule::kUpwardClosed;  // the vertices marked by the leaves, not found from the codes
+  std::vector<std::uint8_t> used;
+  if constexpr (kMarked) assign_big(used, voxels, std::uint8_t{0});
+  tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
+    std::uint64_t count = 0;
+    walk.visit(
+        roots[f],
+        [&](const Tet& t, std::int64_t) {
+          ++count;
+          if constexpr (kMarked)
             for (const Coord& c : t)
               std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
-            return ValueSpan{};
-          },
-          [](std::int64_t, const Tet&, const ValueSpan&) {});
-      leaves[f + 1] = count;
-    });
+          return ValueSpan{};
+        },
+        [](std::int64_t, const Tet&, const ValueSpan&) {});
+    leaves[f + 1] = count;
+  });
+  VertexNumbers numbers;  // over the voxels
+  if constexpr (kMarked) {
     numbers.bits.assign((used.size() + 63) / 64, 0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 4096), [&](const auto& r) {
       for (std::size_t w = r.begin(); w < r.end(); ++w) {
@@ -702,6 +693,9 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
         numbers.bits[w] = bits;
       }
     });
+    std::vector<std::uint8_t>().swap(used);
+  } else {
+    numbers.bits = split_centres(lat, rule, voxels);
   }
   for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
   numbers.count();
