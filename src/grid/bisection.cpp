@@ -555,7 +555,6 @@ struct CodedSplits {
     return code[i] > threshold || (displacement && (*displacement)[i] > displacement_threshold);
   }
   Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
-  void prefetch(std::int64_t voxel) const { __builtin_prefetch(code.data() + voxel); }
 };
 
 // The selection under a cell floor: a diamond centred at (x, y, z) splits cubes of side 2^(t+1)
