@@ -167,6 +167,43 @@ nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const Mes
   return results;
 }
 
+// Every iso-value within a distance of the grid's own surface (surface-adaptive extraction).
+nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
+                            double distance, const OutputFlags& out) {
+  const HierarchyQuery query(prepared);
+  const TetGrid& grid = prepared->grid;
+  nlohmann::json results = nlohmann::json::array();
+  for (std::size_t i = 0; i < isos.size(); ++i) {
+    DistanceQueryStats st;
+    const Mesh mesh = query.extract_within(isos[i], distance, &st);
+    const std::string path = mesh_out.path(i);
+    auto t0 = Clock::now();
+    const auto [simplified, how] = mesh_out.write(mesh, path, grid.source.spacing);
+    const double seconds = st.refine_seconds + st.walk_seconds + st.march_seconds;
+    results.push_back({{"iso", st.iso},
+                       {"in_range", st.in_range},
+                       {"triangles", st.triangles},
+                       {"vertices", st.vertices},
+                       {"distance_voxels", st.distance},
+                       {"marched_tetrahedra", st.tetrahedra},
+                       {"explored_tetrahedra", st.explored},
+                       {"refined_diamonds", st.refined},
+                       {"closure_diamonds", st.closure},
+                       {"visited_tetrahedra", st.visited},
+                       {"seconds", seconds},
+                       {"refine_seconds", st.refine_seconds},
+                       {"walk_seconds", st.walk_seconds},
+                       {"march_seconds", st.march_seconds},
+                       {"write_seconds", seconds_since(t0)},
+                       {"output", path}});
+    if (!simplified.is_null()) results.back()["simplify"] = simplified;
+    if (!out.json && !out.quiet)
+      print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
+                    fmt::format("within about {:g} voxels of the grid's surface", st.distance) + how, seconds, path);
+  }
+  return results;
+}
+
 }  // namespace
 
 void add_extract(CLI::App& app) {
@@ -176,8 +213,13 @@ void add_extract(CLI::App& app) {
   auto relative = std::make_shared<bool>(false);
   auto max_error = std::make_shared<double>(-1);
   auto max_displacement = std::make_shared<double>(0);
+  auto distance = std::make_shared<double>(-1);
   auto out = std::make_shared<OutputFlags>();
   cmd->add_option("GRID", *input, "Grid file (.adg) written by prepare")->required();
+  cmd->add_option("--distance", *distance,
+                  "Bisection grids: the fewest triangles within about this distance of the grid's surface (voxels of the smallest "
+                  "spacing), refined where this surface needs it")
+      ->check(finite_number() & CLI::NonNegativeNumber);
   mesh_out->add(cmd);
   cmd->add_flag("--relative", *relative, "Iso-values (and --max-error) as fractions of the value range [min, max]");
   cmd->add_option("--max-error", *max_error,
@@ -195,7 +237,9 @@ void add_extract(CLI::App& app) {
     const double t_load = seconds_since(t0);
     auto values = mesh_out->values(*relative, grid.source.min, grid.source.max, *input);
     nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
-    if (*max_error >= 0 || *max_displacement > 0) {
+    if (*distance >= 0) {
+      j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
+    } else if (*max_error >= 0 || *max_displacement > 0) {
       const double e = *max_error < 0 ? 0 : *relative ? *max_error * (grid.source.max - grid.source.min) : *max_error;
       if (!std::isfinite(e))
         throw InputError(fmt::format("--max-error with --relative: the value range [{:g}, {:g}] of {} is too wide to scale",

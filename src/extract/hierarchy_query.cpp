@@ -4,28 +4,101 @@
 #include "adaptiso/hierarchy_query.hpp"
 
 #include <fmt/format.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
+
+#include <bit>
+#include <limits>
 
 #include <chrono>
 #include <cmath>
 
 #include "adaptiso/error.hpp"
 #include "extract/march_detail.hpp"
+#include "extract/hierarchy_index.hpp"
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"
 
 namespace adaptiso {
 namespace detail {
+void LiningSpans::build(const Lattice& lat, const VertexNumbers& numbers, const TetGrid& grid, const BisectionHierarchy& h) {
+  struct Entry {
+    std::uint64_t key;
+    float lo, hi;
+  };
+  tbb::enumerable_thread_specific<std::vector<Entry>> found;
+  // The span beneath a tetrahedron: inside the box, its corners' and (when the grid splits it) its
+  // diamond's; across the box, its halves'.
+  auto span_of = [&](auto&& self, const Tet& t, OrderState o, int depth) -> ValueSpan {
+    if (tet_outside(lat, t)) return {};
+    ValueSpan s;
+    Coord m;
+    int i, j;
+    const bool splits = refinement(t, o, m, i, j);
+    if (tet_inside(lat, t)) {
+      for (const Coord& c : t) {
+        const double v = grid.values[numbers.id(lat.index(c))];
+        s.add({v, v});
+      }
+      if (splits && numbers.used(lat.index(m))) {
+        const auto& d = h.value_span[numbers.id(lat.index(m))];
+        s.add({d[0], d[1]});
+      }
+      return s;
+    }
+    if (!splits || !(lat.in_box(m) ? numbers.used(lat.index(m)) : placement(classify(m, lat.k), lat).forced)) return s;
+    const auto [a, b] = halves(t, o, m, i, j);
+    ValueSpan sa, sb;
+    if (depth < 12)
+      tbb::parallel_invoke([&] { sa = self(self, a.tet, a.order, depth + 1); }, [&] { sb = self(self, b.tet, b.order, depth + 1); });
+    else
+      sa = self(self, a.tet, a.order, depth + 1), sb = self(self, b.tet, b.order, depth + 1);
+    s.add(sa);
+    s.add(sb);
+    found.local().push_back({key(lat, m), static_cast<float>(s.lo), static_cast<float>(s.hi)});
+    return s;
+  };
+  const auto roots = root_tetrahedra(lat.S);
+  tbb::parallel_for(0, 6, [&](int r) { span_of(span_of, roots[static_cast<std::size_t>(r)], root_order(r), 0); });
+  std::size_t n = 0;
+  for (const auto& part : found) n += part.size();
+  const std::size_t cap = std::bit_ceil(std::max<std::size_t>(16, 2 * n));
+  shift_ = 64 - std::countr_zero(cap);
+  slots_.assign(cap, Slot{});
+  count_ = 0;
+  for (const auto& part : found)
+    for (const Entry& e : part) {
+      // Floats rounded outwards, so the stored span holds the values.
+      const float lo = e.lo, hi = e.hi;
+      std::size_t at = home(e.key);
+      while (slots_[at].key != kEmpty && slots_[at].key != e.key) at = (at + 1) & (cap - 1);
+      Slot& s = slots_[at];
+      if (s.key == kEmpty) {
+        s = {e.key, std::nextafter(lo, -std::numeric_limits<float>::infinity()), std::nextafter(hi, std::numeric_limits<float>::infinity())};
+        ++count_;
+      } else {
+        s.lo = std::min(s.lo, std::nextafter(lo, -std::numeric_limits<float>::infinity()));
+        s.hi = std::max(s.hi, std::nextafter(hi, std::numeric_limits<float>::infinity()));
+      }
+    }
+}
 
-// What a query needs beside the grid: the lattice and the voxel → vertex numbering.
-struct HierarchyIndex {
-  Lattice lat;
-  VertexNumbers numbers;
-};
+bool LiningSpans::may_cut(const Lattice& lat, const Coord& m, double iso) const {
+  if (slots_.empty()) return true;
+  const std::uint64_t k = key(lat, m);
+  for (std::size_t at = home(k);; at = (at + 1) & (slots_.size() - 1)) {
+    const Slot& s = slots_[at];
+    if (s.key == kEmpty) return true;
+    if (s.key == k) return s.lo < iso && iso <= s.hi;
+  }
+}
 
 namespace {
 
 struct QueryRule {
+  const Lattice& lat;
+  const LiningSpans& lining;
   const VertexNumbers& numbers;
   const BisectionHierarchy& h;
   std::uint8_t threshold, displacement_threshold;
@@ -40,6 +113,7 @@ struct QueryRule {
     const std::uint32_t id = numbers.find(voxel);
     return id != VertexNumbers::kNone && split_vertex(id);
   }
+  bool may_cut_across(const Coord& m) const { return lining.may_cut(lat, m, iso); }
   Decision decide(std::int64_t voxel) const {
     const std::uint32_t id = numbers.find(voxel);
     if (id == VertexNumbers::kNone || !split_vertex(id)) return Decision::leaf;
@@ -68,6 +142,7 @@ HierarchyQuery::HierarchyQuery(std::shared_ptr<const PreparedGrid> grid) : grid_
     n.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
   }
   n.count();
+  index_->lining.build(index_->lat, n, g, *grid_->hierarchy);
 }
 
 HierarchyQuery::~HierarchyQuery() = default;
@@ -99,7 +174,7 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
       displacement
           ? std::max(max_displacement > 0 ? h.displacement_codes.threshold(max_displacement) : std::uint8_t{0}, h.displacement_threshold)
           : 0;
-  const QueryRule rule{index_->numbers, h, threshold, displacement_threshold, displacement, iso};
+  const QueryRule rule{index_->lat, index_->lining, index_->numbers, h, threshold, displacement_threshold, displacement, iso};
   const Traversal<QueryRule> walk(index_->lat, rule);
   const Frontier top = walk.frontier(10);
   const double unsplit_bound = h.codes.error(h.error_threshold);  // leaves whose diamond the grid never split

@@ -54,7 +54,15 @@ struct MarchChunk {
   std::shared_ptr<EdgeMap> map;
   std::size_t owned = 0;
 };
+// Where the mesh vertex of a cut edge really lies: the distance query (distance_query.cpp) marches
+// coarse tetrahedra but places each vertex on the grid's own cut edge inside the coarse one.
+struct EdgeRemap {
+  virtual ~EdgeRemap() = default;
+  virtual std::uint64_t fine(std::uint64_t coarse_key) const = 0;  // edge keys (below << 32 | above)
+};
+
 struct MarchScratch {
+  const EdgeRemap* remap = nullptr;  // set: vertices on the remapped edges (vertex_edges are those)
   std::vector<std::uint8_t> codes;
   std::vector<std::uint64_t> first_triangle, order;
   std::vector<MarchChunk> chunks;

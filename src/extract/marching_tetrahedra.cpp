@@ -195,6 +195,10 @@ void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, M
     for (std::size_t j = 0; j < ch.local.size() / 3; ++j)
       for (int k = 0; k < 3; ++k) mesh.triangles[tri_at[c] + j][k] = ch.global[ch.local[3 * j + k]];
   });
+  if (sc.remap)
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 1024), [&](const auto& r) {
+      for (std::size_t i = r.begin(); i < r.end(); ++i) order[i] = sc.remap->fine(order[i]);
+    });
   if (!ends) return interpolate_vertices(grid, order, iso, mesh);
   resize_for_overwrite(*ends, order.size());
   resize_for_overwrite(mesh.positions, order.size());

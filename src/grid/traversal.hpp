@@ -127,6 +127,18 @@ inline bool refinement(const Tet& t, OrderState o, Coord& m, int& i, int& j) {
   return true;
 }
 
+// Wholly beyond a far face of the box.
+inline bool tet_outside(const Lattice& lat, const Tet& t) {
+  for (int a = 0; a < 3; ++a)
+    if (std::min({t[0][a], t[1][a], t[2][a], t[3][a]}) >= lat.X[a]) return true;
+  return false;
+}
+inline bool tet_inside(const Lattice& lat, const Tet& t) {
+  for (const Coord& v : t)
+    if (!lat.in_box(v)) return false;
+  return true;
+}
+
 // A tetrahedron of the hierarchy with its order.
 struct Subtree {
   Tet tet;
@@ -270,6 +282,7 @@ private:
     Coord m;
     int i, j;
     if (!refinement(t, o, m, i, j) || !split_across(m)) return {};  // a leaf not inside is beyond the box
+    if (!may_cut_across(m)) return {};
     const auto [a, b] = halves(t, o, m, i, j);
     ValueSpan s = visit(a.tet, a.order, walk, leaf, split);
     s.add(visit(b.tet, b.order, walk, leaf, split));
@@ -337,8 +350,8 @@ private:
       const Decision d = rule_.decide(lat_.index(m));
       if (d == Decision::leaf) return f.roots.push_back({t, o});
       if (d == Decision::prune) return;
-    } else if (!split_across(m)) {
-      return;  // a leaf not inside is beyond the box
+    } else if (!split_across(m) || !may_cut_across(m)) {
+      return;  // a leaf not inside is beyond the box, or nothing beneath matters to the rule
     }
     const std::size_t first = f.roots.size();
     const auto [a, b] = halves(t, o, m, i, j);
@@ -347,22 +360,21 @@ private:
     if (in) f.splits.push_back({lat_.index(m), t, first, f.roots.size()});
   }
 
-  // Wholly beyond a far face of the box.
-  bool outside(const Tet& t) const {
-    for (int a = 0; a < 3; ++a)
-      if (std::min({t[0][a], t[1][a], t[2][a], t[3][a]}) >= lat_.X[a]) return true;
-    return false;
-  }
-  bool inside(const Tet& t) const {
-    for (const Coord& v : t)
-      if (!lat_.in_box(v)) return false;
-    return true;
-  }
+  bool outside(const Tet& t) const { return tet_outside(lat_, t); }
+  bool inside(const Tet& t) const { return tet_inside(lat_, t); }
   // A tetrahedron not inside the box: split when its diamond crosses the box (the rule decides
   // for a midpoint in the box, whose diamond may have tetrahedra inside).
   bool split_across(const Coord& m) const {
     if (lat_.in_box(m)) return rule_.split(lat_.index(m));
     return placement(classify(m, lat_.k), lat_).forced;
+  }
+  // A rule that prunes (a query for one iso-value) may prune tetrahedra across the box too, by
+  // their diamond's centre.
+  bool may_cut_across(const Coord& m) const {
+    if constexpr (requires { rule_.may_cut_across(m); })
+      return rule_.may_cut_across(m);
+    else
+      return true;
   }
 };
 
