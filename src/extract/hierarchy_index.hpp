@@ -2,8 +2,13 @@
 // distance_query.cpp): the lattice, the voxel → vertex numbering, and the values beneath the
 // diamonds that cross the box's far faces. Internal.
 #pragma once
+#include <tbb/enumerable_thread_specific.h>
+
 #include <array>
+#include <atomic>
 #include <cstdint>
+#include <memory>
+#include <mutex>
 #include <vector>
 
 #include "adaptiso/prepare.hpp"
@@ -40,10 +45,70 @@ private:
   std::size_t home(std::uint64_t k) const { return static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ull) >> shift_); }
 };
 
+// A bitmap over the voxels for one query's marks, kept for the next query: the words it set are
+// cleared after it, not the whole map (a fresh zeroed map of the bunny's 95 M voxels, 12 MB, cost
+// the kernel more than the query: its pages are zeroed 2 MB at a time). Marking is thread-safe.
+class Marks {
+public:
+  explicit Marks(std::size_t voxels) : words_((voxels + 63) / 64, 0) {}
+  bool test(std::int64_t v) const {
+    return (std::atomic_ref<const std::uint64_t>(words_[static_cast<std::size_t>(v >> 6)]).load(std::memory_order_acquire) >> (v & 63)) & 1;
+  }
+  // True when v was not marked before.
+  bool mark(std::int64_t v) {
+    const std::uint64_t bit = std::uint64_t{1} << (v & 63);
+    const auto w = static_cast<std::size_t>(v >> 6);
+    const std::uint64_t old = std::atomic_ref<std::uint64_t>(words_[w]).fetch_or(bit, std::memory_order_acq_rel);
+    if (old == 0) touched_.local().push_back(w);  // one thread finds each word empty
+    return !(old & bit);
+  }
+  void clear() {
+    for (auto& list : touched_) {
+      for (std::size_t w : list) words_[w] = 0;
+      list.clear();
+    }
+  }
+
+private:
+  std::vector<std::uint64_t> words_;
+  tbb::enumerable_thread_specific<std::vector<std::size_t>> touched_;
+};
+
+// What a distance query marks (distance_query.cpp): the diamonds split, and the cubes whose own
+// test ran with its answer.
+struct DistanceMarks {
+  explicit DistanceMarks(std::size_t voxels) : split(voxels), decided(voxels), own(voxels) {}
+  Marks split, decided, own;
+  void clear() {
+    split.clear();
+    decided.clear();
+    own.clear();
+  }
+};
+
 struct HierarchyIndex {
   Lattice lat;
   VertexNumbers numbers;
   LiningSpans lining;
+  // Marks of finished queries, for the next ones (as many as ran at once).
+  std::mutex pool_mutex;
+  std::vector<std::unique_ptr<DistanceMarks>> pool;
+  std::unique_ptr<DistanceMarks> take_marks() {
+    {
+      std::lock_guard lock(pool_mutex);
+      if (!pool.empty()) {
+        auto m = std::move(pool.back());
+        pool.pop_back();
+        return m;
+      }
+    }
+    return std::make_unique<DistanceMarks>(static_cast<std::size_t>(lat.nxy * (lat.X[2] + 1)));
+  }
+  void give_back(std::unique_ptr<DistanceMarks> m) {
+    m->clear();
+    std::lock_guard lock(pool_mutex);
+    pool.push_back(std::move(m));
+  }
 };
 
 }  // namespace adaptiso::detail
