@@ -41,10 +41,9 @@ struct HierarchyQueryStats {
 struct DistanceQueryStats {
   double iso = 0;
   double distance = 0;         // asked for, voxels of the smallest spacing
-  std::size_t cubes = 0;       // whole cubes contoured
-  std::size_t tetrahedra = 0;  // other leaves marched
-  std::size_t tested = 0;      // cubes whose own test ran
-  std::size_t refined = 0;     // cubes split by their test, and by the closure that keeps the mesh conforming
+  std::size_t tetrahedra = 0;  // leaves marched
+  std::size_t tested = 0;      // tetrahedra the refinement tested
+  std::size_t refined = 0;     // diamonds split by the tests, and by the closure that keeps the mesh conforming
   std::size_t closure = 0;     // of those, split only to keep it conforming
   std::size_t visited = 0;     // tetrahedra the final walk met
   std::size_t triangles = 0, vertices = 0;

@@ -11,31 +11,32 @@
 // point interpolated between far-apart corners misses a sharp boundary by up to half the cell, the
 // grid's own cut point inside the coarse edge does not.
 //
-// Refinement is decided per cube, as in an octree. The hierarchy's cube diamonds (a cube of side
-// 2h, 6 tetrahedra around its diagonal) are split when their own test says so; a face diamond is
-// split when both cubes beside it are, an edge diamond when the four cubes around it are. So the
-// leaves are mostly whole cubes, contoured like marching cubes (Lorensen & Cline 1987) along their
-// 12 axis edges, with loops assembled from each face's segments; marching tetrahedra, with their
-// 7 edge directions per cube, remain for the tetrahedra between cubes of two sizes. On a cube face
-// the two sides must agree: the face is cut as its two triangles are (its diagonal decides an
-// ambiguous face), and the diagonal's cut point is kept where the other side is not a whole cube
-// of the same size (its tetrahedra use it) and dropped where it is. About 2.5× fewer triangles
-// than marching tetrahedra in the same cells.
-//
-// A cube's own test, at its marching-cubes surface with vertices on the grid's surface: split when
-// the centre of one of its triangles lies farther than the distance from the grid's surface (the
-// grid's interpolant has the same sign at both ends of the segment centre ± distance·normal), or,
-// when no corner shows the surface but the values beneath straddle the iso-value, when its side
-// exceeds 2·distance (smaller hidden parts are left out).
+// A tetrahedron the surface may cross (the values beneath its diamond straddle the iso-value) is
+// split when
+// - its surface (one or two triangles through its edges' cut points, which lie on the grid's
+//   surface) is too far: a triangle's centre farther than the distance from the grid's surface
+//   (the grid's interpolant has the same sign at both ends of centre ± distance·normal), or a cut
+//   point the split adds (on the edges from the refinement edge's midpoint to the other two
+//   corners) farther than the distance from its triangles;
+// - or a surface hides beneath: no corner shows it and its longest edge exceeds 2·distance, or
+//   the midpoint differs from both ends of the refinement edge and it exceeds the distance.
+// Smaller hidden parts are left out. Tetrahedra whose longest edge is within the distance are not
+// probed: every point of their triangles lies within it of a cut point.
 //
 // Three passes:
-// 1. Refine (parallel, top-down): the walk splits by the rules above, each cube's test computed
-//    once (bitmaps over the voxels, zero pages until written).
-// 2. Close: every split cube's coarser neighbours that its parents need are split too, up to the
-//    roots (octree balance), so the mesh is conforming. A set: the same for any thread count.
-// 3. Walk the final hierarchy (traversal.hpp), contour its whole cubes and march its other cut
-//    leaves in walk order, each mesh vertex on the grid's cut edge inside the coarse edge
-//    (march_detail.hpp: EdgeRemap); vertices numbered by first use, chunk-parallel.
+// 1. Refine (parallel, top-down), each tetrahedron carrying its corners and its edges' cut points
+//    (a split keeps the refinement edge's cut point in one half and adds at most two); the split
+//    diamonds are marked in a bitmap over the voxels.
+// 2. Close: every marked diamond's parents are marked, up to the roots, so the leaves form a
+//    conforming mesh. A set: the same for any thread count.
+// 3. Walk the marked hierarchy (traversal.hpp) and march its cut leaves in walk order, each mesh
+//    vertex on the grid's cut edge inside the coarse edge; vertices numbered by first use,
+//    chunk-parallel (march_detail.hpp).
+//
+// Tried and not kept: whole cubes of the hierarchy contoured as marching cubes along their 12
+// axis edges (loops of their faces' segments, the face diagonals' cuts dropped between whole
+// cubes). On the CT bunny it saved 4 % of the triangles (whole cubes are few among the leaves)
+// and moved the surface farther: its triangles were not the ones the refinement had tested.
 #include <fmt/format.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -60,6 +61,41 @@ namespace {
 
 using Point = std::array<double, 3>;
 
+// The closest point of triangle abc to p (Ericson, "Real-Time Collision Detection", §5.1.5),
+// returned as the squared distance.
+double distance2_to_triangle(const Point& p, const Point& a, const Point& b, const Point& c) {
+  auto sub = [](const Point& u, const Point& v) { return Point{u[0] - v[0], u[1] - v[1], u[2] - v[2]}; };
+  auto dot = [](const Point& u, const Point& v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; };
+  auto at = [&](const Point& base, const Point& d1, double s, const Point& d2, double t) {
+    return Point{base[0] + s * d1[0] + t * d2[0], base[1] + s * d1[1] + t * d2[1], base[2] + s * d1[2] + t * d2[2]};
+  };
+  auto d2 = [&](const Point& q) {
+    const Point d = sub(p, q);
+    return dot(d, d);
+  };
+  const Point ab = sub(b, a), ac = sub(c, a), ap = sub(p, a);
+  const double d1 = dot(ab, ap), d2v = dot(ac, ap);
+  if (d1 <= 0 && d2v <= 0) return d2(a);
+  const Point bp = sub(p, b);
+  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) return d2(b);
+  const double vc = d1 * d4 - d3 * d2v;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return d2(at(a, ab, d1 / (d1 - d3), ac, 0));
+  const Point cp = sub(p, c);
+  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) return d2(c);
+  const double vb = d5 * d2v - d1 * d6;
+  if (vb <= 0 && d2v >= 0 && d6 <= 0) return d2(at(a, ab, 0, ac, d2v / (d2v - d6)));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
+    const double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+    return d2(Point{b[0] + w * (c[0] - b[0]), b[1] + w * (c[1] - b[1]), b[2] + w * (c[2] - b[2])});
+  }
+  if (!(va + vb + vc > 0)) return std::min({d2(a), d2(b), d2(c)});  // a degenerate triangle
+  const double denom = 1 / (va + vb + vc);
+  return d2(at(a, ab, vb * denom, ac, vc * denom));
+}
+
 // The grid's cut edge inside a hierarchy edge.
 struct Cut {
   Coord below, above;
@@ -74,41 +110,12 @@ struct Corner {
   double value;
 };
 
-// A mesh vertex as the coarse edge it cuts (edge_key: below vertex << 32 | above vertex), with its
-// place on the grid's surface (voxels) while refining.
+// A cut point: the coarse edge it cuts (edge_key: below vertex << 32 | above vertex) and its place
+// on the grid's surface (voxels).
 struct CutPoint {
   std::uint64_t key;
   Point p;
 };
-
-// The cube of side 2h centred at c: corner k at c + h·(±1, ±1, ±1), bit a of k set for +.
-Coord cube_corner(const Coord& c, std::int32_t h, int k) {
-  return {c[0] + (k & 1 ? h : -h), c[1] + (k & 2 ? h : -h), c[2] + (k & 4 ? h : -h)};
-}
-
-// A face of a cube, its corners counter-clockwise seen from outside, the first on the cube's
-// diagonal (so the face's diagonal, in the tetrahedra, runs from corner 0 to corner 2).
-struct Face {
-  int axis, side;  // outward normal: (2·side − 1)·e_axis
-  std::array<int, 4> corner;
-};
-std::array<Face, 6> cube_faces(int diagonal_end_a, int diagonal_end_b) {
-  std::array<Face, 6> faces{};
-  int n = 0;
-  for (int a = 0; a < 3; ++a)
-    for (int side = 0; side < 2; ++side) {
-      const int b = (a + 1) % 3, c = (a + 2) % 3;
-      auto at = [&](int u, int v) { return (side << a) | (u << b) | (v << c); };
-      // e_b × e_c = e_a: (0,0) → (1,0) → (1,1) → (0,1) is counter-clockwise seen from +a.
-      std::array<int, 4> q = side ? std::array<int, 4>{at(0, 0), at(1, 0), at(1, 1), at(0, 1)}
-                                  : std::array<int, 4>{at(0, 0), at(0, 1), at(1, 1), at(1, 0)};
-      int r = 0;
-      while (q[static_cast<std::size_t>(r)] != diagonal_end_a && q[static_cast<std::size_t>(r)] != diagonal_end_b) ++r;
-      std::rotate(q.begin(), q.begin() + r, q.end());
-      faces[static_cast<std::size_t>(n++)] = {a, side, q};
-    }
-  return faces;
-}
 
 struct Query {
   const Lattice& lat;
@@ -118,11 +125,10 @@ struct Query {
   const BisectionHierarchy& h;
   double iso;
   double distance;  // voxels of the smallest spacing
+  double hidden;    // a surface no corner shows is looked for in cells larger than this (voxels)
   bool everything;  // distance 0: every diamond with a surface beneath is split
   Point unit;       // voxels of the smallest spacing per lattice step, per axis
-  Marks& split;     // cubes split (their own test, or the closure)
-  Marks& decided;   // cubes whose own test has run; its answer in `own`
-  Marks& own;
+  Marks& split;     // diamonds split (their test, or the closure)
   tbb::enumerable_thread_specific<std::vector<std::int64_t>>& marked;
   tbb::enumerable_thread_specific<std::size_t>& tested;
 
@@ -167,10 +173,8 @@ struct Query {
     return {edge_key(a_above ? b.id : a.id, a_above ? a.id : b.id), point(snap(a, b))};
   }
 
-  // ---- the split of any diamond, from the cubes' ----
-
-  // Split in the final selection (after the closure): cubes as marked (or forced by the box),
-  // faces and edges when every parent is. Only diamonds the grid splits can be.
+  // Split in the final selection (after the closure): marked, or forced by the box. Only
+  // diamonds the grid splits can be.
   bool final_split(const Coord& m) const {
     const Diamond d = classify(m, lat.k);
     if (!d.valid) return true;  // a root corner, above every diamond
@@ -180,15 +184,6 @@ struct Query {
     const std::uint32_t id = numbers.id(voxel);
     return forced(id) || everything || split.test(voxel);
   }
-  template <class Split>
-  bool parents_split(const Diamond& d, Split&& is_split) const {
-    Coord up[4];
-    const int n = parents(d, lat.S, up);
-    for (int p = 0; p < n; ++p)
-      if (!is_split(up[p])) return false;
-    return true;
-  }
-
   // ---- geometry ----
 
   static double orient(const Coord& a, const Coord& b, const Coord& d, const Point& x) {
@@ -293,100 +288,16 @@ struct Query {
   }
 };
 
-// The surface of a whole cube: loops of cut points from its faces' segments (see the top).
-// `drop_diagonal` per face (in cube_faces order): the other side is a whole cube of the same size.
-class CubeContour {
-public:
-  CubeContour(const Query& q, const Coord& centre, std::int32_t h) : q_(q) {
-    const Diamond d = classify(centre, q.lat.k);
-    const auto [p, r] = refinement_edge(d);
-    int ends[2] = {0, 0};
-    for (int k = 0; k < 8; ++k) {
-      corner_[k] = q.corner(cube_corner(centre, h, k));
-      if (corner_[k].at == p) ends[0] = k;
-      if (corner_[k].at == r) ends[1] = k;
-    }
-    faces_ = cube_faces(ends[0], ends[1]);
-  }
-  bool shown() const {
-    for (int k = 1; k < 8; ++k)
-      if (q_.above(corner_[k].value) != q_.above(corner_[0].value)) return true;
-    return false;
-  }
-  const std::array<Face, 6>& faces() const { return faces_; }
-  const Corner& corner(int k) const { return corner_[k]; }
-
-  // The loops, each counter-clockwise around the part of the cube's boundary above the iso-value
-  // (seen from outside); `with_points` computes the cut points' places too.
-  void loops(const std::array<bool, 6>& drop_diagonal, bool with_points, std::vector<std::vector<CutPoint>>& out) {
-    segments_.clear();
-    for (int f = 0; f < 6; ++f) face_segments(faces_[static_cast<std::size_t>(f)], drop_diagonal[static_cast<std::size_t>(f)], with_points);
-    out.clear();
-    std::vector<bool> used(segments_.size(), false);
-    for (std::size_t s0 = 0; s0 < segments_.size(); ++s0) {
-      if (used[s0]) continue;
-      std::vector<CutPoint> loop;
-      for (std::size_t s = s0; !used[s];) {
-        used[s] = true;
-        loop.push_back(segments_[s].from);
-        const std::uint64_t next = segments_[s].to.key;
-        std::size_t n = 0;
-        while (n < segments_.size() && (used[n] || segments_[n].from.key != next)) ++n;
-        if (n == segments_.size()) break;  // closed (the start is used)
-        s = n;
-      }
-      out.push_back(std::move(loop));
-    }
-  }
-
-private:
-  struct Segment {
-    CutPoint from, to;
-  };
-  const Query& q_;
-  Corner corner_[8];
-  std::array<Face, 6> faces_;
-  std::vector<Segment> segments_;
-
-  CutPoint cut(int a, int b, bool with_points) const {
-    if (with_points) return q_.cut(corner_[a], corner_[b]);
-    const bool a_above = q_.above(corner_[a].value);
-    return {edge_key(a_above ? corner_[b].id : corner_[a].id, a_above ? corner_[a].id : corner_[b].id), {}};
-  }
-  // A face's segments: those of its two triangles (0, 1, 2) and (0, 2, 3), each from the cut of
-  // the edge its counter-clockwise boundary crosses downwards to the one it crosses upwards (the
-  // part above the iso-value on the left); joined at the diagonal's cut point when it is dropped.
-  void face_segments(const Face& f, bool drop_diagonal, bool with_points) {
-    const int c[4] = {f.corner[0], f.corner[1], f.corner[2], f.corner[3]};
-    const int tris[2][3] = {{c[0], c[1], c[2]}, {c[0], c[2], c[3]}};
-    Segment part[2];
-    bool has[2] = {false, false};
-    for (int t = 0; t < 2; ++t) {
-      int down = -1, up = -1;
-      for (int e = 0; e < 3; ++e) {
-        const int a = tris[t][e], b = tris[t][(e + 1) % 3];
-        const bool aa = q_.above(corner_[a].value), ba = q_.above(corner_[b].value);
-        if (aa && !ba) down = e;
-        if (!aa && ba) up = e;
-      }
-      if (down < 0) continue;
-      has[t] = true;
-      part[t] = {cut(tris[t][down], tris[t][(down + 1) % 3], with_points), cut(tris[t][up], tris[t][(up + 1) % 3], with_points)};
-    }
-    const bool diagonal_cut = q_.above(corner_[c[0]].value) != q_.above(corner_[c[2]].value);
-    if (drop_diagonal && diagonal_cut && has[0] && has[1]) {
-      // One triangle's segment ends at the diagonal's cut, the other's starts there.
-      const int first = part[0].to.key == part[1].from.key ? 0 : 1;
-      segments_.push_back({part[first].from, part[1 - first].to});
-      return;
-    }
-    for (int t = 0; t < 2; ++t)
-      if (has[t]) segments_.push_back(part[t]);
-  }
+// A tetrahedron inside the box during refinement: its corners and its edges' cut points (valid
+// where the edge is cut).
+constexpr int kEdgeOf[4][4] = {{-1, 0, 1, 2}, {0, -1, 3, 4}, {1, 3, -1, 5}, {2, 4, 5, -1}};
+struct Node {
+  Tet t;
+  OrderState order;
+  Corner c[4];
+  Point cut[6];
 };
 
-// Splitting decisions during refinement: a cube's own test, memoized; faces and edges from their
-// parents (their cubes' own tests, run on demand).
 class Refine {
 public:
   explicit Refine(const Query& q) : q_(q) {}
@@ -397,97 +308,122 @@ public:
     int i, j;
     if (!refinement(t, o, m, i, j)) return;  // a unit tetrahedron
     if (tet_inside(q_.lat, t)) {
-      const std::int64_t voxel = q_.lat.index(m);
-      if (!q_.numbers.used(voxel)) return;  // a leaf of the grid
-      const std::uint32_t id = q_.numbers.id(voxel);
-      if (!q_.may_cut(id)) return;  // no surface beneath
-      if (!q_.forced(id) && !q_.everything) {
-        const Diamond d = classify(m, q_.lat.k);
-        if (!(d.kind == DiamondKind::cube ? cube_splits(d, voxel) : tetrahedron_splits(t, o, voxel))) return;
-      }
-    } else {
-      // Across the box's far faces: split when the grid splits it, unless nothing beneath matters.
-      if (q_.lat.in_box(m) ? !q_.numbers.used(q_.lat.index(m)) : !placement(classify(m, q_.lat.k), q_.lat).forced) return;
-      if (!q_.lining.may_cut(q_.lat, m, q_.iso)) return;
+      std::uint32_t id;
+      if (!worth_deciding(m, id)) return;  // before the corners' lookups: most of the box's lining stops here
+      Node n{t, o, {}, {}};
+      for (int k = 0; k < 4; ++k) n.c[k] = q_.corner(t[static_cast<std::size_t>(k)]);
+      for (int a = 0; a < 4; ++a)
+        for (int b = a + 1; b < 4; ++b)
+          if (q_.above(n.c[a].value) != q_.above(n.c[b].value)) n.cut[kEdgeOf[a][b]] = q_.cut(n.c[a], n.c[b]).p;
+      return decide(n, m, i, j, id, depth);
     }
+    // Across the box's far faces: split when the grid splits it, unless nothing beneath matters.
+    if (q_.lat.in_box(m) ? !q_.numbers.used(q_.lat.index(m)) : !placement(classify(m, q_.lat.k), q_.lat).forced) return;
+    if (!q_.lining.may_cut(q_.lat, m, q_.iso)) return;
     const auto [a, b] = halves(t, o, m, i, j);
-    if (depth < kParallelDepth)
-      tbb::parallel_invoke([&] { tetrahedron(a.tet, a.order, depth + 1); }, [&] { tetrahedron(b.tet, b.order, depth + 1); });
-    else
-      tetrahedron(a.tet, a.order, depth + 1), tetrahedron(b.tet, b.order, depth + 1);
+    both(depth, [&] { tetrahedron(a.tet, a.order, depth + 1); }, [&] { tetrahedron(b.tet, b.order, depth + 1); });
   }
 
 private:
   const Query& q_;
   static constexpr int kParallelDepth = 14;
 
-  bool cube_splits(const Diamond& d, std::int64_t voxel) const {
-    if (q_.decided.test(voxel)) return q_.own.test(voxel);
-    const bool s = own_test(d);
-    if (s) {
-      q_.own.mark(voxel);
-      mark(voxel);
-    }
-    q_.decided.mark(voxel);  // after `own`: a reader that sees it decided sees the answer
-    return s;
-  }
-  void mark(std::int64_t voxel) const {
-    if (q_.split.mark(voxel)) q_.marked.local().push_back(voxel);
+  template <class A, class B>
+  static void both(int depth, A&& a, B&& b) {
+    if (depth < kParallelDepth)
+      tbb::parallel_invoke(a, b);
+    else
+      a(), b();
   }
 
-  // A tetrahedron between cubes of two sizes, tested alone at its marching-tetrahedra surface.
-  bool tetrahedron_splits(const Tet& t, OrderState order, std::int64_t voxel) const {
+  // Is the tetrahedron split in the grid, with a surface beneath?
+  bool worth_deciding(const Coord& m, std::uint32_t& id) const {
+    const std::int64_t voxel = q_.lat.index(m);
+    if (!q_.numbers.used(voxel)) return false;  // a leaf of the grid
+    id = q_.numbers.id(voxel);
+    return q_.may_cut(id);
+  }
+
+  void node(const Node& n, int depth) const {
+    Coord m;
+    int i, j;
+    std::uint32_t id;
+    if (refinement(n.t, n.order, m, i, j) && worth_deciding(m, id)) decide(n, m, i, j, id, depth);
+  }
+
+  void decide(const Node& n, const Coord& m, int i, int j, std::uint32_t id, int depth) const {
+    const Corner mid{m, id, q_.g.values[id]};
+    // The other two corners, and the cut points the split adds on the edges from m to them.
+    int others[2], n_others = 0;
+    for (int k = 0; k < 4; ++k)
+      if (k != i && k != j) others[n_others++] = k;
+    Point added[2];
+    bool cut[2];
+    for (int s = 0; s < 2; ++s) {
+      cut[s] = q_.above(mid.value) != q_.above(n.c[others[s]].value);
+      if (cut[s]) added[s] = q_.cut(mid, n.c[others[s]]).p;
+    }
+    if (!(q_.forced(id) || q_.everything || splits(n, mid, i, j, others, added, cut))) return;
+    if (!q_.forced(id) && q_.split.mark(q_.lat.index(m))) q_.marked.local().push_back(q_.lat.index(m));
+    const auto& e = order_table::kTable[n.order];
+    Node a = n, b = n;  // a: the midpoint in slot j; b: in slot i
+    a.t[static_cast<std::size_t>(j)] = m, a.order = e.at_j, a.c[j] = mid;
+    b.t[static_cast<std::size_t>(i)] = m, b.order = e.at_i, b.c[i] = mid;
+    for (int s = 0; s < 2; ++s) {
+      if (!cut[s]) continue;
+      a.cut[kEdgeOf[j][others[s]]] = added[s];
+      b.cut[kEdgeOf[i][others[s]]] = added[s];
+    }
+    // The refinement edge's halves: its cut point stays in the half whose ends differ, unless the
+    // edge was not cut and the midpoint differs from both ends (a surface hidden between).
+    if (q_.above(n.c[i].value) == q_.above(n.c[j].value) && q_.above(mid.value) != q_.above(n.c[i].value)) {
+      a.cut[kEdgeOf[i][j]] = q_.cut(n.c[i], mid).p;
+      b.cut[kEdgeOf[i][j]] = q_.cut(mid, n.c[j]).p;
+    }
+    both(depth, [&] { node(a, depth + 1); }, [&] { node(b, depth + 1); });
+  }
+
+  // The tests of the top of this file.
+  bool splits(const Node& n, const Corner& mid, int i, int j, const int others[2], const Point added[2], const bool cut[2]) const {
     ++q_.tested.local();
-    Corner c[4];
-    for (int k = 0; k < 4; ++k) c[k] = q_.corner(t[static_cast<std::size_t>(k)]);
-    double longest = 0;
-    for (int i = 0; i < 4; ++i)
-      for (int j = i + 1; j < 4; ++j) {
+    double longest2 = 0;
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b) {
         double d2 = 0;
-        for (int a = 0; a < 3; ++a) d2 += std::pow((t[i][a] - t[j][a]) * q_.unit[a], 2);
-        longest = std::max(longest, std::sqrt(d2));
+        for (int k = 0; k < 3; ++k) d2 += std::pow((n.t[a][k] - n.t[b][k]) * q_.unit[k], 2);
+        longest2 = std::max(longest2, d2);
       }
-    const auto code =
-        static_cast<std::uint8_t>(q_.above(c[0].value) | (q_.above(c[1].value) << 1) | (q_.above(c[2].value) << 2) | (q_.above(c[3].value) << 3));
-    bool split = false;
-    if (code == 0 || code == 15) {
-      split = longest > 2 * q_.distance;  // a surface hidden beneath
-    } else if (longest > q_.distance) {
-      const Case& cs = kCases[code];
-      for (int k = 0; k < cs.triangles && !split; ++k) {
-        Point x[3];
-        for (int v = 0; v < 3; ++v) x[v] = q_.cut(c[cs.tri[k][v].below], c[cs.tri[k][v].above]).p;
-        split = triangle_far(x[0], x[1], x[2], &t, order);
-      }
+    const auto code = static_cast<std::uint8_t>(q_.above(n.c[0].value) | (q_.above(n.c[1].value) << 1) | (q_.above(n.c[2].value) << 2) |
+                                                (q_.above(n.c[3].value) << 3));
+    const double d2 = q_.distance * q_.distance;
+    if (code == 0 || code == 15) return longest2 > 4 * d2;  // hidden beneath
+    if (longest2 <= d2) return false;                       // every point within the distance of a cut point
+    const bool mid_above = q_.above(mid.value);
+    if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value)) return true;  // hidden between
+    const Case& cs = kCases[code];
+    Point tris[2][3];
+    for (int k = 0; k < cs.triangles; ++k)
+      for (int v = 0; v < 3; ++v) tris[k][v] = n.cut[kEdgeOf[cs.tri[k][v].below][cs.tri[k][v].above]];
+    for (int s = 0; s < 2; ++s) {
+      if (!cut[s]) continue;
+      double best = std::numeric_limits<double>::infinity();
+      for (int k = 0; k < cs.triangles; ++k) best = std::min(best, distance2_to_triangle(added[s], tris[k][0], tris[k][1], tris[k][2]));
+      if (best > d2) return true;
     }
-    if (split) mark(voxel);
-    return split;
-  }
-
-  // The cube's own test (see the top).
-  bool own_test(const Diamond& d) const {
-    ++q_.tested.local();
-    double side = 0;
-    for (int a = 0; a < 3; ++a) side = std::max(side, 2.0 * d.h * q_.unit[a]);
-    CubeContour cube(q_, d.c, d.h);
-    if (!cube.shown()) return side > 2 * q_.distance;
-    if (side * std::sqrt(3.0) <= q_.distance) return false;  // every point within the distance of a cut point
-    thread_local std::vector<std::vector<CutPoint>> loops;
-    cube.loops({true, true, true, true, true, true}, true, loops);
-    for (const auto& loop : loops)
-      for (std::size_t k = 1; k + 1 < loop.size(); ++k)
-        if (triangle_far(loop[0].p, loop[k].p, loop[k + 1].p)) return true;
+    (void)others;
+    for (int k = 0; k < cs.triangles; ++k)
+      if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n.t, n.order)) return true;
     return false;
   }
 
-  bool triangle_far(const Point& a, const Point& b, const Point& c, const Tet* near = nullptr, OrderState near_order = 0) const {
+  bool triangle_far(const Point& a, const Point& b, const Point& c, const Tet& near, OrderState near_order) const {
     Point centre, u, v;
     for (int k = 0; k < 3; ++k) centre[k] = (a[k] + b[k] + c[k]) / 3, u[k] = b[k] - a[k], v[k] = c[k] - a[k];
-    Point n{u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
-    const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    Point nrm{u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
+    const double len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
     if (!(len > 0)) return false;
-    for (double& x : n) x /= len;
-    return q_.far_from_surface(centre, n, near, near_order);
+    for (double& x : nrm) x /= len;
+    return q_.far_from_surface(centre, nrm, &near, near_order);
   }
 };
 
@@ -533,105 +469,22 @@ struct FinalRule {
 // Per unit of the final walk: the triangles found, as their corners' cut edges.
 struct Found {
   std::vector<std::uint64_t> keys;  // 3 per triangle
-  std::size_t leaves = 0, cubes = 0, visited = 0;
+  std::size_t leaves = 0, visited = 0;
 };
 
-// The leaves of the final walk, contoured: whole cubes once (from one of their 6 tetrahedra),
-// other cut leaves by marching tetrahedra.
-class Contour {
-public:
-  explicit Contour(const Query& q) : q_(q) {}
-
-  void leaf(const Tet& t, const Corners& c, std::int64_t voxel, Found& out) const {
-    ++out.visited;
-    if (voxel >= 0 && !q_.everything) {  // distance 0: the grid's own surface, marching tetrahedra throughout
-      const Coord m{static_cast<std::int32_t>(voxel % q_.lat.nx), static_cast<std::int32_t>(voxel % q_.lat.nxy / q_.lat.nx),
-                    static_cast<std::int32_t>(voxel / q_.lat.nxy)};
-      const Diamond d = classify(m, q_.lat.k);
-      // A cube's tetrahedron: the cube is whole (its 6 tetrahedra leaves) when its parents are
-      // split; otherwise coarser neighbours hold its diagonal too, and this one is marched alone.
-      if (d.kind == DiamondKind::cube && q_.parents_split(d, [&](const Coord& p) { return q_.final_split(p); })) {
-        if (canonical(t, d)) whole_cube(d, out);
-        return;
-      }
-    }
-    const double lo = std::min({c.value[0], c.value[1], c.value[2], c.value[3]});
-    const double hi = std::max({c.value[0], c.value[1], c.value[2], c.value[3]});
-    if (!(lo < q_.iso && q_.iso <= hi)) return;
-    ++out.leaves;
-    const auto code = static_cast<std::uint8_t>(q_.above(c.value[0]) | (q_.above(c.value[1]) << 1) | (q_.above(c.value[2]) << 2) |
-                                                (q_.above(c.value[3]) << 3));
-    const Case& cs = kCases[code];
-    for (int k = 0; k < cs.triangles; ++k)
-      for (int v = 0; v < 3; ++v) out.keys.push_back(edge_key(c.id[cs.tri[k][v].below], c.id[cs.tri[k][v].above]));
-  }
-
-private:
-  const Query& q_;
-
-  // Of a whole cube's 6 tetrahedra (around its diagonal pr, each with two of the other 6 corners,
-  // neighbours on the hexagon they form), the first the surface cuts, in the order of their pairs'
-  // smaller corner index, then larger: a cut tetrahedron is never in a pruned subtree, and which
-  // one it is depends on the cube alone.
-  bool canonical(const Tet& t, const Diamond& d) const {
-    const auto [p, r] = refinement_edge(d);
-    Corner ring[6];
-    int n = 0;
-    for (int k = 0; k < 8; ++k) {
-      const Coord c = cube_corner(d.c, d.h, k);
-      if (c != p && c != r) ring[n++] = q_.corner(c);
-    }
-    const bool p_above = q_.above(q_.corner(p).value), r_above = q_.above(q_.corner(r).value);
-    std::int64_t best[2] = {-1, -1};
-    for (int a = 0; a < 6; ++a)
-      for (int b = a + 1; b < 6; ++b) {
-        int differ = 0;
-        for (int k = 0; k < 3; ++k) differ += ring[a].at[k] != ring[b].at[k];
-        if (differ != 1) continue;  // not neighbours on the hexagon: no tetrahedron holds both
-        const bool aa = q_.above(ring[a].value), ba = q_.above(ring[b].value);
-        if (aa == ba && ba == p_above && p_above == r_above) continue;  // not cut
-        std::int64_t key[2] = {q_.lat.index(ring[a].at), q_.lat.index(ring[b].at)};
-        if (key[0] > key[1]) std::swap(key[0], key[1]);
-        if (best[0] < 0 || key[0] < best[0] || (key[0] == best[0] && key[1] < best[1])) best[0] = key[0], best[1] = key[1];
-      }
-    int has = 0;
-    for (const Coord& c : t) has += q_.lat.index(c) == best[0] || q_.lat.index(c) == best[1];
-    return best[0] >= 0 && has == 2;
-  }
-
-  // Is the cube centred at c (side 2h) whole in the final mesh: its tetrahedra exist (its parents
-  // split) and it is not split?
-  bool whole(const Coord& c) const {
-    if (!q_.lat.in_box(c)) return false;
-    const Diamond d = classify(c, q_.lat.k);
-    if (!d.valid || d.kind != DiamondKind::cube) return false;
-    if (q_.final_split(c)) return false;
-    return q_.parents_split(d, [&](const Coord& p) { return q_.final_split(p); });
-  }
-
-  void whole_cube(const Diamond& d, Found& out) const {
-    CubeContour cube(q_, d.c, d.h);
-    if (!cube.shown()) return;
-    ++out.cubes;
-    std::array<bool, 6> drop{};
-    for (int f = 0; f < 6; ++f) {
-      const Face& face = cube.faces()[static_cast<std::size_t>(f)];
-      Coord next = d.c;
-      next[face.axis] += (face.side ? 2 : -2) * d.h;
-      drop[static_cast<std::size_t>(f)] = whole(next);
-    }
-    thread_local std::vector<std::vector<CutPoint>> loops;
-    cube.loops(drop, false, loops);
-    // Each loop runs counter-clockwise around the part above the iso-value: its fan, turned over,
-    // faces the lower values, as the marching tetrahedra's triangles do.
-    for (const auto& loop : loops)
-      for (std::size_t k = 1; k + 1 < loop.size(); ++k) {
-        out.keys.push_back(loop[0].key);
-        out.keys.push_back(loop[k + 1].key);
-        out.keys.push_back(loop[k].key);
-      }
-  }
-};
+// A cut leaf of the final walk, marched: its triangles as their corners' cut edges.
+void march_leaf(const Query& q, const Corners& c, Found& out) {
+  ++out.visited;
+  const double lo = std::min({c.value[0], c.value[1], c.value[2], c.value[3]});
+  const double hi = std::max({c.value[0], c.value[1], c.value[2], c.value[3]});
+  if (!(lo < q.iso && q.iso <= hi)) return;
+  ++out.leaves;
+  const auto code =
+      static_cast<std::uint8_t>(q.above(c.value[0]) | (q.above(c.value[1]) << 1) | (q.above(c.value[2]) << 2) | (q.above(c.value[3]) << 3));
+  const Case& cs = kCases[code];
+  for (int k = 0; k < cs.triangles; ++k)
+    for (int v = 0; v < 3; ++v) out.keys.push_back(edge_key(c.id[cs.tri[k][v].below], c.id[cs.tri[k][v].above]));
+}
 
 // Coarse cut edges to the grid's cut edges inside them, for the vertices' places.
 class SnapRemap : public EdgeRemap {
@@ -702,7 +555,7 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
     std::unique_ptr<DistanceMarks> marks;
     ~Lease() { index.give_back(std::move(marks)); }
   } lease{*index_, index_->take_marks()};
-  Marks &split = lease.marks->split, &decided = lease.marks->decided, &own = lease.marks->own;
+  Marks& split = lease.marks->split;
   tbb::enumerable_thread_specific<std::vector<std::int64_t>> marked;
   tbb::enumerable_thread_specific<std::size_t> tested(0);
   const Query q{lat,
@@ -712,11 +565,10 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
                 h,
                 iso,
                 distance,
+                2 * distance,
                 distance == 0,
                 {g.source.spacing[0] / smallest, g.source.spacing[1] / smallest, g.source.spacing[2] / smallest},
                 split,
-                decided,
-                own,
                 marked,
                 tested};
   const Refine refine(q);
@@ -732,12 +584,11 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
   const Traversal<FinalRule> walk(lat, rule);
   const Frontier top = walk.frontier(10);
   std::vector<Found> found(top.roots.size());
-  const Contour contour(q);
   tbb::parallel_for(std::size_t{0}, top.roots.size(), [&](std::size_t f) {
     walk.visit(
         top.roots[f], index_->numbers, g.values,
-        [&](const Tet& t, const Corners& c, std::int64_t voxel) {
-          contour.leaf(t, c, voxel, found[f]);
+        [&](const Tet&, const Corners& c, std::int64_t) {
+          march_leaf(q, c, found[f]);
           return ValueSpan{};
         },
         [&](std::int64_t, std::uint32_t, const Tet&, const ValueSpan&) { ++found[f].visited; });
@@ -750,9 +601,8 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
     stats->iso = iso;
     stats->distance = distance;
     stats->tetrahedra = 0;
-    stats->cubes = 0;
     stats->visited = top.roots.size() + top.splits.size();
-    for (const Found& f : found) stats->tetrahedra += f.leaves, stats->cubes += f.cubes, stats->visited += f.visited;
+    for (const Found& f : found) stats->tetrahedra += f.leaves, stats->visited += f.visited;
     stats->tested = tested.combine(std::plus<>());
     stats->refined = refined + closure;
     stats->closure = closure;

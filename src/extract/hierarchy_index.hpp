@@ -74,16 +74,11 @@ private:
   tbb::enumerable_thread_specific<std::vector<std::size_t>> touched_;
 };
 
-// What a distance query marks (distance_query.cpp): the diamonds split, and the cubes whose own
-// test ran with its answer.
+// What a distance query marks (distance_query.cpp): the diamonds split.
 struct DistanceMarks {
-  explicit DistanceMarks(std::size_t voxels) : split(voxels), decided(voxels), own(voxels) {}
-  Marks split, decided, own;
-  void clear() {
-    split.clear();
-    decided.clear();
-    own.clear();
-  }
+  explicit DistanceMarks(std::size_t voxels) : split(voxels) {}
+  Marks split;
+  void clear() { split.clear(); }
 };
 
 struct HierarchyIndex {
