@@ -49,7 +49,8 @@ int main(int argc, char** argv) {
       const double cpu = (cpu_seconds() - cpu0) / reps;
       if (argc > 5) write_mesh(mesh, std::string(argv[5]) + "-" + std::to_string(iso) + "-" + std::to_string(d) + ".ply");
       std::printf(
-          "{\"iso\": %g, \"distance\": %g, \"seconds\": %.5f, \"cpu_mean\": %.5f, \"refine_mean\": %.5f, \"walk_mean\": %.5f, \"march_mean\": %.5f, "
+          "{\"iso\": %g, \"distance\": %g, \"seconds\": %.5f, \"cpu_mean\": %.5f, \"refine_mean\": %.5f, \"walk_mean\": %.5f, "
+          "\"march_mean\": %.5f, "
           "\"triangles\": %zu, \"vertices\": %zu, \"tested\": %zu, \"refined\": %zu, \"closure\": %zu, \"visited\": %zu, "
           "\"marched\": %zu, \"setup_seconds\": %.3f}\n",
           iso, d, seconds, cpu, refine / reps, walk / reps, march / reps, st.triangles, st.vertices, st.tested, st.refined, st.closure,

@@ -321,7 +321,8 @@ public:
     if (q_.lat.in_box(m) ? !q_.numbers.used(q_.lat.index(m)) : !placement(classify(m, q_.lat.k), q_.lat).forced) return;
     if (!q_.lining.may_cut(q_.lat, m, q_.iso)) return;
     const auto [a, b] = halves(t, o, m, i, j);
-    both(depth, [&] { tetrahedron(a.tet, a.order, depth + 1); }, [&] { tetrahedron(b.tet, b.order, depth + 1); });
+    both(
+        depth, [&] { tetrahedron(a.tet, a.order, depth + 1); }, [&] { tetrahedron(b.tet, b.order, depth + 1); });
   }
 
 private:
@@ -380,7 +381,8 @@ private:
       a.cut[kEdgeOf[i][j]] = q_.cut(n.c[i], mid).p;
       b.cut[kEdgeOf[i][j]] = q_.cut(mid, n.c[j]).p;
     }
-    both(depth, [&] { node(a, depth + 1); }, [&] { node(b, depth + 1); });
+    both(
+        depth, [&] { node(a, depth + 1); }, [&] { node(b, depth + 1); });
   }
 
   // The tests of the top of this file.

@@ -15,8 +15,8 @@
 #include <cmath>
 
 #include "adaptiso/error.hpp"
-#include "extract/march_detail.hpp"
 #include "extract/hierarchy_index.hpp"
+#include "extract/march_detail.hpp"
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"
 
@@ -75,7 +75,8 @@ void LiningSpans::build(const Lattice& lat, const VertexNumbers& numbers, const 
       while (slots_[at].key != kEmpty && slots_[at].key != e.key) at = (at + 1) & (cap - 1);
       Slot& s = slots_[at];
       if (s.key == kEmpty) {
-        s = {e.key, std::nextafter(lo, -std::numeric_limits<float>::infinity()), std::nextafter(hi, std::numeric_limits<float>::infinity())};
+        s = {e.key, std::nextafter(lo, -std::numeric_limits<float>::infinity()),
+             std::nextafter(hi, std::numeric_limits<float>::infinity())};
         ++count_;
       } else {
         s.lo = std::min(s.lo, std::nextafter(lo, -std::numeric_limits<float>::infinity()));

@@ -9,8 +9,8 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
-#include <functional>
 #include <cmath>
+#include <functional>
 #include <random>
 #include <set>
 
@@ -75,13 +75,15 @@ TEST(DistanceQuery, EveryVertexIsAVertexOfTheGridsSurfaceBitForBit) {
     const Mesh own = query.extract(iso, 0);
     std::set<std::array<float, 6>> vertices;
     for (std::size_t i = 0; i < own.vertex_count(); ++i)
-      vertices.insert({own.positions[i][0], own.positions[i][1], own.positions[i][2], own.normals[i][0], own.normals[i][1], own.normals[i][2]});
+      vertices.insert(
+          {own.positions[i][0], own.positions[i][1], own.positions[i][2], own.normals[i][0], own.normals[i][1], own.normals[i][2]});
     for (double distance : {0.5, 1.0, 3.0}) {
       const Mesh m = query.extract_within(iso, distance);
       ASSERT_GT(m.triangle_count(), 0u) << name;
       EXPECT_LT(m.triangle_count(), own.triangle_count()) << name << " " << distance;
       for (std::size_t i = 0; i < m.vertex_count(); ++i)
-        ASSERT_TRUE(vertices.count({m.positions[i][0], m.positions[i][1], m.positions[i][2], m.normals[i][0], m.normals[i][1], m.normals[i][2]}))
+        ASSERT_TRUE(
+            vertices.count({m.positions[i][0], m.positions[i][1], m.positions[i][2], m.normals[i][0], m.normals[i][1], m.normals[i][2]}))
             << name << " distance " << distance << " vertex " << i;
     }
   }
@@ -130,13 +132,21 @@ TEST(DistanceQuery, ClosedManifoldOrientedWithTheRightEulerCharacteristic) {
     std::function<double(double, double, double)> f;  // the surface is f = 0.5
   };
   const std::vector<Case> cases = {
-      {"sphere", {41, 41, 41}, {1, 1, 1}, 2,
-       [](double x, double y, double z) { return std::hypot(x - 20, y - 20, z - 20) / 24; }},
-      {"sphere, odd anisotropic box", {37, 29, 22}, {0.8, 1.0, 1.4}, 2,
+      {"sphere", {41, 41, 41}, {1, 1, 1}, 2, [](double x, double y, double z) { return std::hypot(x - 20, y - 20, z - 20) / 24; }},
+      {"sphere, odd anisotropic box",
+       {37, 29, 22},
+       {0.8, 1.0, 1.4},
+       2,
        [](double x, double y, double z) { return std::hypot(x - 14.4, y - 14, z - 14.7) / 18; }},
-      {"torus", {49, 49, 33}, {1, 1, 1}, 0,
+      {"torus",
+       {49, 49, 33},
+       {1, 1, 1},
+       0,
        [](double x, double y, double z) { return std::hypot(std::hypot(x - 24, y - 24) - 13, z - 16) / 10; }},
-      {"nested spheres", {45, 45, 45}, {1, 1, 1}, 4,
+      {"nested spheres",
+       {45, 45, 45},
+       {1, 1, 1},
+       4,
        [](double x, double y, double z) {
          const double r = std::hypot(x - 22, y - 22, z - 22);
          return r < 12 ? 1 - r / 12 + 0.25 : (r - 12) / 16 + 0.25;  // = 0.5 at r = 9 and r = 16
