@@ -14,6 +14,8 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
 
 #include <chrono>
 #include <cmath>
@@ -26,6 +28,7 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "adaptiso/error.hpp"
@@ -158,7 +161,7 @@ py::array as_array(const py::handle& input) {
 // and in native byte order, a copy otherwise. The view holds a reference to the array, released
 // with the GIL held whichever thread drops the Volume last. NaN and Inf are refused with the
 // readers' message (check_finite: how many, and the first voxel as x,y,z).
-std::shared_ptr<Volume> volume_from_array(const py::array& input, const Vec3& spacing, const Vec3& origin) {
+std::shared_ptr<Volume> volume_from_array(const py::array& input, const Vec3& spacing, const Vec3& origin, bool check_values = true) {
   if (input.ndim() != 3) throw py::value_error("volume: the array must have 3 dimensions [z, y, x], got " + std::to_string(input.ndim()));
   const ScalarType type = scalar_type_of(input.dtype());
   py::array a = py::array::ensure(input, py::array::c_style);  // the same array when it already is
@@ -178,11 +181,40 @@ std::shared_ptr<Volume> volume_from_array(const py::array& input, const Vec3& sp
     delete static_cast<const py::object*>(p);
   });
   v->bytes = VoxelBuffer::view(static_cast<const unsigned char*>(a.data()), static_cast<std::size_t>(a.nbytes()), std::move(keep));
-  {
+  if (check_values) {
     py::gil_scoped_release release;
     check_finite(*v, "volume");
   }
   return v;
+}
+
+// value_range and check_finite in one parallel pass (marching_cubes reads the volume once before
+// marching). x - x is 0 for every finite x and NaN for NaN and ±Inf, so one sum per block tells
+// whether all are finite; when not, check_finite gives the readers' message.
+ValueRange finite_range(const Volume& v) {
+  bool finite = true;
+  const ValueRange r = visit_values(v, [&]<class T>(std::span<const T> vals) {
+    struct Acc {
+      T lo, hi, residue;
+    };
+    const Acc a = tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, vals.size(), 1 << 16), Acc{vals[0], vals[0], T{}},
+        [&](const tbb::blocked_range<std::size_t>& b, Acc acc) {
+          for (std::size_t i = b.begin(); i < b.end(); ++i) {
+            acc.lo = std::min(acc.lo, vals[i]);
+            acc.hi = std::max(acc.hi, vals[i]);
+            if constexpr (std::is_floating_point_v<T>) acc.residue += vals[i] - vals[i];
+          }
+          return acc;
+        },
+        [](Acc x, Acc y) {
+          return Acc{std::min(x.lo, y.lo), std::max(x.hi, y.hi), T(x.residue + y.residue)};
+        });
+    if constexpr (std::is_floating_point_v<T>) finite = a.residue == 0 && std::isfinite(a.lo) && std::isfinite(a.hi);
+    return ValueRange{static_cast<double>(a.lo), static_cast<double>(a.hi)};
+  });
+  if (!finite) check_finite(v, "volume");
+  return r;
 }
 
 // Volume(...) from an array-like or an image object (nibabel): the latter's geometry comes from
@@ -710,7 +742,7 @@ statistics (Grid.stats). ValueError on a bad option, OSError when the path canno
       "_marching_cubes",
       [](const py::array& array, std::optional<double> level, int step, bool classic, const std::optional<py::array>& mask,
          bool reverse_axes, bool swap_winding, const Vec3& spacing, bool allow_degenerate) {
-        auto v = volume_from_array(array, {double(step), double(step), double(step)}, {0, 0, 0});
+        auto v = volume_from_array(array, {double(step), double(step), double(step)}, {0, 0, 0}, false);
         py::array mask_bytes;
         if (mask) {
           mask_bytes = py::array::ensure(*mask, py::array::c_style);
@@ -724,7 +756,7 @@ statistics (Grid.stats). ValueError on a bad option, OSError when the path canno
         double iso = 0, seconds = 0;
         {
           py::gil_scoped_release release;
-          const ValueRange r = value_range(*v);
+          const ValueRange r = finite_range(*v);
           iso = level ? *level : 0.5 * (r.min + r.max);
           if (!(iso >= r.min && iso <= r.max)) {
             py::gil_scoped_acquire gil;

@@ -1,15 +1,18 @@
 // Marching cubes with a generated, crack-free case table (see marching_cubes.hpp).
 #include "adaptiso/marching_cubes.hpp"
 
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <vector>
 
 #include "adaptiso/error.hpp"
@@ -224,17 +227,58 @@ struct Chunk {
   std::vector<std::array<float, 3>> positions, normals;
   std::vector<float> values;  // per local vertex, when Params::values
   std::vector<std::array<std::uint32_t, 3>> triangles;
-  std::vector<std::uint32_t> top_index;   // per local vertex: plane-k1 map index, or kNone
-  std::vector<std::uint32_t> bottom_map;  // plane k0: map index → local vertex
-  std::vector<std::uint32_t> global;      // local → global vertex
+  std::vector<std::uint32_t> top_index;  // per local vertex: plane-k1 map index, or kNone
+  // Plane k0's vertices as (map index, local vertex), sorted: the slab below looks its top-plane
+  // vertices up here (few per plane; a dense map copy per slab cost more in fresh pages).
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> bottom;
+  std::vector<std::uint32_t> global;  // local → global vertex
   std::size_t owned = 0, cubes_cut = 0, ambiguous = 0;
+
+  std::uint32_t bottom_vertex(std::uint32_t map_index) const {
+    auto it = std::lower_bound(bottom.begin(), bottom.end(), std::pair{map_index, std::uint32_t{0}});
+    return it != bottom.end() && it->first == map_index ? it->second : kNone;
+  }
 };
+
+// The maps a slab works with, kept per thread and reused by its next slab (fresh ones per slab
+// cost more in page faults than the marching): every slot is kNone between slabs.
+struct Scratch {
+  std::vector<std::uint32_t> lower, upper, zmap;  // vertex ids of the lower/upper plane's x and y edges, the z edges between
+  std::vector<std::uint8_t> above_lo, above_hi, rows_lo, rows_hi, columns;
+  std::vector<std::uint32_t*> written_z, written_lower, written_upper;  // the slots in use, reset one by one
+};
+
+// A voxel is above when its value v >= threshold. In its own type T that is v >= the smallest T
+// at or above threshold (integers: the ceiling; float: threshold rounded up to a float), the same
+// answer for every v, and a comparison the compiler vectorises. *none: no T reaches it.
+template <class T>
+T threshold_in(double threshold, bool* none) {
+  *none = false;
+  if constexpr (std::is_integral_v<T>) {
+    const double c = std::ceil(threshold);
+    if (!(c <= static_cast<double>(std::numeric_limits<T>::max()))) return *none = true, T{};
+    return c <= static_cast<double>(std::numeric_limits<T>::lowest()) ? std::numeric_limits<T>::lowest() : static_cast<T>(c);
+  } else if constexpr (std::is_same_v<T, float>) {
+    float t = static_cast<float>(threshold);
+    if (static_cast<double>(t) < threshold) t = std::nextafter(t, std::numeric_limits<float>::infinity());
+    return t;
+  } else {
+    return threshold;
+  }
+}
 
 // Plane k's above flags (x fastest), one byte a voxel.
 template <class T>
 void classify_plane(const T* f, std::int64_t sxy, std::int64_t k, double threshold, std::vector<std::uint8_t>& out) {
+  bool none = false;
+  const T t = threshold_in<T>(threshold, &none);
+  if (none) {
+    std::fill(out.begin(), out.end(), std::uint8_t{0});
+    return;
+  }
   const T* row = f + sxy * k;
-  for (std::int64_t q = 0; q < sxy; ++q) out[static_cast<std::size_t>(q)] = static_cast<double>(row[q]) >= threshold;
+  std::uint8_t* o = out.data();
+  for (std::int64_t q = 0; q < sxy; ++q) o[q] = row[q] >= t;
 }
 
 // Cube layers [ch.k0, ch.k1). The planes k0 and k1 come classified (first, last): the slab below
@@ -242,13 +286,25 @@ void classify_plane(const T* f, std::int64_t sxy, std::int64_t k, double thresho
 // even when the values change meanwhile.
 template <class T>
 void run_chunk(const Volume& v, const T* f, double iso, const Params& prm, Chunk& ch, bool last, const std::vector<std::uint8_t>& first,
-               const std::vector<std::uint8_t>& last_plane) {
+               const std::vector<std::uint8_t>& last_plane, Scratch& sc) {
   const std::int64_t nx = v.dims[0], ny = v.dims[1], nz = v.dims[2];
   const std::int64_t sxy = nx * ny;
   const std::size_t plane_x = static_cast<std::size_t>((nx - 1) * ny), plane_y = static_cast<std::size_t>(nx * (ny - 1));
-  // Vertex ids of the x/y edges of the lower and upper plane, and of the z edges in between.
-  std::vector<std::uint32_t> lower(plane_x + plane_y, kNone), upper(plane_x + plane_y, kNone), zmap(static_cast<std::size_t>(sxy), kNone);
-  std::vector<std::uint8_t> above_lo(static_cast<std::size_t>(sxy)), above_hi(static_cast<std::size_t>(sxy));
+  if (sc.lower.size() != plane_x + plane_y) {  // this thread's first slab
+    sc.lower.assign(plane_x + plane_y, kNone);
+    sc.upper.assign(plane_x + plane_y, kNone);
+    sc.zmap.assign(static_cast<std::size_t>(sxy), kNone);
+    sc.above_lo.resize(static_cast<std::size_t>(sxy));
+    sc.above_hi.resize(static_cast<std::size_t>(sxy));
+    sc.rows_lo.resize(static_cast<std::size_t>(ny));
+    sc.rows_hi.resize(static_cast<std::size_t>(ny));
+    sc.columns.resize(static_cast<std::size_t>(nx));
+  }
+  auto& lower = sc.lower;
+  auto& upper = sc.upper;
+  auto& zmap = sc.zmap;
+  auto& above_lo = sc.above_lo;
+  auto& above_hi = sc.above_hi;
   const auto& s = v.spacing;
   const auto& D = v.direction;
   auto value = [&](std::int64_t i, std::int64_t j, std::int64_t k) { return static_cast<double>(f[i + nx * j + sxy * k]); };
@@ -288,18 +344,19 @@ void run_chunk(const Volume& v, const T* f, double iso, const Params& prm, Chunk
   };
   // Per plane row: 0 all below, 1 all above, 2 mixed. A row of cubes whose four corner rows are
   // uniform and equal holds no surface and is skipped without looking at its cubes.
-  std::vector<std::uint8_t> rows_lo(static_cast<std::size_t>(ny)), rows_hi(static_cast<std::size_t>(ny));
+  auto& rows_lo = sc.rows_lo;
+  auto& rows_hi = sc.rows_hi;
   auto row_states = [&](const std::vector<std::uint8_t>& above, std::vector<std::uint8_t>& rows) {
     for (std::int64_t j = 0; j < ny; ++j) {
       const std::uint8_t* r = above.data() + j * nx;
-      std::uint8_t state = r[0];
-      for (std::int64_t i = 1; i < nx && state != 2; ++i)
-        if (r[i] != r[0]) state = 2;
-      rows[static_cast<std::size_t>(j)] = state;
+      // Flags are 0 or 1: the row is mixed when the other flag occurs in it.
+      rows[static_cast<std::size_t>(j)] = nx > 1 && std::memchr(r + 1, r[0] ^ 1, static_cast<std::size_t>(nx - 1)) ? 2 : r[0];
     }
   };
   // Map slots are reset individually after use (clearing whole planes per layer costs more).
-  std::vector<std::uint32_t*> written_z, written_lower, written_upper;
+  auto& written_z = sc.written_z;
+  auto& written_lower = sc.written_lower;
+  auto& written_upper = sc.written_upper;
   above_lo = first;
   row_states(above_lo, rows_lo);
   for (std::int64_t k = ch.k0; k < ch.k1; ++k) {
@@ -314,12 +371,23 @@ void run_chunk(const Volume& v, const T* f, double iso, const Params& prm, Chunk
     for (std::int64_t j = 0; j + 1 < ny; ++j) {
       const std::uint8_t s0 = rows_lo[j];
       if (s0 != 2 && rows_lo[j + 1] == s0 && rows_hi[j] == s0 && rows_hi[j + 1] == s0) continue;
+      // Each column of four corners (y, z) once as bits 0, 2, 4, 6; cube i's code is column i
+      // plus column i+1 shifted to the odd bits (corner c = x + 2y + 4z).
+      const std::uint8_t *l0 = above_lo.data() + nx * j, *h0 = above_hi.data() + nx * j;
+      std::uint8_t* col = sc.columns.data();
+      for (std::int64_t i = 0; i < nx; ++i)
+        col[i] = static_cast<std::uint8_t>(l0[i] | (l0[nx + i] << 2) | (h0[i] << 4) | (h0[nx + i] << 6));
       for (std::int64_t i = 0; i + 1 < nx; ++i) {
-        const std::size_t q = static_cast<std::size_t>(i + nx * j);
-        const std::uint8_t* lo = above_lo.data() + q;
-        const std::uint8_t* hi = above_hi.data() + q;
-        const int code =
-            lo[0] | (lo[1] << 1) | (lo[nx] << 2) | (lo[nx + 1] << 3) | (hi[0] << 4) | (hi[1] << 5) | (hi[nx] << 6) | (hi[nx + 1] << 7);
+        if (i + 9 <= nx) {  // eight cubes all below or all above: skipped in one test
+          std::uint64_t a, b;
+          std::memcpy(&a, col + i, 8);
+          std::memcpy(&b, col + i + 1, 8);
+          if ((a | b) == 0 || (a & b) == 0x5555555555555555u) {
+            i += 7;
+            continue;
+          }
+        }
+        const int code = col[i] | (col[i + 1] << 1);
         if (code == 0 || code == 255) continue;
         if (prm.mask && !prm.mask[static_cast<std::size_t>((i + 1) + nx * (j + 1) + sxy * (k + 1))]) continue;
         const CubeCase& cc = prm.table[code];
@@ -369,7 +437,10 @@ void run_chunk(const Volume& v, const T* f, double iso, const Params& prm, Chunk
         }
       }
     }
-    if (k == ch.k0) ch.bottom_map = lower;
+    if (k == ch.k0) {
+      for (auto* w : written_lower) ch.bottom.emplace_back(static_cast<std::uint32_t>(w - lower.data()), *w);
+      std::sort(ch.bottom.begin(), ch.bottom.end());
+    }
     // The old lower plane's buffer becomes the new upper one: reset the slots it used.
     for (auto* w : written_lower) *w = kNone;
     written_lower.swap(written_upper);
@@ -378,6 +449,11 @@ void run_chunk(const Volume& v, const T* f, double iso, const Params& prm, Chunk
     above_lo.swap(above_hi);
     rows_lo.swap(rows_hi);
   }
+  // Leave every slot kNone for this thread's next slab.
+  for (auto* w : written_z) *w = kNone;
+  for (auto* w : written_lower) *w = kNone;
+  written_z.clear();
+  written_lower.clear();
 }
 
 }  // namespace
@@ -413,8 +489,9 @@ Mesh marching_cubes(const Volume& v, double iso, const MarchingCubesOptions& opt
     tbb::parallel_for(std::size_t{0}, shared.size(), [&](std::size_t c) {
       classify_plane(span.data(), sxy, c < chunks.size() ? chunks[c].k0 : layers, params.threshold, shared[c]);
     });
+    tbb::enumerable_thread_specific<Scratch> scratch;
     tbb::parallel_for(std::size_t{0}, chunks.size(), [&](std::size_t c) {
-      run_chunk(v, span.data(), iso, params, chunks[c], c + 1 == chunks.size(), shared[c], shared[c + 1]);
+      run_chunk(v, span.data(), iso, params, chunks[c], c + 1 == chunks.size(), shared[c], shared[c + 1], scratch.local());
     });
   });
   shared.clear();
@@ -425,7 +502,7 @@ Mesh marching_cubes(const Volume& v, double iso, const MarchingCubesOptions& opt
     auto& ch = chunks[c];
     ch.owned = 0;
     for (auto& t : ch.top_index) {
-      if (t != kNone && chunks[c + 1].bottom_map[t] == kNone) t = kNone;
+      if (t != kNone && chunks[c + 1].bottom_vertex(t) == kNone) t = kNone;
       ch.owned += t == kNone;
     }
     total += ch.owned;
@@ -449,7 +526,7 @@ Mesh marching_cubes(const Volume& v, double iso, const MarchingCubesOptions& opt
     auto& ch = chunks[c];
     for (std::size_t l = 0; l < ch.positions.size(); ++l) {
       if (ch.top_index[l] != kNone) {
-        ch.global[l] = chunks[c + 1].global[chunks[c + 1].bottom_map[ch.top_index[l]]];
+        ch.global[l] = chunks[c + 1].global[chunks[c + 1].bottom_vertex(ch.top_index[l])];
       } else {
         mesh.positions[ch.global[l]] = ch.positions[l];
         mesh.normals[ch.global[l]] = ch.normals[l];
