@@ -1,4 +1,6 @@
-// The Python module `adaptiso` (pybind11): the library's pipeline where its users already work.
+// The compiled half of the Python package `adaptiso` (adaptiso._core, pybind11): the library's
+// pipeline where its users already work. python/adaptiso/__init__.py is the public face; it
+// re-exports what is here and adds Mesh and scikit-image's marching_cubes signature.
 //
 // Axis order. A numpy volume is indexed array[z, y, x] (C order: x varies fastest), which is the
 // files' layout, so a C-contiguous array becomes a Volume without a copy (the Volume keeps the
@@ -12,13 +14,21 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <limits>
 #include <memory>
+#include <mutex>
+#include <numeric>
 #include <optional>
+#include <sstream>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "adaptiso/error.hpp"
@@ -49,6 +59,22 @@ auto file_call(F&& f) {
     PyErr_SetString(PyExc_OSError, e.what());
     throw py::error_already_set();
   }
+}
+
+// A path argument: str, bytes or os.PathLike, in the file system's encoding. A NUL would cut the
+// name short at the C library, so it is refused as Python's own open() refuses it.
+std::string path_arg(const py::handle& path, const char* name = "path") {
+  py::module_ os = py::module_::import("os");
+  py::object p;
+  try {
+    p = os.attr("fspath")(path);
+  } catch (py::error_already_set&) {
+    throw py::type_error(std::string(name) + ": must be a str, bytes or os.PathLike object, not " +
+                         py::str(py::type::handle_of(path).attr("__name__")).cast<std::string>());
+  }
+  const std::string bytes = os.attr("fsencode")(p).cast<std::string>();
+  if (bytes.find('\0') != std::string::npos) throw py::value_error(std::string(name) + ": embedded null character");
+  return bytes;
 }
 
 // numpy dtype ↔ ScalarType.
@@ -89,10 +115,53 @@ py::dtype dtype_of(ScalarType t) {
   throw std::logic_error("unknown scalar type");
 }
 
+// Spacing and origin as the rest of the library can use them: meshes are float32, so every voxel's
+// world coordinate must stay finite there and neighbours distinct from zero. 1e-30 to 1e30 covers
+// any unit from femtometres to light years with room; NaN, Inf, zero and denormals are refused.
+constexpr double kSpacingMin = 1e-30, kSpacingMax = 1e30, kCoordinateMax = 1e36;
+
+std::string number(double x) {
+  std::ostringstream s;
+  s << x;
+  return s.str();
+}
+
+void check_geometry(const Vec3& spacing, const Vec3& origin, const Dims& dims) {
+  for (int a = 0; a < 3; ++a)
+    if (!(spacing[a] >= kSpacingMin && spacing[a] <= kSpacingMax))
+      throw OptionError("spacing", "must be a positive number from 1e-30 to 1e30, got " + number(spacing[a]));
+  for (int a = 0; a < 3; ++a)
+    if (!(std::abs(origin[a]) <= kSpacingMax))
+      throw OptionError("origin", "must be a finite number within ±1e30, got " + number(origin[a]));
+  for (int a = 0; a < 3; ++a)
+    if (std::abs(origin[a]) + spacing[a] * static_cast<double>(dims[a] - 1) > kCoordinateMax)
+      throw OptionError("spacing", "the volume would reach beyond 1e36 along axis " + std::to_string(a) + " (spacing " +
+                                       number(spacing[a]) + " × " + std::to_string(dims[a] - 1) + " voxels)");
+}
+
+// An array-like as a numpy array without a copy where one can be avoided: ndarrays as they are
+// (memmaps included: nothing is read here), buffer-protocol objects and objects with __array__
+// through numpy.asarray.
+py::array as_array(const py::handle& input) {
+  if (py::isinstance<py::array>(input)) return py::reinterpret_borrow<py::array>(input);
+  py::object a;
+  try {
+    a = py::module_::import("numpy").attr("asarray")(input);
+  } catch (py::error_already_set&) {
+    throw py::type_error("volume: expected an array (numpy, the buffer protocol or __array__), got " +
+                         py::str(py::type::handle_of(input).attr("__name__")).cast<std::string>());
+  }
+  if (!py::isinstance<py::array>(a) || a.attr("dtype").attr("kind").cast<std::string>() == "O")
+    throw py::type_error("volume: expected a numeric array, got " +
+                         py::str(py::type::handle_of(input).attr("__name__")).cast<std::string>());
+  return py::reinterpret_borrow<py::array>(a);
+}
+
 // A numpy array of shape (nz, ny, nx) as a Volume: a view of its memory when it is C-contiguous
 // and in native byte order, a copy otherwise. The view holds a reference to the array, released
-// with the GIL held whichever thread drops the Volume last.
-std::shared_ptr<Volume> volume_from_array(const py::array& input, const Vec3& spacing, const Vec3& origin) {
+// with the GIL held whichever thread drops the Volume last. NaN and Inf are refused with the
+// readers' message (check_finite: how many, and the first voxel as x,y,z).
+std::shared_ptr<Volume> volume_from_array(const py::array& input, const Vec3& spacing, const Vec3& origin, bool check_values = true) {
   if (input.ndim() != 3) throw py::value_error("volume: the array must have 3 dimensions [z, y, x], got " + std::to_string(input.ndim()));
   const ScalarType type = scalar_type_of(input.dtype());
   py::array a = py::array::ensure(input, py::array::c_style);  // the same array when it already is
@@ -102,17 +171,63 @@ std::shared_ptr<Volume> volume_from_array(const py::array& input, const Vec3& sp
   v->dims = {a.shape(2), a.shape(1), a.shape(0)};
   for (auto d : v->dims)
     if (d < 1) throw py::value_error("volume: every dimension must be at least 1");
+  check_geometry(spacing, origin, v->dims);
   v->type = type;
   v->spacing = spacing;
   v->origin = origin;
-  for (double s : spacing)
-    if (!(s > 0) || !std::isfinite(s)) throw py::value_error("spacing: must be positive and finite");
   auto* owner = new py::object(a);
   std::shared_ptr<const void> keep(owner, [](const void* p) {
     py::gil_scoped_acquire gil;
     delete static_cast<const py::object*>(p);
   });
   v->bytes = VoxelBuffer::view(static_cast<const unsigned char*>(a.data()), static_cast<std::size_t>(a.nbytes()), std::move(keep));
+  if (check_values) {
+    py::gil_scoped_release release;
+    check_finite(*v, "volume");
+  }
+  return v;
+}
+
+// value_range and check_finite in one parallel pass (marching_cubes reads the volume once before
+// marching). x - x is 0 for every finite x and NaN for NaN and ±Inf, so one sum per block tells
+// whether all are finite; when not, check_finite gives the readers' message.
+ValueRange finite_range(const Volume& v) {
+  bool finite = true;
+  const ValueRange r = visit_values(v, [&]<class T>(std::span<const T> vals) {
+    struct Acc {
+      T lo, hi, residue;
+    };
+    const Acc a = tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, vals.size(), 1 << 16), Acc{vals[0], vals[0], T{}},
+        [&](const tbb::blocked_range<std::size_t>& b, Acc acc) {
+          for (std::size_t i = b.begin(); i < b.end(); ++i) {
+            acc.lo = std::min(acc.lo, vals[i]);
+            acc.hi = std::max(acc.hi, vals[i]);
+            if constexpr (std::is_floating_point_v<T>) acc.residue += vals[i] - vals[i];
+          }
+          return acc;
+        },
+        [](Acc x, Acc y) {
+          return Acc{std::min(x.lo, y.lo), std::max(x.hi, y.hi), T(x.residue + y.residue)};
+        });
+    if constexpr (std::is_floating_point_v<T>) finite = a.residue == 0 && std::isfinite(a.lo) && std::isfinite(a.hi);
+    return ValueRange{static_cast<double>(a.lo), static_cast<double>(a.hi)};
+  });
+  if (!finite) check_finite(v, "volume");
+  return r;
+}
+
+// Volume(...) from an array-like or an image object (nibabel): the latter's geometry comes from
+// adaptiso._inputs.image_geometry, as adaptiso.read takes it from the same file. Explicit spacing
+// or origin win over the image's.
+std::shared_ptr<Volume> make_volume_from(const py::object& input, std::optional<Vec3> spacing, std::optional<Vec3> origin) {
+  py::object image = py::module_::import("adaptiso._inputs").attr("image_geometry")(input);
+  if (image.is_none()) return volume_from_array(as_array(input), spacing.value_or(Vec3{1, 1, 1}), origin.value_or(Vec3{0, 0, 0}));
+  auto g = image.cast<py::tuple>();  // (array [i, j, k], spacing, origin, direction 3×3 row-major)
+  py::array ijk = as_array(g[0]);
+  py::array zyx = py::reinterpret_borrow<py::array>(ijk.attr("T"));  // a view; C-contiguous when the file's order is
+  auto v = volume_from_array(zyx, spacing.value_or(g[1].cast<Vec3>()), origin.value_or(g[2].cast<Vec3>()));
+  v->direction = g[3].cast<std::array<double, 9>>();
   return v;
 }
 
@@ -125,25 +240,40 @@ py::array volume_array(const std::shared_ptr<Volume>& v, py::object self) {
   return a;
 }
 
-// A vector of fixed-size rows as a numpy array that owns it (no copy).
-template <class T, std::size_t K>
-py::array_t<T> rows_to_numpy(std::vector<std::array<T, K>>&& rows) {
+// A vector of fixed-size rows as a numpy array that owns it (no copy); As reinterprets the
+// element type (uint32 faces as scikit-image's int32, the same bits below 2^31).
+template <class As = void, class T, std::size_t K>
+auto rows_to_numpy(std::vector<std::array<T, K>>&& rows) {
+  using E = std::conditional_t<std::is_void_v<As>, T, As>;
+  static_assert(sizeof(E) == sizeof(T));
   auto* heap = new std::vector<std::array<T, K>>(std::move(rows));
   py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<std::array<T, K>>*>(p); });
-  return py::array_t<T>({static_cast<py::ssize_t>(heap->size()), static_cast<py::ssize_t>(K)},
+  return py::array_t<E>({static_cast<py::ssize_t>(heap->size()), static_cast<py::ssize_t>(K)},
                         {static_cast<py::ssize_t>(sizeof(std::array<T, K>)), static_cast<py::ssize_t>(sizeof(T))},
-                        heap->empty() ? nullptr : heap->data()->data(), owner);
+                        heap->empty() ? nullptr : reinterpret_cast<const E*>(heap->data()->data()), owner);
 }
 
-py::tuple mesh_tuple(Mesh&& m) {
-  return py::make_tuple(rows_to_numpy(std::move(m.positions)), rows_to_numpy(std::move(m.triangles)), rows_to_numpy(std::move(m.normals)));
+py::array_t<float> vector_to_numpy(std::vector<float>&& values) {
+  auto* heap = new std::vector<float>(std::move(values));
+  py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<float>*>(p); });
+  return py::array_t<float>({static_cast<py::ssize_t>(heap->size())}, {static_cast<py::ssize_t>(sizeof(float))},
+                            heap->empty() ? nullptr : heap->data(), owner);
+}
+
+// adaptiso.Mesh (python/adaptiso/_mesh.py) around the library's mesh, world coordinates (x, y, z).
+py::object make_mesh(Mesh&& m, py::dict stats) {
+  py::object cls = py::module_::import("adaptiso._mesh").attr("Mesh");
+  return cls(rows_to_numpy(std::move(m.positions)), rows_to_numpy(std::move(m.triangles)), rows_to_numpy(std::move(m.normals)), py::none(),
+             py::arg("stats") = stats, py::arg("axes") = "xyz");
 }
 
 template <class T, std::size_t K>
-std::vector<std::array<T, K>> numpy_to_rows(const py::array& input, const char* name) {
+std::vector<std::array<T, K>> numpy_to_rows(const py::handle& input, const char* name) {
   auto a = py::array_t<T, py::array::c_style | py::array::forcecast>::ensure(input);
-  if (!a || a.ndim() != 2 || a.shape(1) != static_cast<py::ssize_t>(K))
+  if (!a || a.ndim() != 2 || a.shape(1) != static_cast<py::ssize_t>(K)) {
+    PyErr_Clear();
     throw py::value_error(std::string(name) + ": must be an array of shape (N, " + std::to_string(K) + ")");
+  }
   std::vector<std::array<T, K>> rows(static_cast<std::size_t>(a.shape(0)));
   if (!rows.empty()) std::memcpy(rows.data(), a.data(), rows.size() * sizeof(rows[0]));
   return rows;
@@ -155,17 +285,44 @@ py::object json_object(const std::string& text) { return py::module_::import("js
 struct Grid {
   std::shared_ptr<const PreparedGrid> grid;
   std::shared_ptr<const HierarchyQuery> query;  // bisection grids, made on first use
+  std::mutex query_mutex;                       // two threads' first extract(max_error=...) make one query
+
+  explicit Grid(std::shared_ptr<const PreparedGrid> g) : grid(std::move(g)) {}
 
   const HierarchyQuery& hierarchy() {
+    std::lock_guard lock(query_mutex);
     if (!query) query = std::make_shared<const HierarchyQuery>(grid);
     return *query;
   }
 };
 
+// An Extractor keeps the previous surface to update it: one call at a time, the others wait (the
+// mutex is taken with the GIL released, so a waiting thread does not hold up the rest of Python).
 struct PyExtractor {
   std::shared_ptr<Extractor> extractor;
+  std::shared_ptr<const PreparedGrid> grid;  // for the value range of relative iso-values
   ExtractStats last;
+  std::mutex mutex;
 };
+
+// Type.__new__(Type) makes an instance without running __init__, and pybind11 would hand its
+// methods uninitialised memory (it allocates the value lazily, unconstructed). Every entry point
+// takes its adaptiso objects through this check instead, which looks at whether the holder was
+// constructed: such an object raises TypeError rather than crashing the interpreter.
+template <class T>
+T& initialised(py::handle obj, const char* type, const char* how) {
+  if (!py::isinstance<T>(obj))
+    throw py::type_error(std::string("expected an adaptiso.") + type + ", got " +
+                         py::str(py::type::handle_of(obj).attr("__name__")).cast<std::string>());
+  auto* inst = reinterpret_cast<py::detail::instance*>(obj.ptr());
+  auto v_h = inst->get_value_and_holder(py::detail::get_type_info(typeid(T)), false);
+  if (!v_h || !v_h.holder_constructed() || !v_h.value_ptr())
+    throw py::type_error(std::string("adaptiso.") + type + ": not initialised (" + how + ")");
+  return *static_cast<T*>(v_h.value_ptr());
+}
+Grid& grid_of(py::handle h) { return initialised<Grid>(h, "Grid", "get one from adaptiso.prepare or adaptiso.load"); }
+PyExtractor& extractor_of(py::handle h) { return initialised<PyExtractor>(h, "Extractor", "get one from Grid.extractor()"); }
+const Volume& volume_of(py::handle h) { return initialised<Volume>(h, "Volume", "make one with adaptiso.Volume(array) or adaptiso.read"); }
 
 GridKind grid_kind(const std::string& s) {
   if (s == "bisection") return GridKind::bisection;
@@ -193,40 +350,83 @@ GradientMethod gradient_method(const std::string& s) {
   throw OptionError("gradients", "must be 'auto', 'lsq' or 'central', got '" + s + "'");
 }
 
-// scikit-image's "values": the largest of the two voxels at the ends of each vertex's cube edge.
-py::array_t<float> edge_maxima(const Volume& v, const Mesh& m) {
-  py::array_t<float> out(static_cast<py::ssize_t>(m.vertex_count()));
-  auto* o = out.mutable_data();
-  for (std::size_t i = 0; i < m.vertex_count(); ++i) {
-    double p[3];
-    int axis = 0;
-    double far = -1;
-    for (int a = 0; a < 3; ++a) {
-      p[a] = m.positions[i][a] / v.spacing[a];
-      const double d = std::abs(p[a] - std::round(p[a]));
-      if (d > far) far = d, axis = a;
+py::dict extract_stats(const ExtractStats& s) {
+  py::dict d;
+  d["iso"] = s.iso;
+  d["in_range"] = s.in_range;
+  d["triangles"] = s.triangles;
+  d["vertices"] = s.vertices;
+  d["active_tetrahedra"] = s.active;
+  d["walked_entries"] = s.walked;
+  d["marched_tetrahedra"] = s.marched;
+  d["incremental"] = s.incremental;
+  d["seconds"] = s.sweep_seconds + s.march_seconds;
+  d["sweep_seconds"] = s.sweep_seconds;
+  d["march_seconds"] = s.march_seconds;
+  return d;
+}
+
+py::dict query_stats(const HierarchyQueryStats& s) {
+  py::dict d;
+  d["iso"] = s.iso;
+  d["in_range"] = s.in_range;
+  d["triangles"] = s.triangles;
+  d["vertices"] = s.vertices;
+  d["max_error"] = s.max_error;
+  d["error_bound"] = s.error_bound;
+  d["marched_tetrahedra"] = s.tetrahedra;
+  d["visited_tetrahedra"] = s.visited;
+  d["seconds"] = s.walk_seconds + s.march_seconds;
+  d["walk_seconds"] = s.walk_seconds;
+  d["march_seconds"] = s.march_seconds;
+  return d;
+}
+
+// scikit-image's remove_degenerate_faces, without its order dependence: faces with two vertices
+// at the same position are dropped, and the vertices they join are merged into the lowest index
+// (union-find, so chains of such faces merge completely); the merged-away vertices go.
+void remove_degenerate(Mesh& m, std::vector<float>& values) {
+  const std::size_t n = m.positions.size();
+  std::vector<std::uint32_t> parent(n);
+  std::iota(parent.begin(), parent.end(), 0u);
+  auto find = [&](std::uint32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  auto unite = [&](std::uint32_t a, std::uint32_t b) {
+    a = find(a), b = find(b);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  };
+  std::vector<std::array<std::uint32_t, 3>> kept;
+  kept.reserve(m.triangles.size());
+  for (const auto& t : m.triangles) {
+    bool degenerate = false;
+    for (int e = 0; e < 3; ++e) {
+      const auto a = t[e], b = t[(e + 1) % 3];
+      if (m.positions[a] == m.positions[b]) unite(a, b), degenerate = true;
     }
-    std::int64_t lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) lo[a] = hi[a] = std::llround(p[a]);
-    lo[axis] = static_cast<std::int64_t>(std::floor(p[axis]));
-    hi[axis] = std::min(lo[axis] + 1, v.dims[axis] - 1);
-    o[i] = static_cast<float>(std::max(v.at(lo[0], lo[1], lo[2]), v.at(hi[0], hi[1], hi[2])));
+    if (!degenerate) kept.push_back(t);
   }
-  return out;
+  std::vector<std::uint32_t> number(n);
+  std::uint32_t next = 0;
+  for (std::uint32_t v = 0; v < n; ++v) {
+    if (find(v) != v) continue;
+    number[v] = next;
+    m.positions[next] = m.positions[v];
+    m.normals[next] = m.normals[v];
+    values[next] = values[v];
+    ++next;
+  }
+  m.positions.resize(next), m.normals.resize(next), values.resize(next);
+  for (auto& t : kept)
+    for (auto& i : t) i = number[find(i)];
+  m.triangles = std::move(kept);
 }
 
 }  // namespace
 
-PYBIND11_MODULE(adaptiso, m) {
-  m.doc() = R"(adaptiso: adaptive iso-surface generation from 3D scalar volumes (after Lürig & Ertl).
-
-    vol = adaptiso.read("scan.nii.gz")        # or adaptiso.Volume(array[z, y, x], spacing=(sx, sy, sz))
-    grid = adaptiso.prepare(vol, max_error=0.02, relative=True)
-    verts, faces, normals = grid.extract(iso=300.0)
-    adaptiso.write_mesh("out.glb", verts, faces, normals)
-
-Volumes are indexed array[z, y, x]; spacing and origin are (x, y, z); meshes are in world
-coordinates (x, y, z), vertices float32 (N, 3), faces uint32 (M, 3), normals float32 (N, 3).)";
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "The compiled part of adaptiso; use the package `adaptiso`, which re-exports it.";
   m.attr("__version__") = ADAPTISO_VERSION;
   m.attr("DEFAULT_RELATIVE_ERROR") = kDefaultRelativeError;
 
@@ -240,137 +440,200 @@ coordinates (x, y, z), vertices float32 (N, 3), faces uint32 (M, 3), normals flo
 
   py::class_<Volume, std::shared_ptr<Volume>>(m, "Volume", R"(A scalar volume on a regular grid.
 
-Volume(array, spacing=(1, 1, 1), origin=(0, 0, 0)): array is indexed [z, y, x] (numpy's C order,
-x fastest), of dtype uint8, int8, uint16, int16, uint32, int32, float32 or float64. A
-C-contiguous array in native byte order is used in place (no copy; the volume keeps it alive and
-never writes to it); any other array is copied. spacing and origin are (x, y, z).)")
-      .def(py::init([](const py::array& array, Vec3 spacing, Vec3 origin) { return volume_from_array(array, spacing, origin); }),
-           py::arg("array"), py::arg("spacing") = Vec3{1, 1, 1}, py::arg("origin") = Vec3{0, 0, 0})
+Volume(array, spacing=None, origin=None)
+
+array: indexed [z, y, x] (numpy's C order, x fastest), of dtype uint8, int8, uint16, int16,
+uint32, int32, float32 or float64: a numpy array (memmaps included), any object with the buffer
+protocol or __array__, or a nibabel image (its data in the file's order, spacing, origin and
+orientation from its sform/qform as adaptiso.read takes them). A C-contiguous array in native
+byte order is used in place (no copy; the volume keeps it alive and never writes to it), so is a
+NIfTI file's memmap; any other array is copied once. spacing and origin are (x, y, z); default
+(1, 1, 1) and (0, 0, 0), or the image's.
+
+ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacing outside 1e-30 to
+1e30, a non-finite origin, not 3 dimensions or an unsupported dtype.)")
+      .def(py::init(&make_volume_from), py::arg("array"), py::arg("spacing") = py::none(), py::arg("origin") = py::none())
       .def_property_readonly(
-          "dims", [](const Volume& v) { return v.dims; }, "(nx, ny, nz)")
+          "dims", [](py::handle self) { return volume_of(self).dims; }, "(nx, ny, nz)")
       .def_property_readonly(
-          "shape", [](const Volume& v) { return py::make_tuple(v.dims[2], v.dims[1], v.dims[0]); }, "(nz, ny, nx), the array's shape")
+          "shape",
+          [](py::handle self) {
+            const Volume& v = volume_of(self);
+            return py::make_tuple(v.dims[2], v.dims[1], v.dims[0]);
+          },
+          "(nz, ny, nx), the array's shape")
       .def_property_readonly(
-          "spacing", [](const Volume& v) { return v.spacing; }, "(x, y, z)")
+          "spacing", [](py::handle self) { return volume_of(self).spacing; }, "Voxel size (x, y, z)")
       .def_property_readonly(
-          "origin", [](const Volume& v) { return v.origin; }, "(x, y, z)")
-      .def_property_readonly("dtype", [](const Volume& v) { return dtype_of(v.type); })
+          "origin", [](py::handle self) { return volume_of(self).origin; }, "World position of voxel (0, 0, 0), (x, y, z)")
       .def_property_readonly(
-          "is_view", [](const Volume& v) { return v.bytes.is_view(); }, "True when the volume reads a numpy array's memory in place")
+          "direction",
+          [](py::handle self) {
+            const auto& d = volume_of(self).direction;
+            return py::make_tuple(py::make_tuple(d[0], d[1], d[2]), py::make_tuple(d[3], d[4], d[5]), py::make_tuple(d[6], d[7], d[8]));
+          },
+          "3×3 rows; column a is the world direction of index axis a (x, y, z)")
       .def_property_readonly(
-          "array", [](py::object self) { return volume_array(self.cast<std::shared_ptr<Volume>>(), self); },
+          "dtype", [](py::handle self) { return dtype_of(volume_of(self).type); }, "The values' numpy dtype")
+      .def_property_readonly(
+          "is_view", [](py::handle self) { return volume_of(self).bytes.is_view(); },
+          "True when the volume reads a numpy array's memory in place")
+      .def_property_readonly(
+          "array",
+          [](py::object self) {
+            volume_of(self);
+            return volume_array(self.cast<std::shared_ptr<Volume>>(), self);
+          },
           "The values as a read-only array [z, y, x] over the volume's memory (no copy)")
       .def(
           "range",
-          [](const Volume& v) {
+          [](py::handle self) {
+            const Volume& v = volume_of(self);
             py::gil_scoped_release release;
             const ValueRange r = value_range(v);
             return std::pair{r.min, r.max};
           },
           "(min, max) of the values")
-      .def("__repr__", [](const Volume& v) {
+      .def("__repr__", [](py::handle self) {
+        const Volume& v = volume_of(self);
         return "<adaptiso.Volume " + std::to_string(v.dims[0]) + "x" + std::to_string(v.dims[1]) + "x" + std::to_string(v.dims[2]) + " " +
                std::string(scalar_name(v.type)) + ">";
       });
 
   m.def(
-      "read", [](const std::string& path) { return file_call([&] { return std::make_shared<Volume>(read_volume(path)); }); },
+      "read",
+      [](const py::object& path) {
+        const std::string p = path_arg(path);
+        return file_call([&] { return std::make_shared<Volume>(read_volume(p)); });
+      },
       py::arg("path"),
-      "Reads a volume: .nrrd/.nhdr, .nii/.nii.gz, .mha/.mhd, .vti, .vtk, or a folder holding one DICOM series. OSError when it "
-      "cannot be read.");
+      "read(path) -> Volume\n\nReads a volume: .nrrd/.nhdr, .nii/.nii.gz, .mha/.mhd, .vti, .vtk, or a folder holding one DICOM series. "
+      "path: str, bytes or os.PathLike. OSError when it cannot be read.");
 
   py::class_<Grid>(m, "Grid", "A prepared tetrahedral grid with its extraction index (adaptiso.prepare or adaptiso.load).")
       .def(
           "extract",
-          [](Grid& g, double iso, std::optional<double> max_error, bool relative) {
+          [](py::handle self, double iso, std::optional<double> max_error, bool relative) {
+            Grid& g = grid_of(self);
             Mesh mesh;
+            std::optional<HierarchyQueryStats> query;
+            std::optional<ExtractStats> full;
             {
               py::gil_scoped_release release;
               const auto& src = g.grid->grid.source;
               const double value = relative ? src.min + iso * (src.max - src.min) : iso;
               if (max_error) {
                 const double e = relative ? *max_error * (src.max - src.min) : *max_error;
-                mesh = g.hierarchy().extract(value, e);
+                query.emplace();
+                mesh = g.hierarchy().extract(value, e, 0, &*query);
               } else {
                 Extractor ex(g.grid);
-                ex.extract(value);
+                full = ex.extract(value);
                 mesh = ex.mesh();
               }
             }
-            return mesh_tuple(std::move(mesh));
+            return make_mesh(std::move(mesh), query ? query_stats(*query) : extract_stats(*full));
           },
           py::arg("iso"), py::arg("max_error") = py::none(), py::arg("relative") = false,
-          R"(The iso-surface at iso: (vertices float32 (N, 3), faces uint32 (M, 3), normals float32 (N, 3)),
-world coordinates, faces counter-clockwise seen from the side the normals point to (lower values).
+          R"(extract(iso, max_error=None, relative=False) -> Mesh
+
+The iso-surface at iso as a Mesh, which unpacks as (vertices float32 (N, 3), faces uint32 (M, 3),
+normals float32 (N, 3)): world coordinates (x, y, z), faces counter-clockwise seen from the side
+the normals point to (lower values); Mesh.stats holds the command line's figures.
 max_error (bisection grids): a coarser error than the prepared one, from the grid's hierarchy.
 relative: iso (and max_error) as fractions of the value range. Safe to call from several threads.)")
       .def(
           "extractor",
-          [](Grid& g) {
-            return PyExtractor{std::make_shared<Extractor>(g.grid), {}};
+          [](py::handle self) {
+            Grid& g = grid_of(self);
+            auto e = std::make_shared<PyExtractor>();
+            e->extractor = std::make_shared<Extractor>(g.grid);
+            e->grid = g.grid;
+            return e;
           },
-          "An Extractor for browsing iso-values: each call after the first updates the previous surface.")
+          "extractor() -> Extractor\n\nAn Extractor for browsing iso-values: each call after the first updates the previous surface.")
       .def(
           "coarsen",
-          [](Grid& g, double max_error, int cell_floor) {
+          [](py::handle self, double max_error, int cell_floor) {
+            Grid& g = grid_of(self);
             py::gil_scoped_release release;
-            return Grid{std::make_shared<const PreparedGrid>(cell_floor ? coarsen_floored(*g.grid, max_error, cell_floor)
-                                                                        : coarsen(*g.grid, max_error)),
-                        nullptr};
+            return std::make_unique<Grid>(std::make_shared<const PreparedGrid>(cell_floor ? coarsen_floored(*g.grid, max_error, cell_floor)
+                                                                                          : coarsen(*g.grid, max_error)));
           },
           py::arg("max_error"), py::arg("cell_floor") = 0,
-          R"(The bisection grid at a coarser error bound (data units), without the volume. cell_floor f > 0: no
+          R"(coarsen(max_error, cell_floor=0) -> Grid
+
+The bisection grid at a coarser error bound (data units), without the volume. cell_floor f > 0: no
 tetrahedron finer than cubes of 2**f voxels (except along the volume's far faces), its guaranteed
 error measured (stats["error_bound"]) rather than asked for: far fewer triangles on noisy data.)")
       .def(
-          "save", [](Grid& g, const std::string& path) { file_call([&] { save_grid(*g.grid, path); }); }, py::arg("path"),
-          "Writes the grid (.adg); OSError when it cannot be written.")
+          "save",
+          [](py::handle self, const py::object& path) {
+            Grid& g = grid_of(self);
+            const std::string p = path_arg(path);
+            file_call([&] { save_grid(*g.grid, p); });
+          },
+          py::arg("path"), "save(path)\n\nWrites the grid (.adg); path: str, bytes or os.PathLike. OSError when it cannot be written.")
       .def_property_readonly(
-          "stats", [](const Grid& g) { return json_object(to_json(g.grid->stats)); },
+          "stats", [](py::handle self) { return json_object(to_json(grid_of(self).grid->stats)); },
           "How the grid was made: the prepare statistics as a dict (the command line's --json)")
-      .def_property_readonly("vertex_count", [](const Grid& g) { return g.grid->grid.vertex_count(); })
-      .def_property_readonly("tetrahedron_count", [](const Grid& g) { return g.grid->grid.tet_count(); })
-      .def_property_readonly("value_range",
-                             [](const Grid& g) {
-                               return std::pair{g.grid->grid.source.min, g.grid->grid.source.max};
-                             })
+      .def_property_readonly(
+          "vertex_count", [](py::handle self) { return grid_of(self).grid->grid.vertex_count(); }, "Vertices of the grid")
+      .def_property_readonly(
+          "tetrahedron_count", [](py::handle self) { return grid_of(self).grid->grid.tet_count(); }, "Tetrahedra of the grid")
+      .def_property_readonly(
+          "value_range",
+          [](py::handle self) {
+            const auto& src = grid_of(self).grid->grid.source;
+            return std::pair{src.min, src.max};
+          },
+          "(min, max) of the volume it was prepared from")
       .def_property_readonly(
           "error_bound",
-          [](const Grid& g) -> py::object {
-            if (g.grid->stats.error_bound < 0) return py::none();
-            return py::float_(g.grid->stats.error_bound);
+          [](py::handle self) -> py::object {
+            const double e = grid_of(self).grid->stats.error_bound;
+            if (e < 0) return py::none();
+            return py::float_(e);
           },
           "The guaranteed max-norm error of a bisection grid (data units); None for a Delaunay grid")
-      .def("__repr__", [](const Grid& g) {
+      .def("__repr__", [](py::handle self) {
+        const Grid& g = grid_of(self);
         return "<adaptiso.Grid " + g.grid->stats.grid + ": " + std::to_string(g.grid->grid.vertex_count()) + " vertices, " +
                std::to_string(g.grid->grid.tet_count()) + " tetrahedra>";
       });
 
-  py::class_<PyExtractor>(m, "Extractor", "Incremental extraction over one grid (Grid.extractor()); not for use from two threads at once.")
+  py::class_<PyExtractor, std::shared_ptr<PyExtractor>>(
+      m, "Extractor",
+      "Incremental extraction over one grid (Grid.extractor()). Calls from several threads take turns (one extraction at a time).")
       .def(
           "extract",
-          [](PyExtractor& e, double iso) {
+          [](py::handle self, double iso) {
+            PyExtractor& e = extractor_of(self);
             Mesh copy;
+            ExtractStats st;
             {
               py::gil_scoped_release release;
-              e.last = e.extractor->extract(iso);
+              std::lock_guard lock(e.mutex);
+              st = e.last = e.extractor->extract(iso);
               copy = e.extractor->mesh();
             }
-            return mesh_tuple(std::move(copy));
+            return make_mesh(std::move(copy), extract_stats(st));
           },
-          py::arg("iso"), "The surface at iso (vertices, faces, normals); small steps update the previous one.")
-      .def_property_readonly("last_stats", [](const PyExtractor& e) {
-        py::dict d;
-        d["iso"] = e.last.iso;
-        d["active"] = e.last.active;
-        d["triangles"] = e.last.triangles;
-        d["vertices"] = e.last.vertices;
-        d["marched"] = e.last.marched;
-        d["incremental"] = e.last.incremental;
-        d["in_range"] = e.last.in_range;
-        d["seconds"] = e.last.sweep_seconds + e.last.march_seconds;
-        return d;
-      });
+          py::arg("iso"),
+          "extract(iso) -> Mesh\n\nThe surface at iso (unpacks as vertices, faces, normals); small steps update the previous one.")
+      .def_property_readonly(
+          "last_stats",
+          [](py::handle self) {
+            PyExtractor& e = extractor_of(self);
+            ExtractStats st;
+            {
+              py::gil_scoped_release release;
+              std::lock_guard lock(e.mutex);
+              st = e.last;
+            }
+            return extract_stats(st);
+          },
+          "The statistics of the last extract() (the command line's --json figures)");
 
   // prepare's and prepare_file's options, by the command line's names.
   auto prepare_options = [](const std::string& grid, std::optional<double> max_error, bool relative, double max_displacement,
@@ -395,20 +658,22 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
   };
   m.def(
       "prepare",
-      [=](const Volume& v, const std::string& grid, std::optional<double> max_error, bool relative, double max_displacement,
+      [=](py::handle volume, const std::string& grid, std::optional<double> max_error, bool relative, double max_displacement,
           const std::string& gradients, const std::string& method, double threshold, const std::string& structural_gradient, double sigma,
           int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay) {
+        const Volume& v = volume_of(volume);
         const PrepareOptions o = prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
                                                  structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay);
         py::gil_scoped_release release;
-        return Grid{std::make_shared<const PreparedGrid>(prepare(v, o)), nullptr};
+        return std::make_unique<Grid>(std::make_shared<const PreparedGrid>(prepare(v, o)));
       },
       py::arg("volume"), py::kw_only(), py::arg("grid") = "bisection", py::arg("max_error") = py::none(), py::arg("relative") = false,
       py::arg("max_displacement") = 0.0, py::arg("gradients") = "auto", py::arg("method") = "reconstruction", py::arg("threshold") = 0.0,
       py::arg("structural_gradient") = "central", py::arg("sigma") = 1.0, py::arg("kernel") = 0, py::arg("tree_depth") = kDefaultTreeDepth,
       py::arg("verify") = false, py::arg("parallel_delaunay") = true,
-      R"(Prepares a grid for extraction (the command line's `prepare`; the same option names).
+      R"(prepare(volume, *, grid="bisection", max_error=None, relative=False, ...) -> Grid
 
+Prepares a grid for extraction (the command line's `prepare`; the same option names).
 grid: "bisection" (error guaranteed; default) or "delaunay" (the paper's). max_error: max-norm bound,
 data units or a fraction of the value range with relative=True; None: DEFAULT_RELATIVE_ERROR of
 the range. max_displacement (bisection): voxels an iso-surface may move, to first order.
@@ -417,93 +682,131 @@ Delaunay grid's reduction. verify: measure the error voxel by voxel. ValueError 
 
   m.def(
       "prepare_file",
-      [=](const Volume& v, const std::string& path, const std::string& grid, std::optional<double> max_error, bool relative,
+      [=](py::handle volume, const py::object& path, const std::string& grid, std::optional<double> max_error, bool relative,
           double max_displacement, const std::string& gradients, const std::string& method, double threshold,
           const std::string& structural_gradient, double sigma, int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay) {
+        const Volume& v = volume_of(volume);
+        const std::string p = path_arg(path);
         const PrepareOptions o = prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
                                                  structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay);
-        const PrepareStats stats = file_call([&] { return prepare_to_file(v, o, path); });
+        const PrepareStats stats = file_call([&] { return prepare_to_file(v, o, p); });
         return json_object(to_json(stats));
       },
       py::arg("volume"), py::arg("path"), py::kw_only(), py::arg("grid") = "bisection", py::arg("max_error") = py::none(),
       py::arg("relative") = false, py::arg("max_displacement") = 0.0, py::arg("gradients") = "auto", py::arg("method") = "reconstruction",
       py::arg("threshold") = 0.0, py::arg("structural_gradient") = "central", py::arg("sigma") = 1.0, py::arg("kernel") = 0,
       py::arg("tree_depth") = kDefaultTreeDepth, py::arg("verify") = false, py::arg("parallel_delaunay") = true,
-      R"(prepare(volume, ...) and Grid.save(path) in one (the command line's `prepare`): the same file,
+      R"(prepare_file(volume, path, *, grid="bisection", max_error=None, ...) -> dict
+
+prepare(volume, ...) and Grid.save(path) in one (the command line's `prepare`): the same file,
 written as it is made, so the grid and its index are never in memory at once. Returns the
 statistics (Grid.stats). ValueError on a bad option, OSError when the path cannot be written.)");
 
   m.def(
       "load",
-      [](const std::string& path) {
-        return file_call([&] { return Grid{std::make_shared<const PreparedGrid>(load_grid(path)), nullptr}; });
+      [](const py::object& path) {
+        const std::string p = path_arg(path);
+        return file_call([&] { return std::make_unique<Grid>(std::make_shared<const PreparedGrid>(load_grid(p))); });
       },
-      py::arg("path"), "Reads a grid file (.adg); OSError when it cannot be read.");
+      py::arg("path"), "load(path) -> Grid\n\nReads a grid file (.adg); path: str, bytes or os.PathLike. OSError when it cannot be read.");
 
   m.def(
       "write_mesh",
-      [](const std::string& path, const py::array& vertices, const py::array& faces, std::optional<py::array> normals) {
+      [](const py::object& path, const py::object& vertices, const py::object& faces, const py::object& normals) {
+        const std::string p = path_arg(path);
+        // A wrong extension is a bad argument (ValueError), not a file that cannot be written.
+        if (!is_mesh_file_name(p))
+          throw py::value_error(p + ": unknown mesh type '" + std::filesystem::path(p).extension().string() +
+                                "' (use .ply, .obj, .stl or .glb)");
         Mesh mesh;
         mesh.positions = numpy_to_rows<float, 3>(vertices, "vertices");
         mesh.triangles = numpy_to_rows<std::uint32_t, 3>(faces, "faces");
-        if (normals) mesh.normals = numpy_to_rows<float, 3>(*normals, "normals");
+        if (!normals.is_none()) mesh.normals = numpy_to_rows<float, 3>(normals, "normals");
         if (!mesh.normals.empty() && mesh.normals.size() != mesh.positions.size())
           throw py::value_error("normals: must have one row per vertex");
         for (const auto& t : mesh.triangles)
           for (auto i : t)
             if (i >= mesh.positions.size()) throw py::value_error("faces: an index is out of range");
-        file_call([&] { write_mesh(mesh, path); });
+        file_call([&] { write_mesh(mesh, p); });
       },
       py::arg("path"), py::arg("vertices"), py::arg("faces"), py::arg("normals") = py::none(),
-      "Writes a mesh by its extension: .ply, .obj, .stl or .glb. OSError when it cannot be written.");
+      "write_mesh(path, vertices, faces, normals=None)\n\nWrites a mesh by its extension: .ply, .obj, .stl or .glb, in the "
+      "coordinates given. ValueError for another extension, OSError when it cannot be written.");
 
+  // The engine of adaptiso.marching_cubes (python/adaptiso/__init__.py checks the arguments as
+  // scikit-image does first). array: [a0, a1, a2] (the last axis fastest in memory after the copy
+  // a non-contiguous array gets); positions come back in index units times step, columns in the
+  // array's axis order (a0, a1, a2) when reverse_axes, else (a2, a1, a0); normals are the gradient
+  // in the spaced coordinates (spacing given in the output's column order), towards lower values.
   m.def(
-      "marching_cubes",
-      [](const py::array& array, std::optional<double> level, Vec3 spacing, const std::string& gradient_direction) {
-        if (gradient_direction != "descent" && gradient_direction != "ascent")
-          throw py::value_error("gradient_direction: must be 'descent' or 'ascent'");
-        // scikit-image's spacing is in the array's index order [z, y, x]; the volume's is (x, y, z).
-        auto v = volume_from_array(array, {spacing[2], spacing[1], spacing[0]}, {0, 0, 0});
+      "_marching_cubes",
+      [](const py::array& array, std::optional<double> level, int step, bool classic, const std::optional<py::array>& mask,
+         bool reverse_axes, bool swap_winding, const Vec3& spacing, bool allow_degenerate) {
+        auto v = volume_from_array(array, {double(step), double(step), double(step)}, {0, 0, 0}, false);
+        py::array mask_bytes;
+        if (mask) {
+          mask_bytes = py::array::ensure(*mask, py::array::c_style);
+          if (!mask_bytes || mask_bytes.itemsize() != 1 || mask_bytes.ndim() != 3 || mask_bytes.shape(0) != v->dims[2] ||
+              mask_bytes.shape(1) != v->dims[1] || mask_bytes.shape(2) != v->dims[0])
+            throw py::value_error("volume and mask must have the same shape.");
+        }
         Mesh mesh;
-        py::array_t<float> values;
+        std::vector<float> values;
+        MarchingCubesStats mc;
+        double iso = 0, seconds = 0;
         {
           py::gil_scoped_release release;
-          const ValueRange r = value_range(*v);
-          const double iso = level ? *level : 0.5 * (r.min + r.max);
+          const ValueRange r = finite_range(*v);
+          iso = level ? *level : 0.5 * (r.min + r.max);
           if (!(iso >= r.min && iso <= r.max)) {
             py::gil_scoped_acquire gil;
-            throw py::value_error("level: must be within the volume's value range");
+            throw py::value_error("Surface level must be within volume data range.");
           }
-          mesh = marching_cubes(*v, iso);
+          const auto t0 = std::chrono::steady_clock::now();
+          MarchingCubesOptions o;
+          o.strictly_above = true;  // scikit-image: a voxel equal to the level is outside
+          o.edge_margin = 0;        // and a vertex may lie on a voxel (degenerate triangles, as theirs)
+          o.classic_table = classic;
+          o.mask = mask ? static_cast<const std::uint8_t*>(mask_bytes.data()) : nullptr;
+          o.values = &values;
+          mesh = marching_cubes(*v, iso, o, &mc);
+          if (!allow_degenerate) remove_degenerate(mesh, values);
+          // The library's frame is (x, y, z) = (a2, a1, a0); reversing the columns is a reflection,
+          // which the caller's swap_winding accounts for with the gradient direction.
+          for (std::size_t i = 0; i < mesh.positions.size(); ++i) {
+            auto& p = mesh.positions[i];
+            auto& n = mesh.normals[i];
+            if (reverse_axes) std::swap(p[0], p[2]), std::swap(n[0], n[2]);
+            // Index-space gradient → spaced: each component divided by its spacing, then unit length.
+            double g[3], len = 0;
+            for (int a = 0; a < 3; ++a) g[a] = n[a] / spacing[a], len += g[a] * g[a];
+            len = std::sqrt(len);
+            if (len > 0)
+              for (int a = 0; a < 3; ++a) n[a] = static_cast<float>(g[a] / len);
+          }
+          if (swap_winding)
+            for (auto& t : mesh.triangles) std::swap(t[1], t[2]);
+          seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         }
-        values = edge_maxima(*v, mesh);
-        // To the array's index order (z, y, x): a reflection, so the winding turns too, and stays
-        // counter-clockwise seen from the side the normals point to.
-        const bool ascent = gradient_direction == "ascent";
-        for (auto& p : mesh.positions) std::swap(p[0], p[2]);
-        for (auto& n : mesh.normals) {
-          std::swap(n[0], n[2]);
-          if (ascent)
-            for (auto& c : n) c = -c;
-        }
-        if (!ascent)
-          for (auto& t : mesh.triangles) std::swap(t[1], t[2]);
-        py::tuple t = mesh_tuple(std::move(mesh));
-        return py::make_tuple(t[0], t[1], t[2], values);
+        py::dict stats;
+        stats["iso"] = iso;
+        stats["triangles"] = mesh.triangle_count();
+        stats["vertices"] = mesh.vertex_count();
+        stats["cubes_cut"] = mc.cubes_cut;
+        stats["ambiguous_faces"] = mc.ambiguous_faces;
+        stats["seconds"] = seconds;
+        return py::make_tuple(rows_to_numpy(std::move(mesh.positions)), rows_to_numpy<std::int32_t>(std::move(mesh.triangles)),
+                              rows_to_numpy(std::move(mesh.normals)), vector_to_numpy(std::move(values)), stats);
       },
-      py::arg("volume"), py::arg("level") = py::none(), py::kw_only(), py::arg("spacing") = Vec3{1, 1, 1},
-      py::arg("gradient_direction") = "descent",
-      R"(Full-resolution marching cubes with scikit-image's arguments and return order:
-(verts, faces, normals, values). verts are in the array's index order scaled by spacing (both in
-[z, y, x] order), as skimage.measure.marching_cubes returns them; level defaults to the middle of
-the value range; normals point towards lower values ('descent') or higher ('ascent'); values are
-the larger of the two voxels on each vertex's cube edge. The volume is used in place when it is
-C-contiguous.)");
+      py::arg("array"), py::arg("level"), py::arg("step"), py::arg("classic"), py::arg("mask"), py::arg("reverse_axes"),
+      py::arg("swap_winding"), py::arg("spacing"), py::arg("allow_degenerate"),
+      "Internal: adaptiso.marching_cubes' engine (use adaptiso.marching_cubes).");
 
   m.def(
       "reduce",
-      [](const Volume& v, std::optional<double> max_error, bool relative, const std::string& method, double threshold,
+      [](py::handle volume, std::optional<double> max_error, bool relative, const std::string& method, double threshold,
          const std::string& gradient, double sigma, int kernel) {
+        const Volume& v = volume_of(volume);
         ReduceOptions o;
         o.method = reduce_method(method);
         o.relative = relative;
@@ -531,6 +834,8 @@ C-contiguous.)");
       py::arg("volume"), py::kw_only(), py::arg("max_error") = py::none(), py::arg("relative") = false,
       py::arg("method") = "reconstruction", py::arg("threshold") = 0.0, py::arg("gradient") = "central", py::arg("sigma") = 1.0,
       py::arg("kernel") = 0,
-      R"(The paper's vertex reduction (§2.1) alone: the kept voxels as an int64 array (N, 3) of [z, y, x]
+      R"(reduce(volume, *, max_error=None, relative=False, method="reconstruction", ...) -> numpy.ndarray
+
+The paper's vertex reduction (§2.1) alone: the kept voxels as an int64 array (N, 3) of [z, y, x]
 indices (array[tuple(kept.T)] gives their values), in ascending file order.)");
 }

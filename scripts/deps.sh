@@ -9,6 +9,10 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libcpp-httplib-dev libtinygltf-dev zlib1g-dev libdeflate-dev libgtest-dev libgmock-dev libbenchmark-dev
       libmeshoptimizer-dev pybind11-dev python3-dev python3-numpy python3-pytest python3-skimage
       python3-matplotlib chromium "$@")
+# The Python package's pip route (pyproject.toml → setuptools → setup.py → CMake) in a venv, the
+# wheel route (python3 -m build), and the hand-offs its tests exercise (Mesh.to_meshio, nibabel
+# images as volumes; Mesh.to_vtk takes python3-vtk9, which scripts/test.sh asks for).
+PKGS+=(python3-venv python3-pip python3-setuptools python3-wheel python3-build python3-meshio python3-nibabel)
 # The viewer page and its browser test need node and npm; a node install that already brings npm
 # (e.g. NodeSource's) is kept, Debian's packages are added otherwise.
 command -v npm >/dev/null 2>&1 || PKGS+=(nodejs npm)

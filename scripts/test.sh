@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # Builds and runs the whole test suite: a Release build (with the Python module, whose pytest
-# suite runs against a staging install, and the installed CMake package's consumer test), then an
-# AddressSanitizer + UndefinedBehaviorSanitizer build of the unit tests. Uses ../shared/data when present
-# (ADAPTISO_DATA overrides); data tests skip with a message otherwise. Every option the suite
+# suite runs against a staging install and again against pip's install, and the installed CMake
+# package's consumer test), then an AddressSanitizer + UndefinedBehaviorSanitizer build of the
+# unit tests. Uses ../shared/data when present (ADAPTISO_DATA overrides); data tests skip with a
+# message otherwise. Every option the suite
 # depends on is set explicitly (a build folder configured by demo.sh has the tests off), and
 # ctest fails when it finds no test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# VTK's Python module is a reference for the marching-cubes tests only, never linked.
+# VTK's Python module: a reference for the marching-cubes tests and Mesh.to_vtk's target; never linked.
 ./scripts/deps.sh python3-vtk9
 JOBS=$(nproc)
 COMMON=(-G Ninja -DADAPTISO_BUILD_TESTS=ON -DADAPTISO_BUILD_APPS=ON -DADAPTISO_BUILD_PEERS=OFF)
@@ -15,6 +16,29 @@ echo "== Release build"
 cmake -S . -B build/release "${COMMON[@]}" -DCMAKE_BUILD_TYPE=Release -DADAPTISO_SANITIZE=OFF -DADAPTISO_BUILD_BENCH=ON -DADAPTISO_BUILD_PYTHON=ON >/dev/null
 cmake --build build/release -j "$JOBS"
 (cd build/release && ctest --output-on-failure --no-tests=error -j "$JOBS" --timeout 900)
+echo "== Python package through pip"
+# As a Python user installs it (README "Python"): a venv that sees Debian's numpy, scikit-image and
+# VTK, `pip install --no-build-isolation .` (setup.py builds the adaptiso_python target of the
+# Release tree above, so nothing is compiled again), the Python tests against that installed copy,
+# then the wheel installed into a fresh venv, and `pip uninstall` leaving nothing behind.
+PIPTEST=$(pwd)/build/release/pip-test
+rm -rf "$PIPTEST" && mkdir -p "$PIPTEST"
+/usr/bin/python3 -m venv --system-site-packages "$PIPTEST/venv"
+export ADAPTISO_CMAKE_BUILD_DIR=build/release
+"$PIPTEST/venv/bin/pip" install -q --no-build-isolation --no-index .
+(cd "$PIPTEST" && env -u PYTHONPATH ADAPTISO_EXPECT_PIP=1 ADAPTISO_CLI="$(pwd)/../bin/adaptiso" \
+   venv/bin/python -m pytest -q -p no:cacheprovider "$OLDPWD/python/tests")
+"$PIPTEST/venv/bin/python" -m build --no-isolation --wheel --outdir "$PIPTEST/dist" . >"$PIPTEST/build.log" 2>&1 ||
+  { cat "$PIPTEST/build.log"; exit 1; }
+/usr/bin/python3 -m venv --system-site-packages "$PIPTEST/fresh"
+"$PIPTEST/fresh/bin/pip" install -q --no-index "$PIPTEST"/dist/adaptiso-*.whl
+(cd "$PIPTEST" && env -u PYTHONPATH fresh/bin/python -c "import adaptiso, numpy as np, sys
+assert adaptiso.__file__.startswith(sys.prefix), adaptiso.__file__
+print('wheel:', adaptiso.__version__, adaptiso.marching_cubes(np.random.rand(8, 8, 8), 0.5))")
+"$PIPTEST/fresh/bin/pip" uninstall -q -y adaptiso
+left=$(find "$PIPTEST/fresh/lib" -iname '*adaptiso*')
+[ -z "$left" ] || { echo "pip uninstall left: $left"; exit 1; }
+unset ADAPTISO_CMAKE_BUILD_DIR
 echo "== ASan + UBSan build"
 cmake -S . -B build/asan "${COMMON[@]}" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DADAPTISO_SANITIZE=ON -DADAPTISO_BUILD_BENCH=OFF -DADAPTISO_BUILD_PYTHON=OFF >/dev/null
 cmake --build build/asan -j "$JOBS"

@@ -14,6 +14,9 @@
 // into the same pieces (tested), so triangle counts and vertices agree; it triangulates a piece of
 // 4 to 7 cut edges per case instead, which moves the area of a noisy surface by about 0.5 %.
 #pragma once
+#include <cstdint>
+#include <vector>
+
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/volume.hpp"
 
@@ -24,7 +27,26 @@ struct MarchingCubesStats {
   std::size_t ambiguous_faces = 0;  // cube faces with two diagonal corners above (counted per cube)
 };
 
-// Parallel over slabs of cube layers; the output is the same for any number of threads.
+// What scikit-image's marching_cubes does differently (the Python module's front end); the
+// defaults are this library's conventions above.
+struct MarchingCubesOptions {
+  bool strictly_above = false;      // a voxel counts as above only when greater than the iso-value
+  double edge_margin = 1.0 / 1024;  // cut points stay this fraction of an edge from its ends (0: exact)
+  // Lorensen & Cline's table (scikit-image's method="lorensen"): the same cut edges and pieces,
+  // each piece of 4 to 7 edges split into triangles per case rather than fanned.
+  bool classic_table = false;
+  // nx*ny*nz bytes (the volume's layout) or null: a cube is marched only when its far corner
+  // (i+1, j+1, k+1) is nonzero, as scikit-image's mask does.
+  const std::uint8_t* mask = nullptr;
+  // Out, when not null: per vertex, the largest value range (max − min of its 8 corners) of the
+  // marched cubes that use it (scikit-image's "values").
+  std::vector<float>* values = nullptr;
+};
+
+// Parallel over slabs of cube layers; the output is the same for any number of threads. Each
+// voxel decides above/below once (slabs share the plane between them), so values changed by
+// another thread during the call give a wrong surface, never an out-of-range index.
 Mesh marching_cubes(const Volume& v, double iso, MarchingCubesStats* stats = nullptr);
+Mesh marching_cubes(const Volume& v, double iso, const MarchingCubesOptions& options, MarchingCubesStats* stats = nullptr);
 
 }  // namespace adaptiso

@@ -1,0 +1,210 @@
+"""Python misuse that crashed the interpreter or was accepted where the command line refuses
+(issue 41, items 4 and 5). The cases that used to crash run in a child interpreter, so a
+regression fails its test instead of taking the whole suite down."""
+import os
+import pathlib
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import adaptiso
+
+CLI = os.environ.get("ADAPTISO_CLI")
+
+
+def sphere_distance(shape=(30, 31, 32), centre=(14.5, 15.0, 15.5)):
+    z, y, x = np.mgrid[0:shape[0], 0:shape[1], 0:shape[2]]
+    return np.sqrt((x - centre[0]) ** 2 + (y - centre[1]) ** 2 + (z - centre[2]) ** 2).astype(np.float32)
+
+
+def run_isolated(code, timeout=300):
+    """Runs code in a child interpreter with this one's sys.path; returns its stdout."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    r = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, f"child exited with {r.returncode} (negative: killed by that signal)\n{r.stdout}\n{r.stderr}"
+    return r.stdout
+
+
+PRELUDE = """
+    import threading, time
+    import numpy as np
+    import adaptiso
+    def sphere(n, c):
+        z, y, x = np.mgrid[0:n, 0:n, 0:n]
+        return np.sqrt((x - c) ** 2 + (y - c + 0.3) ** 2 + (z - c - 0.2) ** 2).astype(np.float32)
+"""
+
+
+def test_one_extractor_from_four_threads_takes_turns_instead_of_corrupting_the_heap():
+    # Was: abort or segfault in 4 of 5 runs (extract releases the GIL; the extractor's state was
+    # shared unguarded).
+    out = run_isolated(PRELUDE + """
+    grid = adaptiso.prepare(adaptiso.Volume(sphere(48, 23.5)), max_error=0.005, relative=True)
+    isos = [6.0 + 0.5 * i for i in range(24)]
+    expected = {iso: len(grid.extract(iso)[1]) for iso in isos}
+    ex = grid.extractor()
+    errors, got = [], []
+    def work(k):
+        try:
+            for r in range(6):
+                for iso in isos[k::4]:
+                    got.append((iso, len(ex.extract(iso)[1]), ex.last_stats["iso"]))
+        except Exception as e:
+            errors.append(repr(e))
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+    for t in threads: t.start()
+    for t in threads: t.join()
+    assert not errors, errors
+    assert len(got) == 6 * 24 and all(n == expected[iso] for iso, n, _ in got)
+    print("ok", len(got))
+    """)
+    assert out.startswith("ok 144")
+
+
+def test_marching_cubes_with_a_racing_writer_gives_a_wrong_mesh_never_a_crash():
+    # Was: a segfault when another thread wrote into the array during the call (the slabs
+    # classified their shared plane twice and indexed with both). Here the writer flips whole
+    # planes to ±1e30 (finite, so every call reaches the marching) and NaN/Inf (refused when the
+    # finiteness check sees them, or met by the marching otherwise) for 4 seconds.
+    out = run_isolated(PRELUDE + """
+    n = 96
+    a = sphere(n, 47.5)
+    orig = a.copy()
+    stop = threading.Event()
+    def writer():
+        rng = np.random.default_rng(0)
+        bad = [1e30, -1e30, np.nan, np.inf]
+        while not stop.is_set():
+            k = int(rng.integers(0, n))
+            a[k] = bad[int(rng.integers(0, len(bad)))]  # numpy fills without the GIL
+            a[k] = orig[k]
+    t = threading.Thread(target=writer)
+    t.start()
+    calls = refused = 0
+    end = time.time() + 4
+    try:
+        while time.time() < end:
+            for method in ("lewiner", "lorensen"):
+                try:
+                    m = adaptiso.marching_cubes(a, 30.5, method=method)
+                    assert m[1].size == 0 or m[1].max() < len(m[0])
+                except (ValueError, RuntimeError):
+                    refused += 1
+                calls += 1
+    finally:
+        stop.set()
+        t.join()
+    print("ok", calls, refused)
+    """)
+    assert out.startswith("ok")
+
+
+def test_uninitialised_instances_are_refused_not_crashing():
+    # Was: Extractor.__new__(Extractor).extract(1.0) segfaulted (pybind11 hands such an object's
+    # methods unconstructed memory).
+    out = run_isolated(PRELUDE + """
+    cases = {
+        "Extractor.extract": lambda: adaptiso.Extractor.__new__(adaptiso.Extractor).extract(1.0),
+        "Extractor.last_stats": lambda: adaptiso.Extractor.__new__(adaptiso.Extractor).last_stats,
+        "Grid.extract": lambda: adaptiso.Grid.__new__(adaptiso.Grid).extract(1.0),
+        "Grid.save": lambda: adaptiso.Grid.__new__(adaptiso.Grid).save("/nonexistent/x.adg"),
+        "Grid.extractor": lambda: adaptiso.Grid.__new__(adaptiso.Grid).extractor(),
+        "Grid.stats": lambda: adaptiso.Grid.__new__(adaptiso.Grid).stats,
+        "Volume.range": lambda: adaptiso.Volume.__new__(adaptiso.Volume).range(),
+        "Volume.array": lambda: adaptiso.Volume.__new__(adaptiso.Volume).array,
+        "prepare": lambda: adaptiso.prepare(adaptiso.Volume.__new__(adaptiso.Volume)),
+        "reduce": lambda: adaptiso.reduce(adaptiso.Volume.__new__(adaptiso.Volume)),
+    }
+    for name, call in cases.items():
+        try:
+            call()
+        except TypeError as e:
+            assert "not initialised" in str(e), (name, e)
+        else:
+            raise AssertionError(name + " did not raise")
+    print("ok", len(cases))
+    """)
+    assert out.startswith("ok 10")
+    with pytest.raises(TypeError, match="expected an adaptiso.Volume"):
+        adaptiso.prepare(np.zeros((4, 4, 4), np.float32))
+
+
+def write_nrrd(path, a):
+    header = f"NRRD0004\ntype: float\ndimension: 3\nsizes: {a.shape[2]} {a.shape[1]} {a.shape[0]}\nencoding: raw\nendian: little\n\n"
+    path.write_bytes(header.encode() + a.astype("<f4").tobytes())
+
+
+def test_volume_refuses_nan_and_inf_with_the_readers_message(tmp_path):
+    # Was: accepted; marching_cubes then gave non-finite vertices and Grid.save wrote a file that
+    # load rejects.
+    a = sphere_distance((4, 5, 6))
+    a[1, 2, 3] = np.nan
+    a[3, 0, 0] = -np.inf
+    with pytest.raises(ValueError) as e:
+        adaptiso.Volume(a)
+    assert str(e.value) == "volume: 2 voxel(s) are NaN or Inf (first at voxel 3,2,1); adaptiso needs finite values"
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        adaptiso.Volume(a.astype(np.float64))
+    if CLI:  # the same words as the readers' refusal of the same values in a file
+        write_nrrd(tmp_path / "nan.nrrd", a)
+        r = subprocess.run([CLI, "info", str(tmp_path / "nan.nrrd")], capture_output=True, text=True)
+        assert r.returncode == 2
+        assert r.stderr.strip().endswith(f"nan.nrrd: {str(e.value).split(': ', 1)[1]}"), r.stderr
+
+
+@pytest.mark.parametrize("spacing", [(1e300, 1, 1), (5e-324, 1, 1), (0, 1, 1), (-1, 1, 1), (float("nan"), 1, 1), (1, float("inf"), 1)])
+def test_spacing_out_of_range_is_refused(spacing):
+    # Was: spacing 1e300 or 5e-324 gave non-finite or collapsed meshes.
+    with pytest.raises(ValueError, match="spacing: must be a positive number from 1e-30 to 1e30"):
+        adaptiso.Volume(sphere_distance(), spacing=spacing)
+
+
+@pytest.mark.parametrize("origin", [(float("nan"), 0, 0), (0, float("inf"), 0), (0, 0, -1e308)])
+def test_origin_not_finite_is_refused(origin):
+    with pytest.raises(ValueError, match="origin: must be a finite number"):
+        adaptiso.Volume(sphere_distance(), origin=origin)
+
+
+@pytest.mark.parametrize("spacing", [1e-30, 1e30])
+def test_extreme_spacings_that_are_accepted_give_finite_meshes(spacing):
+    v = adaptiso.Volume(sphere_distance(), spacing=(spacing,) * 3, origin=(spacing,) * 3)
+    verts, faces, normals = adaptiso.prepare(v, max_error=0.05, relative=True).extract(10.0)
+    assert len(faces) and np.all(np.isfinite(verts)) and np.all(np.isfinite(normals))
+    extent = verts.max(axis=0) - verts.min(axis=0)
+    assert np.allclose(extent / spacing, 20.0, rtol=0.05)  # about the sphere's diameter, not collapsed
+
+
+def test_paths_accept_os_pathlike_and_bytes(tmp_path):
+    # Was: load(pathlib.Path) was a TypeError.
+    v = adaptiso.Volume(sphere_distance())
+    grid = adaptiso.prepare(v, max_error=0.05, relative=True)
+    grid.save(tmp_path / "a.adg")
+    assert adaptiso.load(tmp_path / "a.adg").tetrahedron_count == grid.tetrahedron_count
+    assert adaptiso.load(os.fsencode(tmp_path / "a.adg")).tetrahedron_count == grid.tetrahedron_count
+    adaptiso.prepare_file(v, tmp_path / "b.adg", max_error=0.05, relative=True)
+    assert (tmp_path / "b.adg").read_bytes() == (tmp_path / "a.adg").read_bytes()
+    verts, faces, normals = grid.extract(10.0)
+    adaptiso.write_mesh(tmp_path / "m.ply", verts, faces, normals)
+    assert (tmp_path / "m.ply").stat().st_size > 0
+    if CLI:
+        subprocess.run([CLI, "generate", "sphere", "--size", "8", "-o", str(tmp_path / "s.nrrd")], check=True, capture_output=True)
+        assert adaptiso.read(pathlib.Path(tmp_path / "s.nrrd")).shape == (8, 8, 8)
+    with pytest.raises(TypeError, match="os.PathLike"):
+        adaptiso.load(42)
+
+
+def test_a_nul_in_a_path_is_refused_not_truncated(tmp_path):
+    # Was: "x.adg\0junk" wrote x.adg.
+    grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.05, relative=True)
+    verts, faces, normals = grid.extract(10.0)
+    base = str(tmp_path / "x")
+    calls = [lambda: grid.save(base + ".adg\0junk"), lambda: adaptiso.load(base + ".adg\0junk"), lambda: adaptiso.read(base + "\0.nrrd"),
+             lambda: adaptiso.write_mesh(base + ".ply\0junk", verts, faces, normals), lambda: grid.extract(10.0).save(base + ".ply\0junk"),
+             lambda: adaptiso.prepare_file(adaptiso.Volume(sphere_distance()), base + ".adg\0junk")]
+    for call in calls:
+        with pytest.raises(ValueError, match="embedded null character"):
+            call()
+    assert os.listdir(tmp_path) == []
