@@ -366,6 +366,25 @@ py::dict extract_stats(const ExtractStats& s) {
   return d;
 }
 
+py::dict distance_stats(const DistanceQueryStats& s) {
+  py::dict d;
+  d["iso"] = s.iso;
+  d["in_range"] = s.in_range;
+  d["triangles"] = s.triangles;
+  d["vertices"] = s.vertices;
+  d["distance_voxels"] = s.distance;
+  d["marched_tetrahedra"] = s.tetrahedra;
+  d["tested_tetrahedra"] = s.tested;
+  d["split_diamonds"] = s.refined;
+  d["closure_diamonds"] = s.closure;
+  d["visited_tetrahedra"] = s.visited;
+  d["seconds"] = s.refine_seconds + s.walk_seconds + s.march_seconds;
+  d["refine_seconds"] = s.refine_seconds;
+  d["walk_seconds"] = s.walk_seconds;
+  d["march_seconds"] = s.march_seconds;
+  return d;
+}
+
 py::dict query_stats(const HierarchyQueryStats& s) {
   py::dict d;
   d["iso"] = s.iso;
@@ -513,16 +532,21 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
   py::class_<Grid>(m, "Grid", "A prepared tetrahedral grid with its extraction index (adaptiso.prepare or adaptiso.load).")
       .def(
           "extract",
-          [](py::handle self, double iso, std::optional<double> max_error, bool relative) {
+          [](py::handle self, double iso, std::optional<double> max_error, bool relative, std::optional<double> distance) {
             Grid& g = grid_of(self);
+            if (max_error && distance) throw py::value_error("max_error and distance: give one of them");
             Mesh mesh;
             std::optional<HierarchyQueryStats> query;
+            std::optional<DistanceQueryStats> within;
             std::optional<ExtractStats> full;
             {
               py::gil_scoped_release release;
               const auto& src = g.grid->grid.source;
               const double value = relative ? src.min + iso * (src.max - src.min) : iso;
-              if (max_error) {
+              if (distance) {
+                within.emplace();
+                mesh = g.hierarchy().extract_within(value, *distance, &*within);
+              } else if (max_error) {
                 const double e = relative ? *max_error * (src.max - src.min) : *max_error;
                 query.emplace();
                 mesh = g.hierarchy().extract(value, e, 0, &*query);
@@ -532,15 +556,18 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
                 mesh = ex.mesh();
               }
             }
-            return make_mesh(std::move(mesh), query ? query_stats(*query) : extract_stats(*full));
+            return make_mesh(std::move(mesh), within ? distance_stats(*within) : query ? query_stats(*query) : extract_stats(*full));
           },
-          py::arg("iso"), py::arg("max_error") = py::none(), py::arg("relative") = false,
-          R"(extract(iso, max_error=None, relative=False) -> Mesh
+          py::arg("iso"), py::arg("max_error") = py::none(), py::arg("relative") = false, py::arg("distance") = py::none(),
+          R"(extract(iso, max_error=None, relative=False, distance=None) -> Mesh
 
 The iso-surface at iso as a Mesh, which unpacks as (vertices float32 (N, 3), faces uint32 (M, 3),
 normals float32 (N, 3)): world coordinates (x, y, z), faces counter-clockwise seen from the side
 the normals point to (lower values); Mesh.stats holds the command line's figures.
 max_error (bisection grids): a coarser error than the prepared one, from the grid's hierarchy.
+distance (bisection grids): the fewest triangles within about this many voxels (of the smallest
+spacing) of the grid's surface, refined where this surface needs it; every vertex is one of the
+full surface's (HierarchyQuery::extract_within).
 relative: iso (and max_error) as fractions of the value range. Safe to call from several threads.)")
       .def(
           "extractor",

@@ -238,6 +238,8 @@ void add_extract(CLI::App& app) {
     auto values = mesh_out->values(*relative, grid.source.min, grid.source.max, *input);
     nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
     if (*distance >= 0) {
+      if (*max_error >= 0 || *max_displacement > 0)
+        throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
       j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
     } else if (*max_error >= 0 || *max_displacement > 0) {
       const double e = *max_error < 0 ? 0 : *relative ? *max_error * (grid.source.max - grid.source.min) : *max_error;
@@ -264,6 +266,11 @@ void add_run(CLI::App& app) {
   out->add(cmd);
   mesh_out->add(cmd);
   cmd->add_option("--save-grid", *save, "Also save the prepared grid (.adg) for later extract or view");
+  auto distance = std::make_shared<double>(-1);
+  cmd->add_option("--distance", *distance,
+                  "Bisection grid: the fewest triangles within about this distance of the grid's surface (voxels of the smallest "
+                  "spacing), refined where this surface needs it")
+      ->check(finite_number() & CLI::NonNegativeNumber);
   cmd->callback([=] {
     mesh_out->check();
     auto t_all = Clock::now();
@@ -272,6 +279,8 @@ void add_run(CLI::App& app) {
     auto range = value_range(v);
     // Parse before the long preprocessing so a typo fails at once.
     const PrepareOptions options = pf->options(in->path);
+    if (*distance >= 0 && options.grid != GridKind::bisection)
+      throw OptionError("distance", "needs the bisection grid (the Delaunay grid keeps no hierarchy to refine)");
     auto values = mesh_out->values(options.relative, range.min, range.max, in->path);
     TerminalProgress tp(!out->quiet && !out->json);
     auto p =
@@ -288,7 +297,7 @@ void add_run(CLI::App& app) {
     if (!out->json && !out->quiet)
       std::cout << fmt::format("kept {} of {} voxels ({:.2f} %), {} tetrahedra; {}\n", p->stats.kept, p->stats.voxels,
                                100.0 * j["ratio"].get<double>(), p->stats.tetrahedra, error_summary(p->stats));
-    j["surfaces"] = extract_all(p, *mesh_out, values, *out);
+    j["surfaces"] = *distance >= 0 ? distance_all(p, *mesh_out, values, *distance, *out) : extract_all(p, *mesh_out, values, *out);
     j["seconds"]["total"] = seconds_since(t_all);
     if (out->json) print_json(j);
   });

@@ -71,19 +71,22 @@ public:
                std::vector<std::array<std::uint32_t, 4>>* used = nullptr) const;
 
   // The surface at iso within about `distance` voxels (of the smallest spacing) of the grid's own
-  // surface at iso (the surface extract gives at the prepared error), with far fewer triangles.
-  // Refinement follows this surface only: from the 6 root tetrahedra, a tetrahedron the surface
-  // cuts is split while the cut points its split would add lie farther than `distance` from the
-  // surface it has now, and one whose corners do not show the surface beneath (its values beneath
-  // straddle iso) while its longest edge exceeds 2·distance; the split diamonds are then closed
-  // under their parents, so the mesh stays conforming. Every mesh vertex is a vertex of the
-  // grid's own surface, bit for bit: the cut of a coarse edge is placed on the grid's cut edge
-  // inside it (the first found by bisecting at the grid's vertices). So the surface is watertight
-  // and 2-manifold where the grid's is, oriented, free of self-intersections (each triangle lies in
-  // its tetrahedron), and the same for any thread count. What is not guaranteed, and measured
-  // (bench/distance.py): the distance between the two surfaces everywhere, and parts smaller than
-  // 2·distance that no coarse corner shows. distance 0 gives the grid's own surface.
-  // Thread-safe. Throws OptionError for a non-finite iso or a negative or non-finite distance.
+  // surface at iso (the one extract gives at the prepared error), with far fewer triangles.
+  // Refinement follows this surface only (distance_query.cpp): from the 6 root tetrahedra, one the
+  // surface may cross is split while a test finds it too coarse (a triangle's centre farther than
+  // the distance from the grid's surface, or a cut point its split adds farther than the distance
+  // from its triangles, or a surface hidden beneath it while its longest edge exceeds
+  // 2·distance); the splits are then closed under their parents, so the mesh stays conforming.
+  // Guaranteed: every mesh vertex is a vertex of the grid's own surface, bit for bit (the cut of a
+  // coarse edge is placed on the grid's cut edge inside it); the surface is watertight and
+  // 2-manifold where the grid's is, oriented, free of self-intersections (each triangle lies in
+  // its tetrahedron), and the same for any thread count; the centre of every triangle of a
+  // tetrahedron whose longest edge exceeds the distance was found within it of the grid's surface
+  // along the triangle's normal (most triangles: those of tetrahedra split only to stay conforming
+  // are not tested). Not guaranteed, and measured (bench/distance.py, docs/RESULTS.md): the
+  // distance everywhere, and parts smaller than 2·distance that no corner shows, which are left
+  // out. distance 0 gives the grid's own surface exactly. Thread-safe.
+  // Throws OptionError for a non-finite iso or a negative or non-finite distance.
   Mesh extract_within(double iso, double distance, DistanceQueryStats* stats = nullptr) const;
 
   double prepared_error() const;  // the smallest error a query can have

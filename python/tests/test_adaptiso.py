@@ -108,6 +108,26 @@ def test_coarser_error_from_the_hierarchy():
     assert grid.coarsen(1.0).tetrahedron_count < grid.tetrahedron_count
 
 
+def test_surface_within_a_distance_has_the_full_surfaces_vertices():
+    v = adaptiso.Volume(sphere_distance((50, 51, 52), (24.5, 25.0, 25.5)))
+    grid = adaptiso.prepare(v, max_error=0.005, relative=True)
+    full = grid.extract(15.0)
+    near = grid.extract(15.0, distance=1.0)
+    assert 0 < near.faces.shape[0] < full.faces.shape[0] / 2
+    assert near.stats["distance_voxels"] == 1.0 and near.stats["triangles"] == near.faces.shape[0]
+    # Every vertex is one of the full surface's, bit for bit.
+    assert set(map(tuple, near.vertices.tolist())) <= set(map(tuple, full.vertices.tolist()))
+    # Within the distance of the sphere of radius 15 (the grid's surface lies within its error of it).
+    radius = np.linalg.norm(near.vertices[near.faces].mean(axis=1) - [24.5, 25.0, 25.5], axis=1)
+    assert np.all(np.abs(radius - 15.0) < 1.0 + 0.2)
+    zero = grid.extract(15.0, distance=0)
+    assert np.array_equal(zero.faces, full.faces) and np.array_equal(zero.vertices, full.vertices)
+    with pytest.raises(ValueError):
+        grid.extract(15.0, distance=-1)
+    with pytest.raises(ValueError):
+        grid.extract(15.0, distance=1.0, max_error=0.1)
+
+
 def test_cell_floor_gives_fewer_tetrahedra_at_a_measured_error():
     rng = np.random.default_rng(3)
     a = sphere_distance() + rng.uniform(0, 5, size=sphere_distance().shape).astype(np.float32)

@@ -18,8 +18,8 @@
 //   (the grid's interpolant has the same sign at both ends of centre ± distance·normal), or a cut
 //   point the split adds (on the edges from the refinement edge's midpoint to the other two
 //   corners) farther than the distance from its triangles;
-// - or a surface hides beneath: no corner shows it and its longest edge exceeds 2·distance, or
-//   the midpoint differs from both ends of the refinement edge and it exceeds the distance.
+// - or a surface hides beneath and its longest edge exceeds 2·distance: no corner shows it, or
+//   the midpoint differs from both ends of the refinement edge.
 // Smaller hidden parts are left out. Tetrahedra whose longest edge is within the distance are not
 // probed: every point of their triangles lies within it of a cut point.
 //
@@ -401,7 +401,7 @@ private:
     if (code == 0 || code == 15) return longest2 > 4 * d2;  // hidden beneath
     if (longest2 <= d2) return false;                       // every point within the distance of a cut point
     const bool mid_above = q_.above(mid.value);
-    if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value)) return true;  // hidden between
+    if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value) && longest2 > 4 * d2) return true;  // hidden between
     const Case& cs = kCases[code];
     Point tris[2][3];
     for (int k = 0; k < cs.triangles; ++k)
