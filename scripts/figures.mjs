@@ -91,7 +91,8 @@ try {
     const { server, url, info } = await serve(f.volume, f.args);
     const iso = f.isoData ?? info.min + f.iso * (info.max - info.min);
     const page = await browser.newPage({ viewport: { width: 640, height: 512 } });
-    const query = new URLSearchParams({ iso: String(iso), show: f.show, panel: 'hide', camera: f.camera || '0.6,-0.9,0.7', up: f.up || '0,0,1' });
+    // levels=1: the grid's own surface (the paper's), not one within a distance of it.
+    const query = new URLSearchParams({ iso: String(iso), show: f.show, panel: 'hide', camera: f.camera || '0.6,-0.9,0.7', up: f.up || '0,0,1', levels: '1' });
     await page.goto(`${url}?${query}`);
     await page.waitForSelector('body[data-ready="1"]', { timeout: 120000 });
     // Two frames so the last layer is on the canvas, not only uploaded.

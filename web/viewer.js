@@ -6,9 +6,17 @@ import { MeshoptDecoder } from 'meshoptimizer/decoder';
 const $ = (id) => document.getElementById(id);
 const client = Math.random().toString(36).slice(2, 12);  // this page's sweep state on the server
 const params = new URLSearchParams(location.search);
-// While the iso slider is dragged the server picks the level of detail that fits this many
-// triangles (?budget=N); the surface at the chosen error follows when the slider rests.
+// On a bisection grid the page asks for surfaces within a distance of the grid's own (voxels):
+// the one chosen at rest (?distance=D), a coarser one while the iso slider is dragged
+// (?drag-distance=D, default 2: a real shape at 20 surfaces a second and more). On a Delaunay grid
+// the server picks, while dragging, the level of detail that fits this many triangles
+// (?budget=N), and the surface at the chosen error follows when the slider rests.
 const budget = Number(params.get('budget')) || 150000;
+const startDistance = params.has('distance') ? Number(params.get('distance')) : NaN;
+// The error levels even on a bisection grid: ?levels=1, or an error given (?error=E: the paper's
+// figures, scripts/figures.sh).
+const useLevels = params.get('levels') === '1' || params.has('error');
+const dragDistance = Number(params.get('drag-distance')) || 2;
 // The page's starting state can come from the address too (scripts/figures.sh draws the paper's
 // figures this way): ?iso=V (data units), &error=E (data units, at rest), &show=surface,points,
 // tets,reference, &reference=side|overlay, &camera=X,Y,Z (direction from the centre to the eye),
@@ -57,7 +65,7 @@ scene.add(surface, reference, points, tets);
 
 let info = null;
 const stats = { extract: 0, encode: 0, wait: 0, transfer: 0, decode: 0, bytes: 0, triangles: 0, vertices: 0, active: 0, incremental: false, inRange: true,
-                refTriangles: null, error: 0, guaranteed: true, level: 0, coarse: false };
+                refTriangles: null, error: 0, guaranteed: true, level: 0, coarse: false, distance: null };
 
 function resize() {
   const w = window.innerWidth, h = window.innerHeight;
@@ -115,8 +123,11 @@ function showStatus(text) { $('status').textContent = text; }
 function updateStats() {
   if (!info) return;
   const lines = [
-    `error: ${stats.guaranteed ? '≤' : 'measured'} ${Number(stats.error).toPrecision(4)}` +
-      ` (${(100 * stats.error / ((info.max - info.min) || 1)).toPrecision(3)} % of the range)${stats.coarse ? ', coarse while dragging' : ''}`,
+    stats.distance !== null
+      ? `within about ${stats.distance} voxels of the grid's surface${stats.coarse ? ', coarse while dragging' : ''}` +
+          ` (its error ${stats.guaranteed ? '≤' : 'measured'} ${Number(stats.error).toPrecision(4)})`
+      : `error: ${stats.guaranteed ? '≤' : 'measured'} ${Number(stats.error).toPrecision(4)}` +
+          ` (${(100 * stats.error / ((info.max - info.min) || 1)).toPrecision(3)} % of the range)${stats.coarse ? ', coarse while dragging' : ''}`,
     `kept vertices: ${info.kept}`,
     `tetrahedra: ${info.tetrahedra}`,
     `triangles: ${stats.triangles}`,
@@ -133,6 +144,7 @@ function updateStats() {
   $('stats').dataset.iso = String(shownIso);  // the exact iso-value shown, for scripts and tests
   $('stats').dataset.error = String(stats.error);  // the error of the surface shown (data units)
   $('stats').dataset.level = String(stats.level);
+  $('stats').dataset.distance = stats.distance === null ? '' : String(stats.distance);  // voxels, on a bisection grid
 }
 
 // Binary mesh: u32 V, u32 T, f32 positions[3V], f32 normals[3V], u32 indices[3T].
@@ -229,6 +241,13 @@ function errorFromSlider() {
   if (!(lo > 0) || !(hi > lo)) return lo || 0;
   return lo * Math.pow(hi / lo, Number(e.value) / Number(e.max));
 }
+// The distance asked for at rest (voxels): the slider runs on a log scale from 0.25 to 16, its
+// left end the grid's own surface (0).
+function distanceFromSlider() {
+  const v = Number($('distance').value) / Number($('distance').max);
+  return v === 0 ? 0 : Number((0.25 * Math.pow(64, v)).toPrecision(2));
+}
+function showDistance() { $('distance-value').textContent = `${distanceFromSlider()} voxels`; }
 function showError() {
   const e = errorFromSlider();
   $('error-value').textContent = `≤ ${e.toPrecision(3)} (${(100 * e / ((info.max - info.min) || 1)).toPrecision(2)} %)`;
@@ -250,8 +269,13 @@ async function pump() {
   try {
     const t0 = performance.now();
     let url = `api/surface?iso=${encodeURIComponent(iso)}&client=${client}&format=compact`;
-    if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
-    if (coarse) url += `&budget=${budget}`;
+    const distance = info.distance ? (coarse ? Math.max(dragDistance, distanceFromSlider()) : distanceFromSlider()) : null;
+    if (info.distance) {
+      url += `&distance=${distance}`;
+    } else {
+      if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
+      if (coarse) url += `&budget=${budget}`;
+    }
     const r = await fetch(url);
     if (!r.ok) throw new Error(await r.text());
     const buffer = await r.arrayBuffer();
@@ -273,6 +297,7 @@ async function pump() {
     stats.error = Number(r.headers.get('X-Error-Bound'));
     stats.guaranteed = r.headers.get('X-Error-Guaranteed') === '1';
     stats.level = Number(r.headers.get('X-Level'));
+    stats.distance = r.headers.has('X-Distance') ? Number(r.headers.get('X-Distance')) : null;
     stats.coarse = coarse;
     // The GPU is never given a surface before it has drawn the last one; a surface while dragging
     // is drawn while the next is requested, one at rest before the page says it is ready.
@@ -284,7 +309,7 @@ async function pump() {
     shownIso = iso;
     // Timings (SwiftShader's drawing is CPU work, reported with the upload as draw), taken now:
     // the next request rewrites stats before a dragged surface is drawn.
-    const entry = { iso, coarse, level: stats.level, error: stats.error, triangles: stats.triangles, bytes: stats.bytes,
+    const entry = { iso, coarse, level: stats.level, error: stats.error, distance: stats.distance, triangles: stats.triangles, bytes: stats.bytes,
                     request: t1 - t0, server: 1000 * stats.extract, wait: stats.wait, encode: stats.encode, decode: t2 - t1,
                     gpuWait: t2b - t2, fromInput: t2 - input, fromInputUploaded: t2b - input };
     const note = () => {
@@ -391,6 +416,7 @@ async function start() {
     if (info) showStatus(`preparing: ${info.stage} ${(100 * info.progress).toFixed(0)} %`);
     await new Promise((ok) => setTimeout(ok, 300));
   }
+  if (useLevels) info.distance = false;
   const d = info.dims, s = info.spacing;
   const grid = info.facts.grid === 'bisection' ? 'bisection grid' : `Delaunay grid (${info.reduction.method})`;
   showStatus(`${d.join('×')} voxels, values ${info.min} … ${info.max}; ${grid}, ` +
@@ -415,8 +441,18 @@ async function start() {
   // surface at the chosen error).
   slider.addEventListener('input', () => { const v = isoFromSlider(); field.value = String(Number(v.toPrecision(6))); requestSurface(v, true); });
   slider.addEventListener('change', () => requestSurface(isoFromSlider(), false));
+  const distanceSlider = $('distance');
+  if (info.distance) {  // a bisection grid: the surface within a distance, not an error level
+    $('distance-box').hidden = false;
+    $('error-box').hidden = true;
+    distanceSlider.disabled = false;
+    if (Number.isFinite(startDistance) && startDistance >= 0)
+      distanceSlider.value = String(startDistance < 0.25 ? 0 : Math.round(Number(distanceSlider.max) * Math.min(1, Math.log(startDistance / 0.25) / Math.log(64))));
+    showDistance();
+    distanceSlider.addEventListener('input', () => { showDistance(); if (shownIso !== null) requestSurface(shownIso, false); });
+  }
   const errorSlider = $('error');
-  errorSlider.disabled = !(info.levels.length > 1);
+  errorSlider.disabled = !(info.levels.length > 1) || info.distance;
   const lo = info.error_bound, hi = info.max - info.min;
   if (Number.isFinite(startError) && !errorSlider.disabled && startError > lo && hi > lo) {
     errorSlider.value = String(Math.round(Number(errorSlider.max) * Math.min(1, Math.log(startError / lo) / Math.log(hi / lo))));
@@ -443,7 +479,8 @@ async function start() {
     if (shownIso === null) return;
     const distance = Math.max(0, Number($('export-distance').value) || 0);
     let url = `api/export?iso=${encodeURIComponent(shownIso)}&client=${client}&simplify=${distance}&format=${$('export-format').value}`;
-    if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
+    if (info.distance) url += `&distance=${distanceFromSlider()}`;
+    else if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
     const a = document.createElement('a');
     a.href = url;
     a.download = '';

@@ -29,6 +29,7 @@
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
+#include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/levels_of_detail.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_codec.hpp"
@@ -127,7 +128,8 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
 // The grid being served and its levels of detail, taken together (set_grid replaces both).
 struct Served {
   std::shared_ptr<const PreparedGrid> grid;
-  std::shared_ptr<LevelsOfDetail> levels;  // bisection grids only
+  std::shared_ptr<LevelsOfDetail> levels;        // bisection grids only
+  std::shared_ptr<const HierarchyQuery> query;  // bisection grids only: surfaces within a distance
   // The coarsest level within error= (the prepared grid without it, or without levels).
   std::size_t level_for(const std::optional<double>& error) const { return levels && error ? levels->level_for_error(*error) : 0; }
   std::shared_ptr<const PreparedGrid> at(std::size_t level) const { return level ? levels->grid(level) : grid; }
@@ -336,7 +338,12 @@ struct ViewServer::Impl {
   std::string stage = "starting", failure;
   double fraction = 0;
   std::shared_ptr<const PreparedGrid> grid;
-  std::shared_ptr<LevelsOfDetail> levels;  // bisection grids: coarser grids for dragging, built in the background
+  // Bisection grids: coarser grids for dragging by an error bound, built in the background once a
+  // page asks for one (error= or budget=; a page asking for distances never does, and building
+  // them took the bunny 22 s of CPU), and the queries for surfaces within a distance.
+  std::shared_ptr<LevelsOfDetail> levels;
+  bool levels_started = false;
+  std::shared_ptr<const HierarchyQuery> query;
   std::shared_ptr<const Volume> volume;
   nlohmann::json histogram;
   std::list<std::string> lru;  // most recent first
@@ -347,7 +354,9 @@ struct ViewServer::Impl {
   Follower follower;
 
   std::shared_ptr<Client> client(const std::string& id);
+  std::mutex builder_mutex;  // guards level_builder
   void build_levels(std::shared_ptr<LevelsOfDetail> lod);
+  void need_levels();
   Served served_now();  // throws NotReady while preparing
   std::shared_ptr<const PreparedGrid> ready() { return served_now().grid; }
 
@@ -355,6 +364,7 @@ struct ViewServer::Impl {
   bool host_allowed(const httplib::Request& req) const;
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
+  void surface_within(const httplib::Request& req, httplib::Response& res, const Served& s, double iso, double distance, bool compact);
   void reference(const httplib::Request& req, httplib::Response& res);
   void download(const httplib::Request& req, httplib::Response& res);
   void points(const httplib::Request& req, httplib::Response& res);
@@ -384,7 +394,20 @@ Served ViewServer::Impl::served_now() {
   if (!grid)
     throw NotReady(failure.empty() ? fmt::format("the grid is not ready yet ({} {:.0f} %)", stage, fraction * 100)
                                    : "preparation failed: " + failure);
-  return {grid, levels};
+  return {grid, levels, query};
+}
+
+// The levels of detail are built from the first request that needs them.
+void ViewServer::Impl::need_levels() {
+  std::shared_ptr<LevelsOfDetail> lod;
+  {
+    std::lock_guard lock(state_mutex);
+    if (levels_started || !levels) return;
+    levels_started = true;
+    lod = levels;
+  }
+  std::lock_guard lock(builder_mutex);
+  build_levels(lod);
 }
 
 ViewServer::ViewServer(ViewOptions options) : impl_(std::make_unique<Impl>()) {
@@ -469,9 +492,15 @@ void ViewServer::set_grid(std::shared_ptr<const PreparedGrid> g) {
   if (hist.is_null())  // no volume: the histogram of the grid's vertex values
     hist = histogram_json(histogram(g->grid.values, {g->grid.source.min, g->grid.source.max}, kHistogramBins), "vertices");
   auto lod = g->hierarchy ? std::make_shared<LevelsOfDetail>(g) : nullptr;
-  impl_->build_levels(lod);
+  auto query = g->hierarchy ? std::make_shared<const HierarchyQuery>(g) : nullptr;
+  {
+    std::lock_guard lock(impl_->builder_mutex);
+    impl_->build_levels(nullptr);  // stops the last grid's
+  }
   std::lock_guard lock(impl_->state_mutex);
   impl_->levels = lod;
+  impl_->levels_started = false;
+  impl_->query = query;
   impl_->clients.clear();  // a client's Extractor keeps its own grid alive; new requests start on this one
   impl_->lru.clear();
   impl_->histogram = hist;
@@ -517,6 +546,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
         for (std::size_t k = 0; k < levels->size(); ++k)
           ladder.push_back({{"bound", levels->bound(k)}, {"built", levels->grid(k) != nullptr}, {"cell_floor", levels->cell_floor(k)}});
       j["levels"] = ladder;
+      j["distance"] = query != nullptr;  // surfaces within a distance (voxels) can be asked for
     }
   }
   res.set_content(j.dump(), "application/json");
@@ -527,8 +557,14 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const std::string id = client_id(req.params);
   const auto error = parse_optional(req.params, "error");
   const auto budget = parse_optional(req.params, "budget");
+  const auto distance = parse_optional(req.params, "distance");
   const bool compact = compact_format(req.params);
   const Served s = served_now();
+  if (distance) {
+    if (error || budget) throw BadRequest("distance= cannot be combined with error= or budget=");
+    return surface_within(req, res, s, iso, *distance, compact);
+  }
+  if (error || budget) need_levels();
   // The level shown when the slider rests: the coarsest within error=; while dragging, as fine as
   // the triangle budget allows but no finer.
   const std::size_t rest = s.level_for(error);
@@ -581,19 +617,55 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   res.set_content(std::move(body), "application/octet-stream");
 }
 
-// The surface at rest (iso, error), simplified to simplify= voxels, as a .glb or .ply file.
+// The surface within distance= voxels of the grid's (a bisection grid's hierarchy query): one
+// stateless query, no page state.
+void ViewServer::Impl::surface_within(const httplib::Request&, httplib::Response& res, const Served& s, double iso, double distance,
+                                      bool compact) {
+  if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
+  if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
+  DistanceQueryStats st;
+  const Mesh mesh = s.query->extract_within(iso, distance, &st);
+  const auto t0 = std::chrono::steady_clock::now();
+  std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
+  const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.refine_seconds + st.walk_seconds + st.march_seconds));
+  res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));
+  res.set_header("X-Wait-Seconds", "0");
+  res.set_header("X-Triangles", std::to_string(st.triangles));
+  res.set_header("X-Vertices", std::to_string(st.vertices));
+  res.set_header("X-Active-Tetrahedra", std::to_string(st.tetrahedra));
+  res.set_header("X-Incremental", "0");
+  res.set_header("X-In-Range", st.in_range ? "1" : "0");
+  res.set_header("X-Level", "0");
+  res.set_header("X-Distance", fmt::format("{:.17g}", distance));
+  // The vertices lie on the grid's own surface, whose error bound this is.
+  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(s.grid->stats)));
+  res.set_header("X-Error-Guaranteed", s.grid->stats.error_bound >= 0 ? "1" : "0");
+  res.set_header("X-Encoding", compact ? "compact" : "plain");
+  res.set_header("Cache-Control", "no-store");
+  res.set_content(std::move(body), "application/octet-stream");
+}
+
+// The surface at rest (iso, error or distance), simplified to simplify= voxels, as a .glb or .ply file.
 void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& res) {
   const double iso = parse_iso(req.params);
   const std::string id = client_id(req.params);
   const auto error = parse_optional(req.params, "error");
   const double distance = parse_optional(req.params, "simplify").value_or(0);
+  const auto within = parse_optional(req.params, "distance");
   const std::string format = export_format(req.params);
   const Served s = served_now();
+  if (within && error) throw BadRequest("distance= cannot be combined with error=");
+  if (within && !s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
+  if (within && (!(*within >= 0) || !std::isfinite(*within))) throw BadRequest("distance must be a non-negative number of voxels");
+  if (error) need_levels();
   const std::size_t level = s.level_for(error);
   const auto grid = s.at(level);
-  auto slot = client(id)->level(level);
   Mesh mesh;
-  {
+  if (within) {
+    mesh = s.query->extract_within(iso, *within);
+  } else {
+    auto slot = client(id)->level(level);
     const auto lock = slot->lock_for_page(iso, grid.get());
     mesh = slot->at(grid, iso);
   }

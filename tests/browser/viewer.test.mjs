@@ -49,8 +49,9 @@ const url = await new Promise((ok, bad) => {
   server.on('exit', (code) => bad(new Error(`server exited with ${code}`)));
 }).catch((e) => fail(e.message));
 
-async function apiTriangles(iso) {
-  const r = await fetch(`${url}api/surface?iso=${encodeURIComponent(iso)}&client=test-check`);
+async function apiTriangles(iso, distance = '') {
+  const within = distance === '' || distance === null ? '' : `&distance=${distance}`;
+  const r = await fetch(`${url}api/surface?iso=${encodeURIComponent(iso)}&client=test-check${within}`);
   if (!r.ok) fail(`/api/surface answered ${r.status}`);
   const buf = await r.arrayBuffer();
   const [V, T] = new Uint32Array(buf, 0, 2);
@@ -142,10 +143,14 @@ try {
   await page.goto(url);
   const stats = page.locator('#stats');
   await page.waitForFunction(() => /triangles: [1-9]/.test(document.getElementById('stats').textContent), null, { timeout: 60000 });
-  const read = async () => ({ text: await stats.textContent(), iso: await stats.getAttribute('data-iso') });
+  const read = async () => ({ text: await stats.textContent(), iso: await stats.getAttribute('data-iso'), distance: await stats.getAttribute('data-distance') });
   const first = await read();
   const t1 = Number(first.text.match(/triangles: (\d+)/)[1]);
-  if (t1 !== await apiTriangles(first.iso)) fail(`stats say ${t1} triangles, the API ${await apiTriangles(first.iso)} at iso ${first.iso}`);
+  // A bisection grid: the page asks for surfaces within a distance (0.5 voxels at rest by default).
+  if (first.distance !== '0.5') fail(`the first surface is not the one within 0.5 voxels: data-distance '${first.distance}'`);
+  const api1 = await apiTriangles(first.iso, first.distance);
+  if (t1 !== api1) fail(`stats say ${t1} triangles, the API ${api1} at iso ${first.iso}, distance ${first.distance}`);
+  if (!(t1 < await apiTriangles(first.iso))) fail(`the surface within 0.5 voxels has no fewer triangles than the grid's (${t1})`);
   await checkCompactDecoding(page, first.iso);
   await checkStreamedDecoding(page, first.iso);
   // Drag the slider to 80 % of the range (input events, as a user's drag produces).
@@ -159,7 +164,7 @@ try {
   const second = await read();
   const t2 = Number(second.text.match(/triangles: (\d+)/)[1]);
   if (t2 === t1) fail(`the triangle count did not change when the slider moved (${t1})`);
-  const api2 = await apiTriangles(second.iso);
+  const api2 = await apiTriangles(second.iso, second.distance);
   if (t2 !== api2) fail(`after the move: stats ${t2} triangles, API ${api2} at iso ${second.iso}`);
   // The canvas shows something: the variance of its luminance is well above zero.
   await page.waitForTimeout(500);
@@ -192,11 +197,35 @@ try {
   const after = await pixels();
   const changed = after.filter((v, i) => Math.abs(v - unturned[i]) > 8).length;
   if (changed < 0.01 * after.length) fail(`turning the view with the mouse did not redraw the canvas (${changed} values changed)`);
-  // Level of detail: with a small triangle budget, dragging shows coarser surfaces with their
-  // (larger) guaranteed error; releasing the slider settles on the prepared surface and error.
+  // Distances: dragging shows surfaces within 2 voxels, releasing settles on the distance chosen
+  // (?distance=1 here), each the server's surface at that distance, coarse first.
+  const near = await browser.newPage({ viewport: { width: 800, height: 600 } });
+  near.on('pageerror', (e) => errors.push(e.message));
+  await near.goto(`${url}?distance=1`);
+  await near.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
+  const nearBefore = await near.evaluate(() => window.adaptisoSurfaces.length);
+  await near.evaluate(async () => {  // a drag: input events 30 ms apart, then the release
+    const s = document.getElementById('iso');
+    for (let v = 400; v <= 700; v += 20) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
+    s.dispatchEvent(new Event('change'));
+  });
+  await near.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), nearBefore, { timeout: 30000 });
+  const nearShown = await near.evaluate((n) => window.adaptisoSurfaces.slice(n), nearBefore);
+  const drags = nearShown.filter((r) => r.coarse), rest = nearShown.filter((r) => !r.coarse);
+  if (!drags.length || drags.some((r) => r.distance !== 2)) fail(`dragged surfaces are not within 2 voxels: ${JSON.stringify(drags.map((r) => r.distance))}`);
+  if (rest.at(-1).distance !== 1) fail(`the surface at rest is not within the distance chosen (1): ${rest.at(-1).distance}`);
+  const restIso = Number(await near.locator('#stats').getAttribute('data-iso'));
+  if (rest.at(-1).triangles !== await apiTriangles(restIso, 1)) fail(`the surface at rest has ${rest.at(-1).triangles} triangles, the API ${await apiTriangles(restIso, 1)}`);
+  if (!(drags.at(-1).triangles < rest.at(-1).triangles * 1.05)) fail(`dragged surfaces (2 voxels) have more triangles than at rest (1 voxel): ${drags.at(-1).triangles} vs ${rest.at(-1).triangles}`);
+  if ((await near.locator('#stats').getAttribute('data-distance')) !== '1') fail('#stats does not say the distance of the surface shown');
+  console.log(`distance: ${drags.length} dragged surfaces within 2 voxels (${drags.at(-1).triangles} triangles), at rest within 1 voxel (${rest.at(-1).triangles} triangles)`);
+  await near.close();
+  // Level of detail (?levels=1, the error levels on a bisection grid too): with a small triangle
+  // budget, dragging shows coarser surfaces with their (larger) guaranteed error; releasing the
+  // slider settles on the prepared surface and error.
   const lod = await browser.newPage({ viewport: { width: 800, height: 600 }, acceptDownloads: true });
   lod.on('pageerror', (e) => errors.push(e.message));
-  await lod.goto(`${url}?budget=${process.env.ADAPTISO_VIEW_BUDGET || 300}`);
+  await lod.goto(`${url}?levels=1&budget=${process.env.ADAPTISO_VIEW_BUDGET || 300}`);
   await lod.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
   const info = await (await fetch(`${url}api/info`)).json();
   if (info.levels.length < 2) fail(`no coarser levels offered (${JSON.stringify(info.levels)})`);
@@ -245,7 +274,7 @@ try {
   const wantedIso = info.min + 0.7 * (info.max - info.min);
   const still = await browser.newPage({ viewport: { width: 400, height: 300 } });
   still.on('pageerror', (e) => errors.push(e.message));
-  await still.goto(`${url}?${new URLSearchParams({ iso: String(wantedIso), show: 'surface,tets,points', panel: 'hide', camera: '1,0,0', up: '0,1,0' })}`);
+  await still.goto(`${url}?${new URLSearchParams({ iso: String(wantedIso), show: 'surface,tets,points', panel: 'hide', camera: '1,0,0', up: '0,1,0', levels: '1' })}`);
   await still.waitForSelector('body[data-ready="1"]', { timeout: 60000 });
   const state = await still.evaluate(() => ({
     iso: Number(document.getElementById('stats').dataset.iso), panel: getComputedStyle(document.getElementById('panel')).display,

@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "adaptiso/extractor.hpp"
+#include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_codec.hpp"
 #include "adaptiso/mesh_io.hpp"
@@ -68,8 +69,10 @@ struct Running {
 };
 
 // /api/info once every level of detail is built (they are built in the background), or after 10 s.
+// The levels are built once a request asks for one (error= or budget=).
 nlohmann::json info_with_levels_built(httplib::Client& c) {
-  nlohmann::json info;
+  nlohmann::json info = nlohmann::json::parse(c.Get("/api/info")->body);
+  if (info["levels"].size() > 1) c.Get(fmt::format("/api/surface?iso={:.17g}&client=levels&budget=1000", info["min"].get<double>()));
   for (int i = 0; i < 500; ++i) {
     info = nlohmann::json::parse(c.Get("/api/info")->body);
     if (std::all_of(info["levels"].begin(), info["levels"].end(), [](const auto& l) { return l["built"].template get<bool>(); })) break;
@@ -516,4 +519,45 @@ TEST(ViewServer, ExportDownloadsTheSurfaceSimplified) {
   EXPECT_EQ(simplified->get_header_value("X-Triangles-Before"), std::to_string(ex.mesh().triangle_count()));
   for (const char* bad : {"simplify=-1", "format=stl", "simplify=x"})
     EXPECT_EQ(c.Get(std::string("/api/export?iso=700&") + bad)->status, 400) << bad;
+}
+
+TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
+  const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 40, ScalarType::f32));
+  const auto grid = bisection_grid_of(*volume, 0.002);
+  Running run(options());
+  run.server.set_grid(grid);
+  auto c = run.client();
+  const nlohmann::json info = nlohmann::json::parse(c.Get("/api/info")->body);
+  EXPECT_TRUE(info["distance"].get<bool>());
+  const HierarchyQuery query(grid);
+  for (double distance : {0.0, 0.5, 2.0}) {
+    auto r = c.Get(fmt::format("/api/surface?iso=0.45&client=a&distance={}", distance));
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(std::stod(r->get_header_value("X-Distance")), distance);
+    EXPECT_EQ(r->body, encode_mesh(query.extract_within(0.45, distance))) << distance;  // the same bytes: a fresh query
+    EXPECT_EQ(std::to_string(triangles_in(r->body)), r->get_header_value("X-Triangles"));
+    auto compact = c.Get(fmt::format("/api/surface?iso=0.45&client=a&distance={}&format=compact", distance));
+    ASSERT_EQ(compact->status, 200);
+    EXPECT_EQ(compact->get_header_value("X-Encoding"), "compact");
+  }
+  // No level of detail was built for them.
+  const nlohmann::json after = nlohmann::json::parse(c.Get("/api/info")->body);
+  for (std::size_t k = 1; k < after["levels"].size(); ++k) EXPECT_FALSE(after["levels"][k]["built"].get<bool>()) << k;
+  for (const char* bad : {"distance=-1", "distance=nan", "distance=2&error=0.1", "distance=2&budget=1000", "distance=x"}) {
+    auto r = c.Get(fmt::format("/api/surface?iso=0.45&client=a&{}", bad));
+    EXPECT_EQ(r->status, 400) << bad;
+  }
+  auto exported = c.Get("/api/export?iso=0.45&client=a&distance=2&format=ply");
+  ASSERT_EQ(exported->status, 200);
+  EXPECT_EQ(exported->get_header_value("X-Triangles"), std::to_string(query.extract_within(0.45, 2).triangle_count()));
+  // A Delaunay grid keeps no hierarchy: refused with one line.
+  PrepareOptions o;
+  o.grid = GridKind::delaunay;
+  o.max_error = 0.05;
+  o.relative = true;
+  run.server.set_grid(std::make_shared<const PreparedGrid>(prepare(*volume, o)));
+  EXPECT_FALSE(nlohmann::json::parse(c.Get("/api/info")->body)["distance"].get<bool>());
+  auto r = c.Get("/api/surface?iso=0.45&client=a&distance=1");
+  EXPECT_EQ(r->status, 400);
+  EXPECT_NE(r->body.find("bisection"), std::string::npos);
 }
