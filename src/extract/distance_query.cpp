@@ -118,6 +118,32 @@ struct CutPoint {
   Point p;
 };
 
+// Which side of the plane through the refinement edge's midpoint m and the corners k < l off it
+// corner i lies on, for a positively oriented tetrahedron split along edge (i, j): orient(m, t_k,
+// t_l, t_i) = −½·det(t_k − t_i, t_l − t_i, t_j − t_i), the orientation of (t_i, t_k, t_l, t_j)
+// negated: positive when that permutation of (0, 1, 2, 3) is odd. The descent of a probe then
+// needs one orientation test a step, not two.
+constexpr bool odd_permutation(std::array<int, 4> p) {
+  int swaps = 0;
+  for (int a = 0; a < 4; ++a)
+    for (int b = a + 1; b < 4; ++b) swaps += p[static_cast<std::size_t>(a)] > p[static_cast<std::size_t>(b)];
+  return swaps % 2;
+}
+constexpr std::array<std::array<bool, 4>, 4> corner_i_side() {
+  std::array<std::array<bool, 4>, 4> side{};
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) {
+      if (i == j) continue;
+      int k = 0;
+      while (k == i || k == j) ++k;
+      int l = k + 1;
+      while (l == i || l == j) ++l;
+      side[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)] = odd_permutation({i, k, l, j});
+    }
+  return side;
+}
+inline constexpr auto kCornerISide = corner_i_side();
+
 // A tetrahedron inside the box during refinement: its corners and its edges' cut points (valid
 // where the edge is cut), and the tetrahedron it was split from (on the refinement's stack).
 constexpr int kEdgeOf[4][4] = {{-1, 0, 1, 2}, {0, -1, 3, 4}, {1, 3, -1, 5}, {2, 4, 5, -1}};
@@ -217,14 +243,18 @@ struct Query {
   // the hierarchy from the root tetrahedron holding p towards the grid's leaf holding it (each
   // split's halves lie on either side of the plane through the midpoint and the two corners off
   // the refinement edge), until everything beneath is on one side. Returns false off the grid.
-  // Is p inside t, faces included: on the side of each face where the opposite corner is?
+  // Is p inside t, faces included? Every tetrahedron of the hierarchy is positively oriented, so
+  // the corner opposite face k (corners k+1, k+2, k+3) lies on its negative side for even k and
+  // on its positive side for odd k; p must lie on that side of every face, or on the face. The
+  // faces' normals are integer cross products.
   static bool holds(const Tet& t, const Point& p) {
     for (int k = 0; k < 4; ++k) {
       const Coord &a = t[static_cast<std::size_t>((k + 1) % 4)], &b = t[static_cast<std::size_t>((k + 2) % 4)],
                   &c = t[static_cast<std::size_t>((k + 3) % 4)];
-      const Coord& opposite = t[static_cast<std::size_t>(k)];
-      const double side = orient(a, b, c, p), inner = orient(a, b, c, {double(opposite[0]), double(opposite[1]), double(opposite[2])});
-      if (side * inner < 0) return false;
+      const std::int64_t u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+      const double n[3] = {double(u[1] * v[2] - u[2] * v[1]), double(u[2] * v[0] - u[0] * v[2]), double(u[0] * v[1] - u[1] * v[0])};
+      const double side = n[0] * (p[0] - a[0]) + n[1] * (p[1] - a[1]) + n[2] * (p[2] - a[2]);
+      if (k % 2 ? side < 0 : side > 0) return false;
     }
     return true;
   }
@@ -260,8 +290,7 @@ struct Query {
       while (k == i || k == j) ++k;
       int l = k + 1;
       while (l == i || l == j) ++l;
-      const Point ti{double(t[i][0]), double(t[i][1]), double(t[i][2])};
-      const bool keeps_i = (orient(m, t[k], t[l], p) >= 0) == (orient(m, t[k], t[l], ti) >= 0);
+      const bool keeps_i = (orient(m, t[k], t[l], p) >= 0) == kCornerISide[i][j];
       const auto& e = order_table::kTable[o];
       t[static_cast<std::size_t>(keeps_i ? j : i)] = m;
       o = keeps_i ? e.at_j : e.at_i;

@@ -128,7 +128,7 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
 // The grid being served and its levels of detail, taken together (set_grid replaces both).
 struct Served {
   std::shared_ptr<const PreparedGrid> grid;
-  std::shared_ptr<LevelsOfDetail> levels;        // bisection grids only
+  std::shared_ptr<LevelsOfDetail> levels;       // bisection grids only
   std::shared_ptr<const HierarchyQuery> query;  // bisection grids only: surfaces within a distance
   // The coarsest level within error= (the prepared grid without it, or without levels).
   std::size_t level_for(const std::optional<double>& error) const { return levels && error ? levels->level_for_error(*error) : 0; }
