@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <numeric>
@@ -282,7 +283,7 @@ const char* mutate_sections(GridSections& s, Rng& rng, bool data) {
             if (a[i].is_number()) a[i] = a[i].get<double>() * odd[below(std::size(odd))];
             break;
           default:
-            if (std::string(key) == "dims")
+            if (std::string(key) == "dims" && a[i].is_number_integer() && std::abs(a[i].get<std::int64_t>()) < (std::int64_t{1} << 40))
               a[i] = a[i].get<std::int64_t>() + static_cast<std::int64_t>(below(3)) - 1;
             else
               a[i] = odd[below(std::size(odd))];
@@ -324,7 +325,8 @@ const char* mutate_sections(GridSections& s, Rng& rng, bool data) {
       if (s.hierarchy_head.size() != 40) return "none";
       switch (below(4)) {
         case 0:
-          GridSections::set<std::int32_t>(s.hierarchy_head, 0, GridSections::get<std::int32_t>(s.hierarchy_head, 0) * 2);
+          GridSections::set<std::uint32_t>(s.hierarchy_head, 0,
+                                           GridSections::get<std::uint32_t>(s.hierarchy_head, 0) * 2);  // unsigned: no overflow
           break;
         case 1:
           s.hierarchy_head[4 + below(2)] = static_cast<char>(static_cast<std::uint8_t>(s.hierarchy_head[4]) + (rng() & 1 ? 1 : 255));
@@ -343,8 +345,10 @@ const char* mutate_sections(GridSections& s, Rng& rng, bool data) {
       return "hierarchy header";
     }
     case 10: {  // value spans: one narrowed, widened, emptied or two swapped
-      if (s.spans.empty()) return "none";
-      const std::size_t v = below(nv);
+      // Records counted in the section itself: a mutation of its bytes may have changed its size.
+      const std::size_t n = s.spans.size() / 8;
+      if (n == 0) return "none";
+      const std::size_t v = below(n);
       auto span = [&](std::size_t i, std::size_t e) { return GridSections::get<float>(s.spans, i, 2, e); };
       switch (below(4)) {
         case 0:
@@ -358,7 +362,7 @@ const char* mutate_sections(GridSections& s, Rng& rng, bool data) {
           GridSections::set<float>(s.spans, v, -std::numeric_limits<float>::infinity(), 2, 1);
           break;
         default: {
-          const std::size_t w = below(nv);
+          const std::size_t w = below(n);
           const std::string a = s.spans.substr(v * 8, 8);
           s.spans.replace(v * 8, 8, s.spans.substr(w * 8, 8));
           s.spans.replace(w * 8, 8, a);
@@ -409,8 +413,8 @@ const char* mutate_sections(GridSections& s, Rng& rng, bool data) {
       return "cut the grid";
     }
     case kStructural + 0: {  // a value changed
-      if (nv < 1) return "none";
-      const std::size_t v = below(nv);
+      if (s.values.size() < 8) return "none";
+      const std::size_t v = below(s.values.size() / 8);
       const double x = GridSections::get<double>(s.values, v);
       GridSections::set<double>(s.values, v, rng() & 1 ? std::nextafter(x, 1e300) : x + static_cast<double>(below(100)) - 50);
       return "change a value";

@@ -16,6 +16,7 @@
 #include <random>
 #include <set>
 
+#include "adaptiso/bisection.hpp"
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
@@ -159,6 +160,10 @@ TEST(GridFileLies, RootCornerRemovedWithItsTetrahedraRepointedIsRefused) {
     remove_vertex(p, v, v == 0 ? 1 : v - 1);
     save_grid(p, t / "g.adg");
     expect_refused(t / "g.adg", "root cube's corner", fmt::format("{},{},{}", c[0], c[1], c[2]));
+    // The same grid in memory, never through a file: bisection_coarsen refuses it too.
+    BisectionOptions o;
+    o.max_error = 1;
+    EXPECT_THROW(bisection_coarsen(p.grid, *p.hierarchy, o), InputError);
   }
 }
 
@@ -239,6 +244,25 @@ TEST(GridFileLies, MetadataOutsideItsSaneRangeIsRefused) {
     edit_source(t / "g.adg", t / "m.adg", c.edit);
     expect_refused(t / "m.adg", c.fragment, c.name);
   }
+}
+
+// Found by fuzz_grid_structure: the statistics' counts were converted from any JSON number, and a
+// float of 2.13e64 converted to an unsigned count is undefined behaviour (UBSan stopped there). They
+// are informational: a count that is no whole number in range is left out, the grid loads.
+TEST(GridFileLies, StatisticsWithAHugeFloatCountAreLeftOutNotConverted) {
+  testutil::TempDir t("lies_stats");
+  save_grid(bisection(make_synthetic("sphere", 9, ScalarType::i16), 0.02), t / "g.adg");
+  GridSections s = sections_of(t / "g.adg");
+  auto j = nlohmann::json::parse(s.meta);
+  j["prepare"]["kept"] = 2.13e64;
+  j["prepare"]["tetrahedra"] = -5;
+  j["prepare"]["index_depth"] = 1e10;
+  s.meta = j.dump();
+  save_sections(s, t / "m.adg");
+  const PreparedGrid p = load_grid(t / "m.adg");
+  EXPECT_EQ(p.stats.kept, 0u);
+  EXPECT_EQ(p.stats.tetrahedra, 0u);
+  EXPECT_EQ(p.stats.index_depth, 0u);
 }
 
 // The hierarchy must be the one its own codes select: issue 41's "33 of 295 accepted mutants
