@@ -653,8 +653,10 @@ TEST(PrepareCli, DelaunayOnlyOptionsWithTheBisectionGridAreRefused) {
   ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
   for (const std::string option :
        {"--method structural", "--threshold 0.1", "--gradient canny", "--sigma 2", "--kernel 5", "--sequential-delaunay"}) {
-    for (const std::string command : {"prepare", "run"}) {
-      const std::string extra = command == "run" ? " --iso 500 -o " + (t / "m.ply") : " -o " + (t / "g.adg");
+    for (const std::string command : {"prepare", "run", "view"}) {
+      const std::string extra = command == "run"    ? " --iso 500 -o " + (t / "m.ply")
+                                : command == "view" ? std::string(" --port 0")  // refused before it serves
+                                                    : " -o " + (t / "g.adg");
       expect_refused(testutil::run_cli(command + " " + (t / "s.nrrd") + " " + option + extra),
                      option.substr(0, option.find(' ')) + " is an option of the Delaunay grid", command + " " + option);
     }
