@@ -27,8 +27,12 @@
 namespace adaptiso::detail {
 namespace {
 
-// The largest dimension the bisection lattice takes (make_lattice); no grid is larger.
+// The largest dimension the bisection lattice takes (make_lattice); no grid is larger. Nor has
+// any grid more voxels than a volume adaptiso could hold (256 TB of bytes): voxel indices then stay
+// far inside 64 bits, and a grid whose dims multiply past that is refused before any product of
+// them overflows.
 constexpr std::int64_t kMaxDimension = (std::int64_t{1} << 30) + 1;
+constexpr std::uint64_t kMaxVoxels = std::uint64_t{1} << 48;
 
 // The first fault among items [0, n): check(i) returns nullptr or what is wrong with item i. Checked
 // in parallel; the fault reported is the one of the smallest index, whatever the thread count.
@@ -245,7 +249,9 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path) {
 
   // The vertices by voxel: a bit per voxel and a count per 64, as the walks number them.
   const auto voxels = static_cast<std::uint64_t>(g.source.dims[0] * g.source.dims[1] * g.source.dims[2]);
-  check_memory(voxels / 4 + n * 9, fmt::format("checking the hierarchy of a grid over {} voxels", voxels), "", "");
+  // The bitmap and its counts (a quarter byte a voxel), and a byte each for the vertices used and
+  // the value spans reached.
+  check_memory(voxels / 4 + n * 2, fmt::format("checking the hierarchy of a grid over {} voxels", voxels), "", "");
   VertexNumbers numbers;
   assign_big(numbers.bits, static_cast<std::size_t>((voxels + 63) / 64), std::uint64_t{0});
   for (const auto& v : g.ijk) {
@@ -386,6 +392,8 @@ GridSource grid_source_from_json(const nlohmann::json& s, const std::string& pat
                        kMaxDimension));
     g.dims[a] = d.get<std::int64_t>();
   }
+  if (static_cast<std::uint64_t>(g.dims[0]) * static_cast<std::uint64_t>(g.dims[1]) > kMaxVoxels / static_cast<std::uint64_t>(g.dims[2]))
+    fail(fmt::format("\"dims\" {} x {} x {} are more voxels than any volume (2^48)", g.dims[0], g.dims[1], g.dims[2]));
   numbers("spacing", g.spacing);
   numbers("origin", g.origin);
   numbers("direction", g.direction);

@@ -284,7 +284,7 @@ const char* mutate_sections(GridSections& s, Rng& rng, bool data) {
             break;
           default:
             if (std::string(key) == "dims" && a[i].is_number_integer() && std::abs(a[i].get<std::int64_t>()) < (std::int64_t{1} << 40))
-              a[i] = a[i].get<std::int64_t>() + static_cast<std::int64_t>(below(3)) - 1;
+              a[i] = rng() % 4 ? a[i].get<std::int64_t>() + static_cast<std::int64_t>(below(3)) - 1 : (std::int64_t{1} << 30) + 1;
             else
               a[i] = odd[below(std::size(odd))];
         }

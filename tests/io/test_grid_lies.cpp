@@ -234,6 +234,11 @@ TEST(GridFileLies, MetadataOutsideItsSaneRangeIsRefused) {
       {"4 entries in dims", [](auto& s) { s["dims"].push_back(9); }, "dims"},
       {"fractional dims", [](auto& s) { s["dims"][0] = 9.5; }, "dims"},
       {"dims 1", [](auto& s) { s["dims"][0] = 1; }, "dims"},
+      {"dims whose product overflows 64 bits",
+       [](auto& s) {
+         s["dims"] = {1073741825, 1073741825, 1073741825};
+       },
+       "more voxels"},
       {"type string quaternion", [](auto& s) { s["type"] = "quaternion"; }, "element type"},
       {"type string int", [](auto& s) { s["type"] = "int"; }, "element type"},
       {"negative max_error", [](auto& s) { s["max_error"] = -1.0; }, "max_error"},
