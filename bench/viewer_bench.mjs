@@ -5,8 +5,11 @@
 // and the page's main thread blocked (long tasks, during the measured drag). The page draws a
 // surface only once the GPU has drawn the previous one, so "drawn" is on screen, not queued.
 //
-// Usage: node bench/viewer_bench.mjs ADAPTISO_CLI GRID.adg [--budget N] [--from F --to T] [--seconds S]
-// F and T are slider positions (0–1000). Prints one JSON object.
+// Usage: node bench/viewer_bench.mjs ADAPTISO_CLI GRID.adg [--budget N | --distance D [--drag-distance D2]]
+//                                    [--from F --to T] [--seconds S]
+// F and T are slider positions (0–1000). --budget drives the error levels (built first, waited
+// for); --distance the surface-adaptive queries of a bisection grid (D at rest, D2 while dragging,
+// default 2; nothing to build). Prints one JSON object.
 import { spawn } from 'node:child_process';
 import { createRequire } from 'node:module';
 import { dirname, join } from 'node:path';
@@ -17,6 +20,8 @@ const opt = (name, fallback) => { const i = args.indexOf(name); return i >= 0 ? 
 const [cli, grid] = args;
 const budget = Number(opt('--budget', 150000)), from = Number(opt('--from', 400)), to = Number(opt('--to', 600));
 const seconds = Number(opt('--seconds', 4));
+const distance = opt('--distance', null), dragDistance = opt('--drag-distance', '2');
+const query = distance !== null ? `?distance=${distance}&drag-distance=${dragDistance}` : `?budget=${budget}`;
 const web = join(dirname(fileURLToPath(import.meta.url)), '..', 'web');
 const { chromium } = createRequire(join(web, 'package.json'))('playwright-core');
 
@@ -37,11 +42,12 @@ try {
     new PerformanceObserver((l) => { for (const e of l.getEntries()) window.benchLongTasks.push([e.startTime, e.duration]); })
       .observe({ type: 'longtask', buffered: true });
   });
-  await page.goto(`${url}?budget=${budget}`);
+  await page.goto(`${url}${query}`, { timeout: 600000 });
   await page.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 600000 });
   const t0 = Date.now();
-  await page.waitForFunction(() => fetch('api/info').then((r) => r.json()).then((j) => j.levels.every((l) => l.built)), null,
-                             { timeout: 900000, polling: 500 });
+  if (distance === null)
+    await page.waitForFunction(() => fetch('api/info').then((r) => r.json()).then((j) => j.levels.every((l) => l.built)), null,
+                               { timeout: 900000, polling: 500 });
   const levelsSeconds = (Date.now() - t0) / 1000;
   const info = await (await fetch(`${url}api/info`)).json();
   // Warm every level's extractor once (a first extraction on a level is a fresh march), as a user's
@@ -73,7 +79,8 @@ try {
   const span = measured.length > 1 ? (measured.at(-1).at - measured[0].at) / 1000 : 0;
   if (process.env.VIEWER_BENCH_TRACE) console.error(JSON.stringify(measured.map((r) => [Math.round(r.at), r.level, Math.round(r.request), Math.round(r.fromInput)])));
   console.log(JSON.stringify({
-    grid, budget, prepared_error: info.error_bound, levels: info.levels.length, levels_seconds: levelsSeconds,
+    grid, budget: distance === null ? budget : null, distance: distance === null ? null : Number(distance),
+    drag_distance: distance === null ? null : Number(dragDistance), prepared_error: info.error_bound, levels: info.levels.length, levels_seconds: levelsSeconds,
     drag: {
       surfaces: measured.length, per_second: span > 0 ? (measured.length - 1) / span : null,
       // The steady rate, from the median interval, and the pauses (the page dropping a large mesh).
