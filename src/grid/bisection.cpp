@@ -197,8 +197,8 @@ inline constexpr FineBlock kFineBlock = make_fine_block();
 
 // The displacement criterion, when asked for: per diamond the ratio of its error bound to the
 // smallest gradient magnitude beneath it (floored at g0), in voxels, coded on a scale of its own.
-constexpr double kDisplacementScale = 256;  // voxels: displacement codes span 0.0045 … 256 voxels
-constexpr double kGradientFloor = 0.01;     // of the value range per voxel (bisection.hpp)
+constexpr double kDisplacementScale = kDisplacementCodeScale;  // voxels (bisection.hpp)
+constexpr double kGradientFloor = 0.01;                        // of the value range per voxel (bisection.hpp)
 
 struct Displacement {
   std::vector<std::uint8_t>* code = nullptr;  // per voxel, like the error codes
@@ -828,6 +828,14 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
     fine_numbers.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
   }
   fine_numbers.count();
+  // The selection below numbers the root cube's corners by their rank among the fine vertices
+  // without asking whether they are vertices (load_grid refuses a file without them; a grid made
+  // any other way is checked here, 8 lookups).
+  for (int corner = 0; corner < 8; ++corner) {
+    const Coord c{corner & 1 ? lat.S : 0, corner & 2 ? lat.S : 0, corner & 4 ? lat.S : 0};
+    if (lat.in_box(c) && !fine_numbers.used(lat.index(c)))
+      throw InputError("this grid's hierarchy does not match it (a root cube's corner is no vertex)");
+  }
   BisectionGrid out;
   auto& h = out.hierarchy;
   h.codes = fh.codes;
