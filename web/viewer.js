@@ -257,6 +257,7 @@ function showError() {
 // requests never go stale and dragging updates the surface as fast as the server answers. A
 // request while dragging (coarse) asks for the triangle budget; a request at rest for the error.
 let wanted = null, inFlight = false, shownIso = null, drawn = Promise.resolve();
+let statusBeforeBusy = null;  // the status line a "server busy" message replaced
 function requestSurface(iso, coarse = false) {
   wanted = { iso, coarse: coarse && $('lod').checked, input: performance.now() };
   if (!inFlight) pump();
@@ -277,7 +278,19 @@ async function pump() {
       if (coarse) url += `&budget=${budget}`;
     }
     const r = await fetch(url);
+    if (r.status === 503) {  // the server's memory budget is taken for now: ask again (the latest wanted) when it says
+      const after = Math.min(10, Number(r.headers.get('Retry-After')) || 1);
+      if (statusBeforeBusy === null) statusBeforeBusy = $('status').textContent;
+      showStatus(`server busy: ${(await r.text()).trim()} (retrying in ${after} s)`);
+      if (wanted === null) wanted = { iso, coarse, input };
+      await new Promise((ok) => setTimeout(ok, 1000 * after));
+      return;
+    }
     if (!r.ok) throw new Error(await r.text());
+    if (statusBeforeBusy !== null) {
+      showStatus(statusBeforeBusy);
+      statusBeforeBusy = null;
+    }
     const buffer = await r.arrayBuffer();
     const t1 = performance.now();
     await MeshoptDecoder.ready;

@@ -2,6 +2,8 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <cctype>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
@@ -27,6 +29,28 @@ std::string default_web_dir() {
   return (exe.parent_path().parent_path() / "share" / "adaptiso" / "web").string();
 }
 
+// --memory-budget: digits with at most one decimal point, then an optional unit (k, M, G, T:
+// powers of 1024, with or without "iB"; "B": bytes). No signs, exponents or hex.
+std::uint64_t parse_byte_size(const std::string& text) {
+  const std::string refusal = fmt::format("'{}' is not a size in bytes (e.g. 4000000000, 4G, 512M)", text.substr(0, 40));
+  std::size_t used = 0, points = 0;
+  while (used < text.size() && (std::isdigit(static_cast<unsigned char>(text[used])) || text[used] == '.')) points += text[used++] == '.';
+  if (used == 0 || points > 1 || text[0] == '.' || text[used - 1] == '.') throw OptionError("memory_budget", refusal);
+  std::string unit = text.substr(used);
+  for (auto& c : unit) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  double scale = 1;
+  if (!unit.empty() && unit != "B") {
+    const auto p = std::string("KMGT").find(unit[0]);
+    const std::string rest = unit.substr(1);
+    if (p == std::string::npos || !(rest.empty() || rest == "B" || rest == "IB")) throw OptionError("memory_budget", refusal);
+    scale = std::pow(1024.0, static_cast<double>(p + 1));
+  }
+  const double bytes = std::round(std::stod(text.substr(0, used)) * scale);
+  if (bytes >= 18446744073709551616.0) throw OptionError("memory_budget", fmt::format("'{}' is more than 2^64 bytes", text.substr(0, 40)));
+  if (bytes < 1) throw OptionError("memory_budget", "must be at least 1 byte");
+  return static_cast<std::uint64_t>(bytes);
+}
+
 }  // namespace
 
 void add_view(CLI::App& app) {
@@ -41,8 +65,20 @@ void add_view(CLI::App& app) {
   cmd->add_option("--host", opt->host, "Address to listen on (default 127.0.0.1: reach it through an SSH tunnel)")->capture_default_str();
   cmd->add_option("--port", opt->port, "Port (0: any free port)")->capture_default_str()->check(CLI::Range(0, 65535));
   cmd->add_option("--web", opt->web_dir, "Folder of the viewer page (default: share/adaptiso/web beside the program, or $ADAPTISO_WEB)");
+  auto budget = std::make_shared<std::string>();
+  auto* budget_option =
+      cmd->add_option("--memory-budget", *budget,
+                      "Resident memory the server may hold, grid included, in bytes (4000000000, 4G, 512M); beyond it idle surfaces and "
+                      "levels of detail are dropped and requests that cannot fit are answered 503 (default: half of the machine's memory)");
+  cmd->add_option("--idle-seconds", opt->idle_seconds,
+                  "A page's surface unused this long is dropped, the levels of detail unused 5x as long")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--allow-origin", opt->allowed_origins,
+                  "Let web pages of this origin (http://host:port; * for any) use the API; others are refused (repeatable)");
   cmd->callback([=] {
     ViewOptions o = *opt;
+    if (budget_option->count() > 0) o.memory_budget = parse_byte_size(*budget);  // "" too is refused
     if (o.web_dir.empty()) o.web_dir = default_web_dir();
     const bool is_grid = std::filesystem::path(in->path).extension() == ".adg";
     std::shared_ptr<const Volume> volume;
@@ -60,7 +96,8 @@ void add_view(CLI::App& app) {
     if (grid) server.set_grid(grid);
     const int port = server.bind();
     const std::string host = o.host == "0.0.0.0" ? "localhost" : o.host;
-    std::cout << fmt::format("adaptiso view: serving http://{}:{}/  (Ctrl-C to stop)\n", host, port);
+    std::cout << fmt::format("adaptiso view: serving http://{}:{}/  (Ctrl-C to stop; memory budget {:.2f} GB)\n", host, port,
+                             static_cast<double>(server.memory_budget()) / 1e9);
     if (o.host == "127.0.0.1" || o.host == "localhost")
       std::cout << fmt::format("from another machine: ssh -L {0}:localhost:{0} <this host>, then open http://localhost:{0}/\n", port);
     std::cout.flush();

@@ -1,14 +1,19 @@
 // adaptiso/view_server.hpp — the local web server behind `adaptiso view`: serves the viewer page
-// and a small HTTP API over one prepared grid (README "Viewer API" documents the routes and the
-// binary layouts). The grid may arrive after the server starts (the page shows the progress of
-// the preparation meanwhile). Each client (`client=` parameter) gets its own Extractor, so small
-// slider moves are incremental and clients never block each other; bad requests get 400/404 with
-// a message, requests for a grid not ready yet 503, and the server keeps running.
+// and a small HTTP API over one prepared grid (docs/API.md specifies the routes, parameters,
+// headers, errors and binary layouts). The grid may arrive after the server starts (the page
+// shows the progress of the preparation meanwhile). Each client (`client=` parameter) gets its
+// own Extractor per level of detail, so small slider moves are incremental and clients never block
+// each other. What the server keeps for its clients is held within a memory budget (bytes of its
+// resident set): idle extractors and levels of detail are dropped, and a request that cannot fit
+// is answered 503 with Retry-After. Bad requests get 400/404/405 with a message, requests for a
+// grid not ready yet 503, web pages of other origins 403, and the server keeps running.
 // Throws OptionError("web_dir") when the page's folder lacks index.html, InputError when it
 // cannot bind.
 #pragma once
+#include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/prepare.hpp"
@@ -21,6 +26,16 @@ struct ViewOptions {
   int port = 8080;               // 0: any free port
   std::string web_dir;           // the page's folder; static files are served from it only
   std::size_t max_clients = 32;  // least recently used client states are dropped beyond this
+  // Bytes of resident set the server may hold, its grid included; 0: half of the machine's memory,
+  // no more than it can have now (see src/view/memory_budget.hpp). A budget below the grid's own
+  // size serves one request at a time.
+  std::uint64_t memory_budget = 0;
+  // An extractor unused this long is dropped, the levels of detail unused 5× as long.
+  double idle_seconds = 60;
+  // Origins ("http://host:port", "*": any) whose web pages may use the API besides the page the
+  // server serves itself.
+  std::vector<std::string> allowed_origins;
+  double thread_idle_seconds = 10;  // connection threads idle this long exit (a few are kept)
 };
 
 class ViewServer {
@@ -41,6 +56,7 @@ public:
   void set_grid(std::shared_ptr<const PreparedGrid> grid);
   // The source volume: enables /api/reference and the histogram of voxel values.
   void set_volume(std::shared_ptr<const Volume> volume);
+  std::uint64_t memory_budget() const;  // bytes, the default resolved
 
 private:
   struct Impl;

@@ -5,6 +5,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace adaptiso::detail {
 
@@ -26,5 +27,9 @@ bool compact_format(const QueryParams& params);
 std::string export_format(const QueryParams& params);
 // client=: 1-64 letters, digits, '-' or '_'; "default" when absent.
 std::string client_id(const QueryParams& params);
+
+// The API's routes as the server registers them ("/api/info", ...; view_server.cpp): each is
+// specified in docs/API.md (tests/view check both ways).
+std::vector<std::string> api_routes();
 
 }  // namespace adaptiso::detail

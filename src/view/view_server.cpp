@@ -1,42 +1,37 @@
-// The viewer's HTTP server (see view_server.hpp). Handlers only parse parameters, call the
-// library and encode the answer; the work (extraction, wireframes, histograms) is library code.
+// The viewer's HTTP server (see view_server.hpp; docs/API.md specifies the API). Handlers only
+// parse parameters, ask the sessions (view/sessions.hpp: extractors, levels, memory) or the
+// library, and encode the answer; the connection handling is view/http.hpp's.
 #include "adaptiso/view_server.hpp"
-#include "view/request.hpp"
 
 #include <fmt/format.h>
 #include <httplib.h>
-
-#include <tbb/task_arena.h>
 #include <unistd.h>
+
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
-#include <condition_variable>
 #include <cstring>
-#include <deque>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <limits>
-#include <list>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <set>
-#include <thread>
-#include <unordered_map>
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
-#include "adaptiso/levels_of_detail.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_codec.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/number.hpp"
 #include "adaptiso/simplify.hpp"
 #include "adaptiso/wireframe.hpp"
+#include "view/http.hpp"
+#include "view/memory_budget.hpp"
+#include "view/request.hpp"
+#include "view/sessions.hpp"
 
 namespace adaptiso {
 namespace fs = std::filesystem;
@@ -61,8 +56,9 @@ using detail::compact_format;
 using detail::export_format;
 using detail::parse_iso;
 using detail::parse_optional;
+using detail::Sessions;
 
-// The grid is not there yet (or its preparation failed): 503 with the message.
+// The grid is not there yet (or its preparation failed): 503 with the message and Retry-After.
 struct NotReady : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
@@ -125,246 +121,53 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
   return {{"min", h.min}, {"max", h.max}, {"counts", h.counts}, {"of", of}};
 }
 
-// The grid being served and its levels of detail, taken together (set_grid replaces both).
-struct Served {
-  std::shared_ptr<const PreparedGrid> grid;
-  std::shared_ptr<LevelsOfDetail> levels;       // bisection grids only
-  std::shared_ptr<const HierarchyQuery> query;  // bisection grids only: surfaces within a distance
-  // The coarsest level within error= (the prepared grid without it, or without levels).
-  std::size_t level_for(const std::optional<double>& error) const { return levels && error ? levels->level_for_error(*error) : 0; }
-  std::shared_ptr<const PreparedGrid> at(std::size_t level) const { return level ? levels->grid(level) : grid; }
-};
-
-// One incremental Extractor of a page at one level of detail, with its own lock, so a request for
-// a coarse level never waits behind a long extraction at a fine one.
-struct LevelExtractor {
-  std::mutex mutex;
-  // Raised by a page's request for this level: the background follower's extraction yields.
-  std::atomic<bool> page_waiting{false};
-  std::atomic<std::uint64_t> page_requests{0};  // counts them: a follower's job queued before one is stale
-  std::unique_ptr<Extractor> extractor;
-  double iso = std::numeric_limits<double>::quiet_NaN();  // of the surface it holds
-  // What the follower is extracting now (NaN, null: nothing).
-  std::atomic<double> following{std::numeric_limits<double>::quiet_NaN()};
-  std::atomic<const PreparedGrid*> following_grid{nullptr};
-  // The lock for a page's request for the surface at `value` on `grid`: the follower's extraction
-  // under way yields at its next stage, unless it is extracting that very surface (at rest the
-  // page asks for the drag's last iso-value, which the follower was given): its work is then the
-  // page's, and cancelling it to march afresh only threw that work away (on the MR head a rest
-  // request took 4.5 s of fresh march after cancelling the follower).
-  std::unique_lock<std::mutex> lock_for_page(double value, const PreparedGrid* grid) {
-    page_requests.fetch_add(1);
-    if (!(following.load() == value && following_grid.load() == grid)) page_waiting.store(true);
-    std::unique_lock lock(mutex);
-    page_waiting.store(false);
-    return lock;
-  }
-  ExtractStats made;  // of the extraction that made the surface held
-  // The surface at iso on grid: extracted unless it already is (the follower's, for one), with the
-  // statistics of the extraction that made it. With a cancel flag it may throw ExtractCancelled,
-  // leaving no surface (the next call extracts afresh).
-  const Mesh& at(const std::shared_ptr<const PreparedGrid>& grid, double value, ExtractStats* stats = nullptr,
-                 const std::atomic<bool>* cancel = nullptr) {
-    if (!extractor || &extractor->grid() != grid.get()) {
-      extractor = std::make_unique<Extractor>(grid);
-      iso = std::numeric_limits<double>::quiet_NaN();
-    }
-    if (value != iso) {
-      iso = std::numeric_limits<double>::quiet_NaN();  // until the extraction completes
-      made = extractor->extract(value, cancel);
-      iso = value;
-    }
-    if (stats) *stats = made;
-    return extractor->mesh();
-  }
-};
-
-// A page's state: its extractors by level (level 0 is the prepared grid).
-struct Client {
-  std::mutex mutex;  // guards the vector
-  std::vector<std::shared_ptr<LevelExtractor>> levels;
-  std::shared_ptr<LevelExtractor> level(std::size_t k) {
-    std::lock_guard lock(mutex);
-    if (levels.size() <= k) levels.resize(k + 1);
-    if (!levels[k]) levels[k] = std::make_shared<LevelExtractor>();
-    return levels[k];
-  }
-};
-
-// While a page drags (coarse surfaces within a budget), its surface at rest follows in the
-// background at low priority, the latest iso-value only; so when the slider rests the accurate
-// surface is a small step away, not a long one. It uses every core: the coarse requests are small
-// (under a millisecond of extraction on the MR head), and on a noisy scan each step of the
-// follower is a march of millions of triangles. A page's own request for the level makes the
-// follower's extraction yield at its next stage rather than wait for it to finish. (A follower
-// alone on a thread at nice 19 was tried: the page's request at rest then waited 7.2 s on the MR
-// head for the starved follower to reach a checkpoint and let go of the level.)
-class Follower {
-public:
-  Follower() : arena_(tbb::task_arena::automatic, 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
-  ~Follower() {
-    {
-      std::lock_guard lock(mutex_);
-      stop_ = true;
-    }
-    ready_.notify_all();
-    thread_.join();
-  }
-  void follow(const std::shared_ptr<LevelExtractor>& slot, std::shared_ptr<const PreparedGrid> grid, double iso) {
-    {
-      std::lock_guard lock(mutex_);
-      jobs_[slot.get()] = {slot, std::move(grid), iso, slot->page_requests.load()};
-    }
-    ready_.notify_one();
-  }
-
-private:
-  struct Job {
-    std::weak_ptr<LevelExtractor> slot;
-    std::shared_ptr<const PreparedGrid> grid;
-    double iso = 0;
-    std::uint64_t page_requests = 0;  // the slot's count when queued
-  };
-  void run() {
-    for (;;) {
-      Job job;
-      {
-        std::unique_lock lock(mutex_);
-        ready_.wait(lock, [&] { return stop_ || !jobs_.empty(); });
-        if (stop_) return;
-        job = std::move(jobs_.begin()->second);
-        jobs_.erase(jobs_.begin());
-      }
-      auto slot = job.slot.lock();
-      if (!slot) continue;  // the client is gone
-      std::lock_guard lock(slot->mutex);
-      // The page asked for this level since the job was queued (or is asking now): it has, or is
-      // about to get, the surface it wants; following an older iso-value would only move away.
-      if (slot->page_requests.load() != job.page_requests) continue;
-      slot->following_grid.store(job.grid.get());
-      slot->following.store(job.iso);
-      try {
-        arena_.execute([&] { slot->at(job.grid, job.iso, nullptr, &slot->page_waiting); });
-      } catch (const ExtractCancelled&) {  // the page asked meanwhile: its request extracts
-      } catch (const std::exception& e) {  // the page's own request will meet and report it
-        std::cerr << "adaptiso view: background extraction failed: " << e.what() << "\n";
-      }
-      slot->following.store(std::numeric_limits<double>::quiet_NaN());
-      slot->following_grid.store(nullptr);
-    }
-  }
-  tbb::task_arena arena_;
-  std::mutex mutex_;
-  std::condition_variable ready_;
-  std::unordered_map<const LevelExtractor*, Job> jobs_;
-  bool stop_ = false;
-  std::thread thread_;
-};
-
-// Connections are served by threads that are added while all are busy, up to a limit: a few
-// clients that send their requests slowly (or hold their connection open) then cannot starve the
-// others, as the fixed pool of 8 did (/api/info waited 17 s behind 8 clients sending a header
-// line a second).
-class ElasticPool : public httplib::TaskQueue {
-public:
-  explicit ElasticPool(std::size_t max_threads) : max_(max_threads) {}
-  void enqueue(std::function<void()> fn) override {
-    std::lock_guard lock(mutex_);
-    jobs_.push_back(std::move(fn));
-    // An idle thread takes one job when it wakes; until then it still counts as idle, so compare
-    // the queued jobs with the idle threads (checking idle_ == 0 left a burst of connections
-    // queued behind one idle thread, which a slow client then held).
-    if (jobs_.size() > idle_ && threads_.size() < max_) threads_.emplace_back([this] { work(); });
-    ready_.notify_one();
-  }
-  void shutdown() override {
-    {
-      std::lock_guard lock(mutex_);
-      stop_ = true;
-    }
-    ready_.notify_all();
-    for (auto& t : threads_) t.join();
-  }
-
-private:
-  void work() {
-    for (;;) {
-      std::function<void()> job;
-      {
-        std::unique_lock lock(mutex_);
-        ++idle_;
-        ready_.wait(lock, [&] { return stop_ || !jobs_.empty(); });
-        --idle_;
-        if (jobs_.empty()) return;  // stopping
-        job = std::move(jobs_.front());
-        jobs_.pop_front();
-      }
-      job();
-    }
-  }
-  std::size_t max_;
-  std::mutex mutex_;
-  std::condition_variable ready_;
-  std::deque<std::function<void()>> jobs_;
-  std::vector<std::thread> threads_;
-  std::size_t idle_ = 0;
-  bool stop_ = false;
-};
-
-// The host name of a Host header ("name", "name:port", "[v6]:port").
-std::string host_name(const std::string& header) {
-  if (!header.empty() && header[0] == '[') return header.substr(0, header.find(']') + 1);
-  return header.substr(0, header.find(':'));
-}
-
-bool is_ip_literal(const std::string& name) {
-  if (name.size() > 2 && name.front() == '[' && name.back() == ']') return true;  // IPv6
-  return !name.empty() &&
-         std::all_of(name.begin(), name.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)) || c == '.'; });
-}
-
 constexpr int kHistogramBins = 128;
 constexpr std::size_t kMaxWireframeEdges = 20'000'000;
+// Memory of an export beyond its surface: the copy, the simplification's working set and the file
+// (bytes per triangle; simplify_mesh's quadrics and heap dominate).
+constexpr std::uint64_t kExportBytesPerTriangle = 150;
+// A distance query's peak (measured 162–196 bytes per triangle of its answer on the chest CT) and
+// the full-resolution marching cubes' (65–91), each with its plain answer.
+constexpr std::uint64_t kDistanceBytesPerTriangle = 200 + 24, kReferenceBytesPerTriangle = 100 + 24;
+
+std::string seconds_text(double s) { return fmt::format("{:.6f}", s); }
+
+// Every route of the API, registered in this order with their handlers (Impl::routes): docs/API.md specifies
+// each (tests/view/test_view_server.cpp checks both ways).
+constexpr const char* kApiRoutes[] = {"/api/info", "/api/surface", "/api/reference", "/api/export", "/api/points", "/api/tetrahedra"};
 
 }  // namespace
 
 struct ViewServer::Impl {
+  explicit Impl(ViewOptions o);
+
   ViewOptions opt;
-  httplib::Server http;
+  detail::HttpServer http;
   fs::path web_root;
   std::set<std::string> served;  // the page's files (web_root/served.txt), relative to web_root
+  Sessions sessions;
 
   std::mutex state_mutex;  // guards everything below
   std::string stage = "starting", failure;
   double fraction = 0;
   std::shared_ptr<const PreparedGrid> grid;
-  // Bisection grids: coarser grids for dragging by an error bound, built in the background once a
-  // page asks for one (error= or budget=; a page asking for distances never does, and building
-  // them took the bunny 22 s of CPU), and the queries for surfaces within a distance.
-  std::shared_ptr<LevelsOfDetail> levels;
-  bool levels_started = false;
-  std::shared_ptr<const HierarchyQuery> query;
+  std::shared_ptr<const HierarchyQuery> query;  // bisection grids only: surfaces within a distance
   std::shared_ptr<const Volume> volume;
   nlohmann::json histogram;
-  std::list<std::string> lru;  // most recent first
-  std::unordered_map<std::string, std::pair<std::shared_ptr<Client>, std::list<std::string>::iterator>> clients;
 
-  std::thread level_builder;
-  std::atomic<bool> stop_building{false};
-  Follower follower;
-
-  std::shared_ptr<Client> client(const std::string& id);
-  std::mutex builder_mutex;  // guards level_builder
-  void build_levels(std::shared_ptr<LevelsOfDetail> lod);
-  void need_levels();
+  struct Served {
+    std::shared_ptr<const PreparedGrid> grid;
+    std::shared_ptr<const HierarchyQuery> query;
+  };
   Served served_now();  // throws NotReady while preparing
-  std::shared_ptr<const PreparedGrid> ready() { return served_now().grid; }
 
+  using Handler = void (Impl::*)(const httplib::Request&, httplib::Response&);
   void routes();
+  httplib::Server::HandlerResponse admit(const httplib::Request& req, httplib::Response& res) const;
   bool host_allowed(const httplib::Request& req) const;
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
-  void surface_within(const httplib::Request& req, httplib::Response& res, const Served& s, double iso, double distance, bool compact);
+  Mesh surface_within(const Served& s, double iso, double distance, DistanceQueryStats* stats);
   void reference(const httplib::Request& req, httplib::Response& res);
   void download(const httplib::Request& req, httplib::Response& res);
   void points(const httplib::Request& req, httplib::Response& res);
@@ -372,89 +175,96 @@ struct ViewServer::Impl {
   void serve_static(const httplib::Request& req, httplib::Response& res);
 };
 
-std::shared_ptr<Client> ViewServer::Impl::client(const std::string& id) {
-  std::lock_guard lock(state_mutex);
-  auto it = clients.find(id);
-  if (it != clients.end()) {
-    lru.splice(lru.begin(), lru, it->second.second);
-    return it->second.first;
-  }
-  while (clients.size() >= opt.max_clients && !lru.empty()) {
-    clients.erase(lru.back());
-    lru.pop_back();
-  }
-  lru.push_front(id);
-  auto c = std::make_shared<Client>();
-  clients[id] = {c, lru.begin()};
-  return c;
+namespace {
+
+detail::SessionOptions session_options(const ViewOptions& o) {
+  detail::SessionOptions s;
+  s.max_clients = o.max_clients;
+  s.memory_budget = o.memory_budget ? o.memory_budget : detail::default_memory_budget();
+  s.idle_seconds = o.idle_seconds;
+  return s;
 }
 
-Served ViewServer::Impl::served_now() {
+}  // namespace
+
+ViewServer::Impl::Impl(ViewOptions o) : opt(std::move(o)), sessions(session_options(opt)) {
+  if (!opt.memory_budget) opt.memory_budget = detail::default_memory_budget();
+}
+
+ViewServer::Impl::Served ViewServer::Impl::served_now() {
   std::lock_guard lock(state_mutex);
   if (!grid)
     throw NotReady(failure.empty() ? fmt::format("the grid is not ready yet ({} {:.0f} %)", stage, fraction * 100)
                                    : "preparation failed: " + failure);
-  return {grid, levels, query};
+  return {grid, query};
 }
 
-// The levels of detail are built from the first request that needs them.
-void ViewServer::Impl::need_levels() {
-  std::shared_ptr<LevelsOfDetail> lod;
-  {
-    std::lock_guard lock(state_mutex);
-    if (levels_started || !levels) return;
-    levels_started = true;
-    lod = levels;
-  }
-  std::lock_guard lock(builder_mutex);
-  build_levels(lod);
-}
-
-ViewServer::ViewServer(ViewOptions options) : impl_(std::make_unique<Impl>()) {
-  impl_->opt = std::move(options);
+ViewServer::ViewServer(ViewOptions options) {
+  if (!(options.idle_seconds > 0) || !(options.thread_idle_seconds > 0))
+    throw OptionError("idle_seconds", "idle times must be positive numbers of seconds");
   std::error_code ec;
-  impl_->web_root = fs::weakly_canonical(impl_->opt.web_dir, ec);
-  if (ec || !fs::is_regular_file(impl_->web_root / "index.html"))
-    throw OptionError("web_dir", fmt::format("{}: the viewer page is not there (no index.html)", impl_->opt.web_dir));
-  impl_->served = read_served_files(impl_->web_root);
+  const fs::path root = fs::weakly_canonical(options.web_dir, ec);
+  if (ec || !fs::is_regular_file(root / "index.html"))
+    throw OptionError("web_dir", fmt::format("{}: the viewer page is not there (no index.html)", options.web_dir));
+  impl_ = std::make_unique<Impl>(std::move(options));
+  impl_->web_root = root;
+  impl_->served = read_served_files(root);
   impl_->routes();
 }
 
-ViewServer::~ViewServer() {
-  stop();
-  impl_->stop_building = true;
-  if (impl_->level_builder.joinable()) impl_->level_builder.join();
-}
-
-// Coarser grids for dragging, coarsest first, while the page already shows the prepared one.
-void ViewServer::Impl::build_levels(std::shared_ptr<LevelsOfDetail> lod) {
-  stop_building = true;
-  if (level_builder.joinable()) level_builder.join();
-  stop_building = false;
-  if (!lod) return;
-  level_builder = std::thread([this, lod] {
-    try {
-      lod->build(&stop_building);
-    } catch (const std::exception& e) {  // out of memory, most likely: the page keeps the levels it has
-      std::cerr << "adaptiso view: levels of detail stopped: " << e.what() << "\n";
-    }
-  });
-}
+ViewServer::~ViewServer() { stop(); }
 
 // Pages reach a local server through DNS rebinding (a name that resolves to 127.0.0.1): only the
 // names and addresses the server listens on are accepted, and IP literals when it listens on all
 // interfaces, with the machine's own name.
 bool ViewServer::Impl::host_allowed(const httplib::Request& req) const {
   if (!req.has_header("Host")) return true;  // HTTP/1.0 clients
-  std::string name = host_name(req.get_header_value("Host"));
+  std::string name = detail::host_name(req.get_header_value("Host"));
   for (auto& c : name) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
   if (name == "localhost" || name == "127.0.0.1" || name == "[::1]" || name == opt.host) return true;
   if (opt.host == "0.0.0.0" || opt.host == "::") {
     char machine[256] = {};
     gethostname(machine, sizeof machine - 1);
-    return is_ip_literal(name) || name == machine;
+    return detail::is_ip_literal(name) || name == machine;
   }
   return false;
+}
+
+// Before routing (and before any body is read): who may ask, and how.
+httplib::Server::HandlerResponse ViewServer::Impl::admit(const httplib::Request& req, httplib::Response& res) const {
+  auto refuse = [&](int status, const std::string& text) {
+    res.status = status;
+    res.set_content(text + "\n", "text/plain");
+    return httplib::Server::HandlerResponse::Handled;
+  };
+  if (!host_allowed(req)) return refuse(403, "host not allowed (the viewer answers only to the names and addresses it listens on)");
+  if (req.method != "GET" && req.method != "HEAD") {
+    res.set_header("Allow", "GET, HEAD");
+    return refuse(405, "only GET is served");
+  }
+  if (req.path.rfind("/api/", 0) == 0) {
+    const std::string origin = req.get_header_value("Origin");
+    switch (detail::check_origin(origin, req.get_header_value("Sec-Fetch-Site"), req.get_header_value("Host"), opt.allowed_origins)) {
+      case detail::OriginVerdict::refused:
+        return refuse(403, fmt::format("cross-origin request{} refused: start the viewer with --allow-origin ORIGIN to let a web page "
+                                       "of another origin use its API",
+                                       origin.empty() ? "" : " from " + origin.substr(0, 100)));
+      case detail::OriginVerdict::allowed:
+        if (!origin.empty()) {
+          res.set_header("Access-Control-Allow-Origin", origin);
+          // The answers' headers a page of that origin may read (fetch hides the others).
+          res.set_header("Access-Control-Expose-Headers",
+                         "X-Extract-Seconds, X-Encode-Seconds, X-Wait-Seconds, X-Triangles, X-Vertices, X-Active-Tetrahedra, "
+                         "X-Incremental, X-In-Range, X-Level, X-Distance, X-Error-Bound, X-Error-Guaranteed, X-Encoding, "
+                         "X-Triangles-Before, X-Simplify-Seconds, X-Tetrahedra, Content-Disposition, Retry-After");
+        }
+        break;
+      case detail::OriginVerdict::same_origin:
+        break;
+    }
+    res.set_header("Vary", "Origin");
+  }
+  return httplib::Server::HandlerResponse::Unhandled;
 }
 
 int ViewServer::bind() {
@@ -474,6 +284,8 @@ void ViewServer::stop() {
   if (impl_ && impl_->http.is_running()) impl_->http.stop();
 }
 
+std::uint64_t ViewServer::memory_budget() const { return impl_->opt.memory_budget; }
+
 void ViewServer::set_progress(const std::string& stage, double fraction) {
   std::lock_guard lock(impl_->state_mutex);
   impl_->stage = stage;
@@ -491,18 +303,10 @@ void ViewServer::set_grid(std::shared_ptr<const PreparedGrid> g) {
   }
   if (hist.is_null())  // no volume: the histogram of the grid's vertex values
     hist = histogram_json(histogram(g->grid.values, {g->grid.source.min, g->grid.source.max}, kHistogramBins), "vertices");
-  auto lod = g->hierarchy ? std::make_shared<LevelsOfDetail>(g) : nullptr;
   auto query = g->hierarchy ? std::make_shared<const HierarchyQuery>(g) : nullptr;
-  {
-    std::lock_guard lock(impl_->builder_mutex);
-    impl_->build_levels(nullptr);  // stops the last grid's
-  }
+  impl_->sessions.set_grid(g);
   std::lock_guard lock(impl_->state_mutex);
-  impl_->levels = lod;
-  impl_->levels_started = false;
   impl_->query = query;
-  impl_->clients.clear();  // a client's Extractor keeps its own grid alive; new requests start on this one
-  impl_->lru.clear();
   impl_->histogram = hist;
   impl_->grid = std::move(g);
   impl_->stage = "ready";
@@ -541,14 +345,18 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
       const auto& st = grid->stats;
       j["error_bound"] = surface_error(st);
       j["error_guaranteed"] = st.error_bound >= 0;
-      nlohmann::json ladder = nlohmann::json::array();
-      if (levels)
-        for (std::size_t k = 0; k < levels->size(); ++k)
-          ladder.push_back({{"bound", levels->bound(k)}, {"built", levels->grid(k) != nullptr}, {"cell_floor", levels->cell_floor(k)}});
-      j["levels"] = ladder;
       j["distance"] = query != nullptr;  // surfaces within a distance (voxels) can be asked for
     }
   }
+  if (j.contains("kept")) {
+    nlohmann::json ladder = nlohmann::json::array();
+    for (const auto& l : sessions.levels()) ladder.push_back({{"bound", l.bound}, {"built", l.built}, {"cell_floor", l.cell_floor}});
+    j["levels"] = ladder;
+  }
+  const auto m = sessions.memory();
+  j["memory"] = {
+      {"budget", m.budget},   {"resident", m.resident},         {"extractors", m.extractors}, {"extractors_bytes", m.extractors_bytes},
+      {"clients", m.clients}, {"levels_built", m.levels_built}, {"evicted", m.evicted},       {"refused", m.refused}};
   res.set_content(j.dump(), "application/json");
 }
 
@@ -560,32 +368,37 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const auto distance = parse_optional(req.params, "distance");
   const bool compact = compact_format(req.params);
   const Served s = served_now();
+  auto common_headers = [&](const std::string& body_encoding) {
+    res.set_header("X-Encoding", body_encoding);
+    res.set_header("Cache-Control", "no-store");
+  };
   if (distance) {
     if (error || budget) throw BadRequest("distance= cannot be combined with error= or budget=");
-    return surface_within(req, res, s, iso, *distance, compact);
+    DistanceQueryStats st;
+    const Mesh mesh = surface_within(s, iso, *distance, &st);
+    const auto t0 = std::chrono::steady_clock::now();
+    std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
+    const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    res.set_header("X-Extract-Seconds", seconds_text(st.refine_seconds + st.walk_seconds + st.march_seconds));
+    res.set_header("X-Encode-Seconds", seconds_text(encode));
+    res.set_header("X-Wait-Seconds", "0");
+    res.set_header("X-Triangles", std::to_string(st.triangles));
+    res.set_header("X-Vertices", std::to_string(st.vertices));
+    res.set_header("X-Active-Tetrahedra", std::to_string(st.tetrahedra));
+    res.set_header("X-Incremental", "0");
+    res.set_header("X-In-Range", st.in_range ? "1" : "0");
+    res.set_header("X-Level", "0");
+    res.set_header("X-Distance", fmt::format("{:.17g}", *distance));
+    // The vertices lie on the grid's own surface, whose error bound this is.
+    res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(s.grid->stats)));
+    res.set_header("X-Error-Guaranteed", s.grid->stats.error_bound >= 0 ? "1" : "0");
+    common_headers(compact ? "compact" : "plain");
+    res.set_content(std::move(body), "application/octet-stream");
+    return;
   }
-  if (error || budget) need_levels();
-  // The level shown when the slider rests: the coarsest within error=; while dragging, as fine as
-  // the triangle budget allows but no finer.
-  const std::size_t rest = s.level_for(error);
-  const std::size_t level =
-      s.levels && budget ? s.levels->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), rest, iso) : rest;
-  const auto grid = s.at(level);
-  auto c = client(id);
-  auto slot = c->level(level);
-  const auto queued = std::chrono::steady_clock::now();
-  // One extraction at a time per page and level; others run freely. The follower yields to this
-  // request (or finishes, when it is extracting this very surface), and its jobs for the level
-  // queued before it are dropped.
-  const auto lock = slot->lock_for_page(iso, grid.get());
-  // Time spent behind this level's other work (the follower's current stage, or its extraction of
-  // this surface), reported apart.
-  const double wait = std::chrono::duration<double>(std::chrono::steady_clock::now() - queued).count();
-  ExtractStats st;
-  slot->at(grid, iso, &st);
-  if (s.levels) s.levels->record(level, st.triangles, iso);
-  if (level != rest) follower.follow(c->level(rest), s.at(rest), iso);
-  const Extractor* ex = slot->extractor.get();
+  const auto surface = sessions.surface(id, iso, error, budget);
+  const Extractor& ex = surface.extractor();
+  const ExtractStats& st = surface.stats();
   const auto t0 = std::chrono::steady_clock::now();
   // After incremental steps the mesh's triangles are in an order of its history's making, which
   // the codecs compress to nearly twice the bytes (the chest at rest: 8.7 bytes a triangle
@@ -593,57 +406,39 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   // goes as it is rather than copied through the identity.
   std::string body;
   if (!compact)
-    body = encode_mesh(ex->mesh());
-  else if (ex->last_was_incremental())
-    body = encode_mesh_compact(ex->mesh(), ex->triangles_in_march_order());
+    body = encode_mesh(ex.mesh());
+  else if (ex.last_was_incremental())
+    body = encode_mesh_compact(ex.mesh(), ex.triangles_in_march_order());
   else
-    body = encode_mesh_compact(ex->mesh());
+    body = encode_mesh_compact(ex.mesh());
   const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.sweep_seconds + st.march_seconds));
-  res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));
-  res.set_header("X-Wait-Seconds", fmt::format("{:.6f}", wait));
+  res.set_header("X-Extract-Seconds", seconds_text(st.sweep_seconds + st.march_seconds));
+  res.set_header("X-Encode-Seconds", seconds_text(encode));
+  res.set_header("X-Wait-Seconds", seconds_text(surface.wait_seconds()));
   res.set_header("X-Triangles", std::to_string(st.triangles));
   res.set_header("X-Vertices", std::to_string(st.vertices));
   res.set_header("X-Active-Tetrahedra", std::to_string(st.active));
   res.set_header("X-Incremental", st.incremental ? "1" : "0");
   res.set_header("X-In-Range", st.in_range ? "1" : "0");
-  res.set_header("X-Level", std::to_string(level));
+  res.set_header("X-Level", std::to_string(surface.level()));
   // The error of what is returned: guaranteed (bisection) or measured (Delaunay), data units; on
   // a floored level, of the tetrahedra this surface cuts.
-  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error_bound(*grid, ex->active())));
-  res.set_header("X-Error-Guaranteed", grid->stats.error_bound >= 0 ? "1" : "0");
-  res.set_header("X-Encoding", compact ? "compact" : "plain");
-  res.set_header("Cache-Control", "no-store");
+  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error_bound(surface.grid(), ex.active())));
+  res.set_header("X-Error-Guaranteed", surface.grid().stats.error_bound >= 0 ? "1" : "0");
+  common_headers(compact ? "compact" : "plain");
   res.set_content(std::move(body), "application/octet-stream");
 }
 
 // The surface within distance= voxels of the grid's (a bisection grid's hierarchy query): one
-// stateless query, no page state.
-void ViewServer::Impl::surface_within(const httplib::Request&, httplib::Response& res, const Served& s, double iso, double distance,
-                                      bool compact) {
+// stateless query, no page state; its memory reserved for the time of the query.
+Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, DistanceQueryStats* stats) {
   if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
   if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
-  DistanceQueryStats st;
-  const Mesh mesh = s.query->extract_within(iso, distance, &st);
-  const auto t0 = std::chrono::steady_clock::now();
-  std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
-  const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", st.refine_seconds + st.walk_seconds + st.march_seconds));
-  res.set_header("X-Encode-Seconds", fmt::format("{:.6f}", encode));
-  res.set_header("X-Wait-Seconds", "0");
-  res.set_header("X-Triangles", std::to_string(st.triangles));
-  res.set_header("X-Vertices", std::to_string(st.vertices));
-  res.set_header("X-Active-Tetrahedra", std::to_string(st.tetrahedra));
-  res.set_header("X-Incremental", "0");
-  res.set_header("X-In-Range", st.in_range ? "1" : "0");
-  res.set_header("X-Level", "0");
-  res.set_header("X-Distance", fmt::format("{:.17g}", distance));
-  // The vertices lie on the grid's own surface, whose error bound this is.
-  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(s.grid->stats)));
-  res.set_header("X-Error-Guaranteed", s.grid->stats.error_bound >= 0 ? "1" : "0");
-  res.set_header("X-Encoding", compact ? "compact" : "plain");
-  res.set_header("Cache-Control", "no-store");
-  res.set_content(std::move(body), "application/octet-stream");
+  const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, s.grid->grid.tet_count() / 8);
+  const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
+  Mesh mesh = s.query->extract_within(iso, distance, stats);
+  sessions.record_triangles(Sessions::Transient::distance, iso, mesh.triangle_count());
+  return mesh;
 }
 
 // The surface at rest (iso, error or distance), simplified to simplify= voxels, as a .glb or .ply file.
@@ -656,28 +451,25 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   const std::string format = export_format(req.params);
   const Served s = served_now();
   if (within && error) throw BadRequest("distance= cannot be combined with error=");
-  if (within && !s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
-  if (within && (!(*within >= 0) || !std::isfinite(*within))) throw BadRequest("distance must be a non-negative number of voxels");
-  if (error) need_levels();
-  const std::size_t level = s.level_for(error);
-  const auto grid = s.at(level);
   Mesh mesh;
+  double error_bound = surface_error(s.grid->stats);
   if (within) {
-    mesh = s.query->extract_within(iso, *within);
+    mesh = surface_within(s, iso, *within, nullptr);
   } else {
-    auto slot = client(id)->level(level);
-    const auto lock = slot->lock_for_page(iso, grid.get());
-    mesh = slot->at(grid, iso);
+    const auto surface = sessions.surface(id, iso, error, std::nullopt);  // the level's lock, until copied
+    mesh = surface.extractor().mesh();
+    error_bound = surface_error(surface.grid().stats);
   }
-  const Vec3& sp = grid->grid.source.spacing;
+  const auto room = sessions.reserve(kExportBytesPerTriangle * mesh.triangle_count());
+  const Vec3& sp = s.grid->grid.source.spacing;  // the same on every level
   SimplifyStats st;
   const Mesh simplified = simplify_mesh(mesh, distance * std::min({sp[0], sp[1], sp[2]}), &st);
   const std::string name = fmt::format("adaptiso-{:.6g}.{}", iso, format);
   res.set_header("Content-Disposition", fmt::format("attachment; filename=\"{}\"", name));
   res.set_header("X-Triangles", std::to_string(st.triangles_after));
   res.set_header("X-Triangles-Before", std::to_string(st.triangles_before));
-  res.set_header("X-Simplify-Seconds", fmt::format("{:.6f}", st.seconds));
-  res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(grid->stats)));
+  res.set_header("X-Simplify-Seconds", seconds_text(st.seconds));
+  res.set_header("X-Error-Bound", fmt::format("{:.17g}", error_bound));
   res.set_content(mesh_file_bytes(simplified, name), format == "glb" ? "model/gltf-binary" : "application/octet-stream");
 }
 
@@ -693,20 +485,26 @@ void ViewServer::Impl::reference(const httplib::Request& req, httplib::Response&
     res.set_content("no volume loaded (the viewer was started on a grid file): no full-resolution reference\n", "text/plain");
     return;
   }
+  const std::size_t expected =
+      sessions.expected_triangles(Sessions::Transient::reference, iso, static_cast<std::size_t>(v->voxel_count() / 16));
+  const auto room = sessions.reserve(kReferenceBytesPerTriangle * expected);
   const auto t0 = std::chrono::steady_clock::now();
   const Mesh m = marching_cubes(*v, iso);
-  res.set_header("X-Extract-Seconds", fmt::format("{:.6f}", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()));
+  sessions.record_triangles(Sessions::Transient::reference, iso, m.triangle_count());
+  res.set_header("X-Extract-Seconds", seconds_text(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()));
   res.set_header("X-Triangles", std::to_string(m.triangle_count()));
   res.set_header("X-Vertices", std::to_string(m.vertex_count()));
   res.set_content(encode_mesh(m), "application/octet-stream");
 }
 
 void ViewServer::Impl::points(const httplib::Request&, httplib::Response& res) {
-  res.set_content(encode_points(ready()->grid), "application/octet-stream");
+  const auto g = served_now().grid;
+  const auto room = sessions.reserve(16 * std::uint64_t{g->grid.vertex_count()});
+  res.set_content(encode_points(g->grid), "application/octet-stream");
 }
 
 void ViewServer::Impl::tetrahedra(const httplib::Request& req, httplib::Response& res) {
-  auto p = ready();
+  const auto p = served_now().grid;
   const TetGrid& grid = p->grid;
   std::vector<std::uint32_t> tets;
   if (req.has_param("iso")) {
@@ -717,6 +515,9 @@ void ViewServer::Impl::tetrahedra(const httplib::Request& req, httplib::Response
     tets.resize(grid.tet_count());
     for (std::size_t t = 0; t < tets.size(); ++t) tets[t] = static_cast<std::uint32_t>(t);
   }
+  // At most 6 edges a tetrahedron (8 bytes each, with the wireframe's own bookkeeping) and 4
+  // corners (12 bytes each).
+  const auto room = sessions.reserve(std::min<std::uint64_t>(tets.size() * 6, kMaxWireframeEdges) * 16 + tets.size() * 48);
   Wireframe w;
   try {
     w = tetrahedra_wireframe(grid, tets, kMaxWireframeEdges);
@@ -728,9 +529,11 @@ void ViewServer::Impl::tetrahedra(const httplib::Request& req, httplib::Response
 }
 
 void ViewServer::Impl::routes() {
-  // Maps the failures of a handler to answers: a bad request 400, a grid not ready 503, a bad
-  // input met by the library 400, anything else is a bug: 500, and logged.
-  auto guarded = [this](void (Impl::*fn)(const httplib::Request&, httplib::Response&)) {
+  // Maps the failures of a handler to answers: a bad request 400, a grid not ready 503, a request
+  // the memory budget cannot hold now 503 with Retry-After, a bad input met by the library 400,
+  // anything else is a bug: 500, and logged. An allocation that fails is answered like a request
+  // that cannot fit, after dropping what is idle: it was a 500 that lasted (issue 41).
+  auto guarded = [this](Handler fn) {
     return [this, fn](const httplib::Request& req, httplib::Response& res) {
       auto answer = [&](int status, const std::string& text) {
         res.status = status;
@@ -741,11 +544,17 @@ void ViewServer::Impl::routes() {
       } catch (const BadRequest& e) {
         answer(400, e.what());
       } catch (const NotReady& e) {
+        res.set_header("Retry-After", "1");
+        answer(503, e.what());
+      } catch (const detail::OverBudget& e) {
+        res.set_header("Retry-After", "1");
         answer(503, e.what());
       } catch (const InputError& e) {
         answer(400, e.what());
       } catch (const std::bad_alloc&) {
-        answer(500, "out of memory");
+        sessions.relieve();
+        res.set_header("Retry-After", "1");
+        answer(503, "out of memory: retry in a moment");
         std::cerr << "adaptiso view: out of memory answering " << req.path << "\n";
       } catch (const std::exception& e) {
         answer(500, std::string("internal error: ") + e.what());
@@ -753,38 +562,21 @@ void ViewServer::Impl::routes() {
       }
     };
   };
-  http.new_task_queue = [] { return new ElasticPool(256); };
+  const auto idle = std::chrono::milliseconds(static_cast<long long>(std::min(opt.thread_idle_seconds, 1e6) * 1000));
+  http.new_task_queue = [idle] { return new detail::ElasticPool(256, idle, 4); };
   http.set_tcp_nodelay(true);  // small answers on a kept-alive connection were held back 40 ms (Nagle)
   http.set_read_timeout(5, 0);
   http.set_keep_alive_timeout(5);
   http.set_keep_alive_max_count(1000);  // the page asks for a surface per slider step on one connection
-  http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
-    if (host_allowed(req)) return httplib::Server::HandlerResponse::Unhandled;
-    res.status = 403;
-    res.set_content("host not allowed (the viewer answers only to the names and addresses it listens on)\n", "text/plain");
-    return httplib::Server::HandlerResponse::Handled;
-  });
-  http.set_payload_max_length(1 << 16);
-  http.Get("/api/info", guarded(&Impl::info));
-  http.Get("/api/surface", guarded(&Impl::surface));
-  http.Get("/api/reference", guarded(&Impl::reference));
-  http.Get("/api/export", guarded(&Impl::download));
-  http.Get("/api/points", guarded(&Impl::points));
-  http.Get("/api/tetrahedra", guarded(&Impl::tetrahedra));
+  http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) { return admit(req, res); });
+  constexpr Handler handlers[] = {&Impl::info, &Impl::surface, &Impl::reference, &Impl::download, &Impl::points, &Impl::tetrahedra};
+  static_assert(std::size(handlers) == std::size(kApiRoutes));
+  for (std::size_t k = 0; k < std::size(kApiRoutes); ++k) http.Get(kApiRoutes[k], guarded(handlers[k]));
   http.Get("/api/.*", [](const httplib::Request& req, httplib::Response& res) {
     res.status = 404;
     res.set_content(fmt::format("unknown API route {}\n", req.path.substr(0, 80)), "text/plain");
   });
   http.Get("/.*", [this](const httplib::Request& req, httplib::Response& res) { serve_static(req, res); });
-  auto not_allowed = [](const httplib::Request&, httplib::Response& res) {
-    res.status = 405;
-    res.set_content("only GET is served\n", "text/plain");
-  };
-  http.Post("/.*", not_allowed);
-  http.Put("/.*", not_allowed);
-  http.Delete("/.*", not_allowed);
-  http.Options("/.*", not_allowed);
-  http.Patch("/.*", not_allowed);
 }
 
 void ViewServer::Impl::serve_static(const httplib::Request& req, httplib::Response& res) {
@@ -808,5 +600,15 @@ void ViewServer::Impl::serve_static(const httplib::Request& req, httplib::Respon
   std::string body((std::istreambuf_iterator<char>(in)), {});
   res.set_content(body, type);
 }
+
+namespace detail {
+
+std::vector<std::string> api_routes() {
+  std::vector<std::string> out;
+  for (const char* r : kApiRoutes) out.emplace_back(r);
+  return out;
+}
+
+}  // namespace detail
 
 }  // namespace adaptiso

@@ -612,6 +612,23 @@ TEST(OutputsNeverDestroy, InterruptedWritesLeaveNoTemporaryFiles) {
     }
 }
 
+// The viewer's memory and origin options: a size it cannot read is refused in one line before
+// anything is loaded or served (issue 41).
+TEST(Cli, ViewRefusesAMemoryBudgetItCannotRead) {
+  testutil::TempDir t("view-options");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "s.nrrd")).code, 0);
+  for (const char* bad : {"abc", "-1", "1e9", "0x10", "4X", "4GG", ".5G", "0", "99999999999T", ""}) {
+    const auto r = testutil::run_cli(fmt::format("view {} --port 0 --memory-budget '{}'", t / "s.nrrd", bad));
+    EXPECT_EQ(r.code, 2) << bad << ": " << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << bad << ": " << r.err;
+  }
+  for (const char* bad : {"0", "-3", "x"}) {
+    const auto r = testutil::run_cli(fmt::format("view {} --port 0 --idle-seconds {}", t / "s.nrrd", bad));
+    EXPECT_EQ(r.code, 2) << bad << ": " << r.err;
+  }
+  EXPECT_NE(testutil::run_cli("view --help").out.find("--allow-origin"), std::string::npos);
+}
+
 // ---------------- Issue 41, item 10: asked for, an option is used or refused, never ignored ----------------
 
 namespace {
