@@ -7,6 +7,7 @@
 #include <limits>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/prepare.hpp"
 
 namespace adaptiso {
 
