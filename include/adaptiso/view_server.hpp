@@ -1,5 +1,5 @@
 // adaptiso/view_server.hpp — the local web server behind `adaptiso view`: serves the viewer page
-// and a small HTTP API over one prepared grid (README "Viewer API" documents the routes and the
+// and a small HTTP API over one prepared grid (docs/API.md specifies the routes and the
 // binary layouts). The grid may arrive after the server starts (the page shows the progress of
 // the preparation meanwhile). Each client (`client=` parameter) gets its own Extractor, so small
 // slider moves are incremental and clients never block each other; bad requests get 400/404 with

@@ -1,6 +1,7 @@
 // The viewer's HTTP server (see view_server.hpp). Handlers only parse parameters, call the
 // library and encode the answer; the work (extraction, wireframes, histograms) is library code.
 #include "adaptiso/view_server.hpp"
+#include "view/elastic_pool.hpp"
 #include "view/request.hpp"
 
 #include <fmt/format.h>
@@ -14,7 +15,6 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
-#include <deque>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -128,7 +128,7 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
 // The grid being served and its levels of detail, taken together (set_grid replaces both).
 struct Served {
   std::shared_ptr<const PreparedGrid> grid;
-  std::shared_ptr<LevelsOfDetail> levels;        // bisection grids only
+  std::shared_ptr<LevelsOfDetail> levels;       // bisection grids only
   std::shared_ptr<const HierarchyQuery> query;  // bisection grids only: surfaces within a distance
   // The coarsest level within error= (the prepared grid without it, or without levels).
   std::size_t level_for(const std::optional<double>& error) const { return levels && error ? levels->level_for_error(*error) : 0; }
@@ -259,56 +259,6 @@ private:
   std::unordered_map<const LevelExtractor*, Job> jobs_;
   bool stop_ = false;
   std::thread thread_;
-};
-
-// Connections are served by threads that are added while all are busy, up to a limit: a few
-// clients that send their requests slowly (or hold their connection open) then cannot starve the
-// others, as the fixed pool of 8 did (/api/info waited 17 s behind 8 clients sending a header
-// line a second).
-class ElasticPool : public httplib::TaskQueue {
-public:
-  explicit ElasticPool(std::size_t max_threads) : max_(max_threads) {}
-  void enqueue(std::function<void()> fn) override {
-    std::lock_guard lock(mutex_);
-    jobs_.push_back(std::move(fn));
-    // An idle thread takes one job when it wakes; until then it still counts as idle, so compare
-    // the queued jobs with the idle threads (checking idle_ == 0 left a burst of connections
-    // queued behind one idle thread, which a slow client then held).
-    if (jobs_.size() > idle_ && threads_.size() < max_) threads_.emplace_back([this] { work(); });
-    ready_.notify_one();
-  }
-  void shutdown() override {
-    {
-      std::lock_guard lock(mutex_);
-      stop_ = true;
-    }
-    ready_.notify_all();
-    for (auto& t : threads_) t.join();
-  }
-
-private:
-  void work() {
-    for (;;) {
-      std::function<void()> job;
-      {
-        std::unique_lock lock(mutex_);
-        ++idle_;
-        ready_.wait(lock, [&] { return stop_ || !jobs_.empty(); });
-        --idle_;
-        if (jobs_.empty()) return;  // stopping
-        job = std::move(jobs_.front());
-        jobs_.pop_front();
-      }
-      job();
-    }
-  }
-  std::size_t max_;
-  std::mutex mutex_;
-  std::condition_variable ready_;
-  std::deque<std::function<void()>> jobs_;
-  std::vector<std::thread> threads_;
-  std::size_t idle_ = 0;
-  bool stop_ = false;
 };
 
 // The host name of a Host header ("name", "name:port", "[v6]:port").
@@ -753,7 +703,7 @@ void ViewServer::Impl::routes() {
       }
     };
   };
-  http.new_task_queue = [] { return new ElasticPool(256); };
+  http.new_task_queue = [] { return new detail::ElasticPool(256); };
   http.set_tcp_nodelay(true);  // small answers on a kept-alive connection were held back 40 ms (Nagle)
   http.set_read_timeout(5, 0);
   http.set_keep_alive_timeout(5);

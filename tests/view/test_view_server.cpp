@@ -13,7 +13,11 @@
 #include <array>
 #include <atomic>
 #include <cstring>
+#include <fstream>
 #include <nlohmann/json.hpp>
+#include <regex>
+#include <set>
+#include <string>
 #include <thread>
 
 #include "adaptiso/extractor.hpp"
@@ -560,4 +564,33 @@ TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
   auto r = c.Get("/api/surface?iso=0.45&client=a&distance=1");
   EXPECT_EQ(r->status, 400);
   EXPECT_NE(r->body.find("bisection"), std::string::npos);
+}
+
+// docs/API.md specifies the HTTP API once: every route the server registers is in it, and every
+// route it specifies is registered.
+TEST(ViewServer, EveryRouteIsInTheApiDocumentAndOnlyThose) {
+  auto read = [](const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    EXPECT_TRUE(in) << path;
+    return std::string((std::istreambuf_iterator<char>(in)), {});
+  };
+  const std::string source = read(std::string(ADAPTISO_SOURCE_DIR) + "/src/view/view_server.cpp");
+  const std::string doc = read(std::string(ADAPTISO_SOURCE_DIR) + "/docs/API.md");
+  std::set<std::string> registered, specified;
+  const std::regex route(R"re(http\.(Get|Post|Put|Delete|Options|Patch)\("(/api/[A-Za-z_]+)")re");
+  for (std::sregex_iterator it(source.begin(), source.end(), route), end; it != end; ++it) {
+    EXPECT_EQ((*it)[1].str(), "Get") << (*it)[2].str() << ": the API is GET only";
+    registered.insert((*it)[2].str());
+  }
+  const std::regex heading(R"re(### `GET (/api/[A-Za-z_]+))re");
+  for (std::sregex_iterator it(doc.begin(), doc.end(), heading), end; it != end; ++it) specified.insert((*it)[1].str());
+  EXPECT_GE(registered.size(), 6u);
+  EXPECT_EQ(registered, specified);
+  // Each route's headers and parameters named in its handler are in the document too.
+  const std::regex header(R"re(set_header\("(X-[A-Za-z-]+)")re");
+  for (std::sregex_iterator it(source.begin(), source.end(), header), end; it != end; ++it)
+    EXPECT_NE(doc.find("`" + (*it)[1].str() + "`"), std::string::npos) << (*it)[1].str() << " is not in docs/API.md";
+  const std::regex parameter(R"re(parse_optional\(req\.params, "([a-z_]+)"\))re");
+  for (std::sregex_iterator it(source.begin(), source.end(), parameter), end; it != end; ++it)
+    EXPECT_NE(doc.find((*it)[1].str() + "="), std::string::npos) << (*it)[1].str() << "= is not in docs/API.md";
 }
