@@ -41,6 +41,7 @@
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <atomic>
@@ -117,6 +118,43 @@ struct CutPoint {
   Point p;
 };
 
+// Which side of the plane through the refinement edge's midpoint m and the corners k < l off it
+// corner i lies on, for a positively oriented tetrahedron split along edge (i, j): orient(m, t_k,
+// t_l, t_i) = −½·det(t_k − t_i, t_l − t_i, t_j − t_i), the orientation of (t_i, t_k, t_l, t_j)
+// negated: positive when that permutation of (0, 1, 2, 3) is odd. The descent of a probe then
+// needs one orientation test a step, not two.
+constexpr bool odd_permutation(std::array<int, 4> p) {
+  int swaps = 0;
+  for (int a = 0; a < 4; ++a)
+    for (int b = a + 1; b < 4; ++b) swaps += p[static_cast<std::size_t>(a)] > p[static_cast<std::size_t>(b)];
+  return swaps % 2;
+}
+constexpr std::array<std::array<bool, 4>, 4> corner_i_side() {
+  std::array<std::array<bool, 4>, 4> side{};
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) {
+      if (i == j) continue;
+      int k = 0;
+      while (k == i || k == j) ++k;
+      int l = k + 1;
+      while (l == i || l == j) ++l;
+      side[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)] = odd_permutation({i, k, l, j});
+    }
+  return side;
+}
+inline constexpr auto kCornerISide = corner_i_side();
+
+// A tetrahedron inside the box during refinement: its corners and its edges' cut points (valid
+// where the edge is cut), and the tetrahedron it was split from (on the refinement's stack).
+constexpr int kEdgeOf[4][4] = {{-1, 0, 1, 2}, {0, -1, 3, 4}, {1, 3, -1, 5}, {2, 4, 5, -1}};
+struct Node {
+  Tet t;
+  OrderState order;
+  Corner c[4];
+  Point cut[6];
+  const Node* parent = nullptr;
+};
+
 struct Query {
   const Lattice& lat;
   const VertexNumbers& numbers;
@@ -173,17 +211,6 @@ struct Query {
     return {edge_key(a_above ? b.id : a.id, a_above ? a.id : b.id), point(snap(a, b))};
   }
 
-  // Split in the final selection (after the closure): marked, or forced by the box. Only
-  // diamonds the grid splits can be.
-  bool final_split(const Coord& m) const {
-    const Diamond d = classify(m, lat.k);
-    if (!d.valid) return true;  // a root corner, above every diamond
-    if (!lat.in_box(m)) return placement(d, lat).forced;
-    const std::int64_t voxel = lat.index(m);
-    if (!numbers.used(voxel)) return false;
-    const std::uint32_t id = numbers.id(voxel);
-    return forced(id) || everything || split.test(voxel);
-  }
   // ---- geometry ----
 
   static double orient(const Coord& a, const Coord& b, const Coord& d, const Point& x) {
@@ -216,18 +243,29 @@ struct Query {
   // the hierarchy from the root tetrahedron holding p towards the grid's leaf holding it (each
   // split's halves lie on either side of the plane through the midpoint and the two corners off
   // the refinement edge), until everything beneath is on one side. Returns false off the grid.
-  // Is p inside t (positively oriented), faces included?
+  // Is p inside t, faces included? Every tetrahedron of the hierarchy is positively oriented, so
+  // the corner opposite face k (corners k+1, k+2, k+3) lies on its negative side for even k and
+  // on its positive side for odd k; p must lie on that side of every face, or on the face. The
+  // faces' normals are integer cross products.
   static bool holds(const Tet& t, const Point& p) {
-    return orient(t[1], t[2], t[3], p) >= 0 && orient(t[0], t[3], t[2], p) >= 0 && orient(t[0], t[1], t[3], p) >= 0 &&
-           orient(t[0], t[2], t[1], p) >= 0;
+    for (int k = 0; k < 4; ++k) {
+      const Coord &a = t[static_cast<std::size_t>((k + 1) % 4)], &b = t[static_cast<std::size_t>((k + 2) % 4)],
+                  &c = t[static_cast<std::size_t>((k + 3) % 4)];
+      const std::int64_t u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+      const double n[3] = {double(u[1] * v[2] - u[2] * v[1]), double(u[2] * v[0] - u[0] * v[2]), double(u[0] * v[1] - u[1] * v[0])};
+      const double side = n[0] * (p[0] - a[0]) + n[1] * (p[1] - a[1]) + n[2] * (p[2] - a[2]);
+      if (k % 2 ? side < 0 : side > 0) return false;
+    }
+    return true;
   }
-  // With `near`, a tetrahedron of the hierarchy (and its order) where the descent starts when it
-  // holds p: a probe beside the tetrahedron being tested is mostly inside it.
-  bool value_at(const Point& p, double& value, const Tet* near = nullptr, OrderState near_order = 0) const {
+  // With `near`, the descent starts from the nearest of it and its ancestors that holds p: a probe
+  // beside the tetrahedron being tested is mostly inside it or its parent.
+  bool value_at(const Point& p, double& value, const Node* near = nullptr) const {
     Tet t;
     OrderState o;
-    if (near && holds(*near, p))
-      t = *near, o = near_order;
+    while (near && !holds(near->t, p)) near = near->parent;
+    if (near)
+      t = near->t, o = near->order;
     else if (!root_holding(p, t, o))
       return false;
     for (;;) {
@@ -252,8 +290,7 @@ struct Query {
       while (k == i || k == j) ++k;
       int l = k + 1;
       while (l == i || l == j) ++l;
-      const Point ti{double(t[i][0]), double(t[i][1]), double(t[i][2])};
-      const bool keeps_i = (orient(m, t[k], t[l], p) >= 0) == (orient(m, t[k], t[l], ti) >= 0);
+      const bool keeps_i = (orient(m, t[k], t[l], p) >= 0) == kCornerISide[i][j];
       const auto& e = order_table::kTable[o];
       t[static_cast<std::size_t>(keeps_i ? j : i)] = m;
       o = keeps_i ? e.at_j : e.at_i;
@@ -274,28 +311,18 @@ struct Query {
   // grid's interpolant has opposite signs at p ± distance·normal (the surface crosses the segment
   // between them); otherwise it is taken as farther (a surface meeting the segment obliquely, or
   // twice, costs a needless split). Points off the box are not judged.
-  bool far_from_surface(const Point& pv, const Point& normal, const Tet* near = nullptr, OrderState near_order = 0) const {
+  bool far_from_surface(const Point& pv, const Point& normal, const Node* near = nullptr) const {
     bool side[2];
     for (int s = 0; s < 2; ++s) {
       const double sign = s ? -1 : 1;
       Point x;
       for (int a = 0; a < 3; ++a) x[a] = std::clamp((pv[a] + sign * distance * normal[a]) / unit[a], 0.0, double(lat.X[a]));
       double v;
-      if (!value_at(x, v, near, near_order)) return false;
+      if (!value_at(x, v, near)) return false;
       side[s] = above(v);
     }
     return side[0] == side[1];
   }
-};
-
-// A tetrahedron inside the box during refinement: its corners and its edges' cut points (valid
-// where the edge is cut).
-constexpr int kEdgeOf[4][4] = {{-1, 0, 1, 2}, {0, -1, 3, 4}, {1, 3, -1, 5}, {2, 4, 5, -1}};
-struct Node {
-  Tet t;
-  OrderState order;
-  Corner c[4];
-  Point cut[6];
 };
 
 class Refine {
@@ -368,6 +395,7 @@ private:
     if (!q_.forced(id) && q_.split.mark(q_.lat.index(m))) q_.marked.local().push_back(q_.lat.index(m));
     const auto& e = order_table::kTable[n.order];
     Node a = n, b = n;  // a: the midpoint in slot j; b: in slot i
+    a.parent = b.parent = &n;
     a.t[static_cast<std::size_t>(j)] = m, a.order = e.at_j, a.c[j] = mid;
     b.t[static_cast<std::size_t>(i)] = m, b.order = e.at_i, b.c[i] = mid;
     for (int s = 0; s < 2; ++s) {
@@ -399,7 +427,8 @@ private:
                                                 (q_.above(n.c[3].value) << 3));
     const double d2 = q_.distance * q_.distance;
     if (code == 0 || code == 15) return longest2 > 4 * d2;  // hidden beneath
-    if (longest2 <= d2) return false;                       // every point within the distance of a cut point
+    // Every point of a triangle with edges up to L lies within L/√3 of a corner: of a cut point.
+    if (longest2 <= 3 * d2) return false;
     const bool mid_above = q_.above(mid.value);
     if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value) && longest2 > 4 * d2) return true;  // hidden between
     const Case& cs = kCases[code];
@@ -414,18 +443,18 @@ private:
     }
     (void)others;
     for (int k = 0; k < cs.triangles; ++k)
-      if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n.t, n.order)) return true;
+      if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
     return false;
   }
 
-  bool triangle_far(const Point& a, const Point& b, const Point& c, const Tet& near, OrderState near_order) const {
+  bool triangle_far(const Point& a, const Point& b, const Point& c, const Node& near) const {
     Point centre, u, v;
     for (int k = 0; k < 3; ++k) centre[k] = (a[k] + b[k] + c[k]) / 3, u[k] = b[k] - a[k], v[k] = c[k] - a[k];
     Point nrm{u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
     const double len = std::sqrt(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
     if (!(len > 0)) return false;
     for (double& x : nrm) x /= len;
-    return q_.far_from_surface(centre, nrm, &near, near_order);
+    return q_.far_from_surface(centre, nrm, &near);
   }
 };
 
@@ -457,14 +486,15 @@ std::size_t close_upwards(const Query& q, std::vector<std::int64_t> pending) {
 struct FinalRule {
   const Query& q;
   bool may_cut_across(const Coord& m) const { return q.lining.may_cut(q.lat, m, q.iso); }
-  bool split(std::int64_t voxel) const { return q.final_split(coord(voxel)); }
+  // Split in the final selection (after the closure): marked, or forced by the box. Only
+  // diamonds the grid splits can be.
+  bool split(std::int64_t voxel) const {
+    if (!q.numbers.used(voxel)) return false;
+    return q.everything || q.split.test(voxel) || q.forced(q.numbers.id(voxel));
+  }
   Decision decide(std::int64_t voxel) const {
     if (!split(voxel)) return Decision::leaf;
     return q.may_cut(q.numbers.id(voxel)) ? Decision::descend : Decision::prune;
-  }
-  Coord coord(std::int64_t v) const {
-    return {static_cast<std::int32_t>(v % q.lat.nx), static_cast<std::int32_t>(v % q.lat.nxy / q.lat.nx),
-            static_cast<std::int32_t>(v / q.lat.nxy)};
   }
 };
 
@@ -508,7 +538,9 @@ private:
 // The mesh of triangles given as cut-edge keys, per unit in walk order: vertices numbered by
 // first use (chunk-parallel, the same numbering as one thread's), placed on the grid's cut edges.
 void assemble(const TetGrid& g, std::vector<Found>& found, double iso, const EdgeRemap& remap, Mesh& mesh) {
-  const std::size_t C = std::max<std::size_t>(1, std::min<std::size_t>(found.size(), 64));
+  // As many chunks as threads: each chunk's edges are looked up in every earlier chunk's map.
+  const std::size_t C =
+      std::max<std::size_t>(1, std::min<std::size_t>(found.size(), static_cast<std::size_t>(tbb::this_task_arena::max_concurrency())));
   std::vector<MarchChunk> chunks(C);
   std::vector<std::size_t> first(C + 1, 0);
   for (std::size_t c = 0; c <= C; ++c) first[c] = found.size() * c / C;
