@@ -27,9 +27,17 @@ if(ADAPTISO_BUILD_APPS)
   install(TARGETS adaptiso_cli RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
   # The page's files (web/served.txt), where `adaptiso view` looks for them: ../share/adaptiso/web
   # beside its own folder.
+  # served.txt itself goes too: the server serves nothing that it does not list (without it the
+  # installed page was index.html alone, every script and style answered 404).
+  install(FILES ${PROJECT_SOURCE_DIR}/web/served.txt DESTINATION ${CMAKE_INSTALL_DATADIR}/adaptiso/web)
   file(STRINGS ${PROJECT_SOURCE_DIR}/web/served.txt ADAPTISO_WEB_FILES REGEX "^[^#]")
   foreach(f IN LISTS ADAPTISO_WEB_FILES)
     get_filename_component(dir ${f} DIRECTORY)
     install(FILES ${PROJECT_SOURCE_DIR}/web/${f} DESTINATION ${CMAKE_INSTALL_DATADIR}/adaptiso/web/${dir} OPTIONAL)
+    # The npm packages (three.js, meshoptimizer's decoder) come from scripts/deps.sh; a tree
+    # installed without them has a viewer page that cannot start, which is said at install time.
+    install(CODE "if(NOT EXISTS \"${PROJECT_SOURCE_DIR}/web/${f}\")
+  message(WARNING \"web/${f} is missing (run scripts/deps.sh): the installed viewer page will not load\")
+endif()")
   endforeach()
 endif()

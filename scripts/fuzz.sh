@@ -5,14 +5,14 @@
 # found it is kept under build/fuzz/artifacts/. Corpora grow in build/fuzz/corpus/ across runs and
 # start from fuzz/make_seeds.py's seeds (small crops of ../shared/data when present).
 # Usage: scripts/fuzz.sh [SECONDS] [TARGET...]      (targets: nrrd nhdr nifti nifti_gz metaimage vti
-# vtk dicom raw grid ply request; default all)
+# vtk dicom raw grid grid_structure ply request; default all)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
 SECS=${1:-60}
 shift || true
 TARGETS=("$@")
-[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(nrrd nhdr nifti nifti_gz metaimage vti vtk dicom raw grid ply request)
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(nrrd nhdr nifti nifti_gz metaimage vti vtk dicom raw grid grid_structure ply request)
 ./scripts/deps.sh clang libclang-rt-14-dev >/dev/null
 BUILD=${ADAPTISO_FUZZ_BUILD:-$ROOT/build/fuzz}
 echo "== fuzz build ($BUILD)"
@@ -32,14 +32,23 @@ if [ -x "$CLI" ]; then
   "$CLI" prepare "$tmp/s.nrrd" --grid delaunay --quiet -o "$BUILD/seeds/grid/delaunay.adg"
   "$CLI" prepare "$tmp/s.nrrd" --max-displacement 0.5 --quiet -o "$BUILD/seeds/grid/displacement.adg"
   "$CLI" mc "$tmp/s.nrrd" --iso 500 --quiet -o "$BUILD/seeds/ply/sphere.ply"
+  # The structure-aware target mutates whole grid files (fuzz_grid_structure.cpp): these, and grids
+  # whose box is no power-of-two cube (diamonds across its far faces) or that keep every voxel.
+  mkdir -p "$BUILD/seeds/grid_structure"
+  cp "$BUILD"/seeds/grid/*.adg "$BUILD/seeds/grid_structure/"
+  "$CLI" generate marschner-lobb --size 7 --quiet -o "$tmp/m.nrrd"
+  "$CLI" prepare "$tmp/m.nrrd" --max-error 0 --quiet -o "$BUILD/seeds/grid_structure/lossless.adg"
+  "$CLI" generate noise --size 5 --quiet -o "$tmp/n.nrrd"
+  "$CLI" prepare "$tmp/n.nrrd" --relative --max-error 0.1 --max-displacement 1 --quiet -o "$BUILD/seeds/grid_structure/noise.adg"
   rm -rf "$tmp"
 else
-  echo "fuzz: $CLI not built; the grid target starts from an empty corpus"
+  echo "fuzz: $CLI not built; the grid targets start from empty corpora"
+  mkdir -p "$BUILD/seeds/grid_structure"
 fi
 
 dict_for() {
   case $1 in
-    nhdr) echo nrrd ;; nifti_gz) echo nifti ;; raw) echo "" ;; grid) echo "" ;; *) echo "$1" ;;
+    nhdr) echo nrrd ;; nifti_gz) echo nifti ;; raw | grid | grid_structure) echo "" ;; *) echo "$1" ;;
   esac
 }
 export ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=0 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <mutex>
 
@@ -79,6 +80,14 @@ void TerminalProgress::finish() {
     std::fflush(stderr);
     drawn_ = false;
   }
+}
+
+void refuse_same_file(const std::string& input, const std::string& output, const std::string& option) {
+  namespace fs = std::filesystem;
+  std::error_code ec, ec_in, ec_out;
+  bool same = fs::equivalent(input, output, ec);
+  if (ec) same = fs::weakly_canonical(input, ec_in) == fs::weakly_canonical(output, ec_out) && !ec_in && !ec_out;
+  if (same) throw InputError(fmt::format("{} {}: is {} itself; writing it would replace what it is made from", option, output, input));
 }
 
 void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << std::endl; }

@@ -53,6 +53,11 @@ private:
   int last_percent_ = -1;
 };
 
+// Refuses (InputError naming `option`) an output that is the input itself, or another output:
+// the atomic write would replace the file being read, or one output the other. The files are
+// compared when both exist (links followed), their absolute paths otherwise.
+void refuse_same_file(const std::string& input, const std::string& output, const std::string& option);
+
 void print_json(const nlohmann::json& j);
 double seconds_since(std::chrono::steady_clock::time_point t0);
 // "error ≤ B guaranteed (asked E)" for a bisection grid, the measured piecewise-linear error

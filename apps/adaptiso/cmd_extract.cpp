@@ -45,11 +45,16 @@ struct MeshOutputFlags {
                     "Mesh file (.ply .obj .stl .glb); with several iso-values each name gets -<iso> before the extension")
         ->required();
   }
-  // Refuses an unknown mesh type before any long work.
-  void check() const {
+  // Refuses an unknown mesh type, or a mesh written over the input (or over `other`, another
+  // output), before any long work.
+  void check(const std::string& input, const std::string& other = "", const std::string& other_option = "") const {
     if (!is_mesh_file_name(output))
       throw InputError(fmt::format("{}: unknown mesh type '{}' (use .ply, .obj, .stl or .glb)", output,
                                    std::filesystem::path(output).extension().string()));
+    for (std::size_t i = 0; i < isos.size(); ++i) {
+      refuse_same_file(input, path(i), "-o");
+      if (!other.empty()) refuse_same_file(path(i), other, other_option);
+    }
   }
   std::vector<double> values(bool relative, const ValueRange& range, const std::string& source) const {
     return parse_iso_values(isos, relative, range, source);
@@ -82,7 +87,7 @@ struct MeshOutputFlags {
                        {"p95_voxels", std::max(d.a_to_b.p95, d.b_to_a.p95) / voxel},
                        {"max_voxels", d.hausdorff() / voxel},
                        {"seconds", seconds_since(t0)}};
-      line += fmt::format(", mean distance {:.3f} voxels (max {:.3f})", mean, d.hausdorff() / voxel);
+      line += fmt::format(", mean distance {:.4g} voxels (max {:.4g})", mean, d.hausdorff() / voxel);
     }
     return {j, line};
   }
@@ -202,7 +207,7 @@ void add_extract(CLI::App& app) {
   auto input = std::make_shared<std::string>();
   auto mesh_out = std::make_shared<MeshOutputFlags>();
   auto relative = std::make_shared<bool>(false);
-  auto max_error = std::make_shared<double>(-1);
+  auto max_error = std::make_shared<double>(0);
   auto max_displacement = std::make_shared<double>(0);
   auto distance = std::make_shared<double>(-1);
   auto out = std::make_shared<OutputFlags>();
@@ -213,30 +218,43 @@ void add_extract(CLI::App& app) {
       ->check(finite_number() & CLI::NonNegativeNumber);
   mesh_out->add(cmd);
   cmd->add_flag("--relative", *relative, "Iso-values (and --max-error) as fractions of the value range [min, max]");
-  cmd->add_option("--max-error", *max_error,
-                  "Bisection grids: extract at this coarser error (at least the prepared one) from the grid's hierarchy, without "
-                  "preparing again")
-      ->check(finite_number());
-  cmd->add_option("--max-displacement", *max_displacement, "Bisection grids prepared with it: a coarser displacement bound (voxels)")
-      ->check(finite_number());
+  auto* error_opt = cmd->add_option("--max-error", *max_error,
+                                    "Bisection grids: extract at this coarser error (at least the prepared one) from the grid's "
+                                    "hierarchy, without preparing again")
+                        ->check(finite_number());
+  auto* displacement_opt =
+      cmd->add_option("--max-displacement", *max_displacement, "Bisection grids prepared with it: a coarser displacement bound (voxels)")
+          ->check(finite_number());
   out->add(cmd);
   cmd->callback([=] {
-    mesh_out->check();
+    mesh_out->check(*input);
+    // Given, a bound is used or refused: never ignored.
+    const bool query = error_opt->count() > 0 || displacement_opt->count() > 0;
+    if (error_opt->count() && !(*max_error >= 0))
+      throw OptionError("max_error", fmt::format("must be a non-negative number, got {:.6g}", *max_error));
+    if (displacement_opt->count() && !(*max_displacement >= 0))
+      throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {:.6g}", *max_displacement));
     auto t0 = Clock::now();
     auto p = std::make_shared<const PreparedGrid>(load_grid(*input));
     const TetGrid& grid = p->grid;
     const double t_load = seconds_since(t0);
+    if (query && !p->hierarchy)
+      throw OptionError(error_opt->count() ? "max_error" : "max_displacement",
+                        fmt::format("{} has no bisection hierarchy (a Delaunay grid, or an older file): it extracts at its prepared "
+                                    "error only; prepare a bisection grid to extract at others",
+                                    *input));
+    if (*max_displacement > 0 && p->hierarchy->displacement_code.empty())
+      throw OptionError("max_displacement",
+                        fmt::format("{} was prepared without the displacement criterion (prepare it with --max-displacement)", *input));
     const ValueRange range{grid.source.min, grid.source.max};
     auto values = mesh_out->values(*relative, range, *input);
     nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
     if (*distance >= 0) {
-      if (*max_error >= 0 || *max_displacement > 0)
-        throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
+      if (query) throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
       j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
-    } else if (*max_error >= 0 || *max_displacement > 0) {
-      const double e = *max_error < 0 ? 0
-                       : *relative    ? from_fraction(range, *max_error, FractionOf::width, *input + ": --max-error with --relative")
-                                      : *max_error;
+    } else if (query) {
+      const double e =
+          *relative ? from_fraction(range, *max_error, FractionOf::width, *input + ": --max-error with --relative") : *max_error;
       j["surfaces"] = query_all(p, *mesh_out, values, e, *max_displacement, *out);
     } else {
       j["surfaces"] = extract_all(p, *mesh_out, values, *out);
@@ -263,7 +281,8 @@ void add_run(CLI::App& app) {
                   "spacing), refined where this surface needs it")
       ->check(finite_number() & CLI::NonNegativeNumber);
   cmd->callback([=] {
-    mesh_out->check();
+    mesh_out->check(in->path, *save, "--save-grid");
+    if (!save->empty()) refuse_same_file(in->path, *save, "--save-grid");
     auto t_all = Clock::now();
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
@@ -305,7 +324,7 @@ void add_mc(CLI::App& app) {
   mesh_out->add(cmd);
   cmd->add_flag("--relative", *relative, "Iso-values as fractions of the value range [min, max]");
   cmd->callback([=] {
-    mesh_out->check();
+    mesh_out->check(in->path);
     auto t0 = Clock::now();
     Volume v = in->load();
     const double t_load = seconds_since(t0);

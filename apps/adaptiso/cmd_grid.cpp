@@ -25,13 +25,15 @@ void add_prepare(CLI::App& app) {
   out->add(cmd);
   cmd->add_option("-o,--output", *output, "Grid file (.adg)")->required();
   cmd->callback([=] {
+    const PrepareOptions options = pf->options(in->path);  // a typo fails before the volume is read
+    refuse_same_file(in->path, *output, "-o");
     auto t_all = Clock::now();
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
     TerminalProgress tp(!out->quiet && !out->json);
     // Written as it is made: the voxels go before the index, the grid's positions and gradients
     // once they are on disk (the peak within the file plus 2.5 volumes).
-    const PrepareStats st = prepare_to_file(std::move(v), pf->options(in->path), *output, tp.callback());
+    const PrepareStats st = prepare_to_file(std::move(v), options, *output, tp.callback());
     tp.finish();
     nlohmann::json j = nlohmann::json::parse(to_json(st));
     j["seconds"]["load"] = t_load;

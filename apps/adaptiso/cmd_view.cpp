@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 #include <thread>
 
 #include "adaptiso/grid_file.hpp"
@@ -47,10 +48,13 @@ void add_view(CLI::App& app) {
     std::shared_ptr<const Volume> volume;
     // Read the input before serving, so an unreadable file fails at once with exit code 2.
     std::shared_ptr<const PreparedGrid> grid;
-    if (is_grid)
+    std::optional<PrepareOptions> options;  // refused at once too, not in the background
+    if (is_grid) {
       grid = std::make_shared<const PreparedGrid>(load_grid(in->path));
-    else
+    } else {
+      options = pf->options(in->path);
       volume = std::make_shared<const Volume>(in->load());
+    }
     ViewServer server(o);
     if (volume) server.set_volume(volume);
     if (grid) server.set_grid(grid);
@@ -66,7 +70,7 @@ void add_view(CLI::App& app) {
         try {
           TerminalProgress tp(!out->quiet && !out->json);
           auto term = tp.callback();
-          auto p = std::make_shared<const PreparedGrid>(prepare(*volume, pf->options(in->path), [&](std::string_view stage, double f) {
+          auto p = std::make_shared<const PreparedGrid>(prepare(*volume, *options, [&](std::string_view stage, double f) {
             server.set_progress(std::string(stage), f);
             if (term) term(stage, f);
           }));

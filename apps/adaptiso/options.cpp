@@ -9,15 +9,17 @@ namespace adaptiso::cli {
 void ReduceFlags::add(CLI::App* app) {
   const std::string max_error_help = fmt::format(
       "Max-norm error bound (data units; fraction of the range with --relative); default: {:g} of the value range", kDefaultRelativeError);
-  app->add_option("--method", method, "Delaunay grid (and reduce): reconstruction | structural | both")
-      ->check(CLI::IsMember({"reconstruction", "structural", "both"}));
+  delaunay_only.push_back(app->add_option("--method", method, "Delaunay grid (and reduce): reconstruction | structural | both")
+                              ->check(CLI::IsMember({"reconstruction", "structural", "both"})));
   max_error = app->add_option("--max-error", o.max_error, max_error_help)->check(finite_number());
-  app->add_option("--threshold", o.threshold,
-                  "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)")
-      ->check(finite_number());
-  app->add_option("--gradient", gradient, "Structural: central | canny")->check(CLI::IsMember({"central", "canny"}));
-  app->add_option("--sigma", o.sigma, "Canny: Gaussian sigma in voxels")->check(finite_number());
-  app->add_option("--kernel", o.kernel, "Canny: kernel size (odd; default 2*ceil(3 sigma)+1)");
+  delaunay_only.push_back(
+      app->add_option("--threshold", o.threshold,
+                      "Structural: gradient magnitude threshold (data units per voxel; fraction of the largest with --relative)")
+          ->check(finite_number()));
+  delaunay_only.push_back(
+      app->add_option("--gradient", gradient, "Structural: central | canny")->check(CLI::IsMember({"central", "canny"})));
+  delaunay_only.push_back(app->add_option("--sigma", o.sigma, "Canny: Gaussian sigma in voxels")->check(finite_number()));
+  delaunay_only.push_back(app->add_option("--kernel", o.kernel, "Canny: kernel size (odd; default 2*ceil(3 sigma)+1)"));
   app->add_flag("--relative", o.relative, "Error and iso-values as fractions of the value range, threshold of the largest gradient");
 }
 
@@ -43,10 +45,21 @@ void PrepareFlags::add(CLI::App* app) {
   app->add_option("--tree-depth", tree_depth, "Depth of the interval tree used for extraction")
       ->capture_default_str()
       ->check(CLI::Range(0, 24));
-  app->add_flag("--sequential-delaunay", sequential_delaunay, "Use CGAL's sequential triangulation (the parallel one is the default)");
+  sequential =
+      app->add_flag("--sequential-delaunay", sequential_delaunay, "Use CGAL's sequential triangulation (the parallel one is the default)");
 }
 
 PrepareOptions PrepareFlags::options(const std::string& source_path) const {
+  if (grid == "bisection") {
+    std::vector<CLI::Option*> given = reduce.delaunay_only;
+    given.push_back(sequential);
+    for (const CLI::Option* opt : given)
+      if (opt && opt->count() > 0)
+        throw InputError(
+            fmt::format("{} is an option of the Delaunay grid (the paper's reduction); the bisection grid does not use it (add "
+                        "--grid delaunay, or leave it out)",
+                        opt->get_name()));
+  }
   PrepareOptions p;
   p.reduce = reduce.options();
   if (reduce.max_error->count() > 0) p.max_error = p.reduce.max_error;  // otherwise the library's default

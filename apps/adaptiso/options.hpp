@@ -13,6 +13,9 @@ struct ReduceFlags {
   std::string gradient = "central";
   ReduceOptions o;
   CLI::Option* max_error = nullptr;
+  // The options of the paper's reduction, which only the Delaunay grid uses (prepare, run, view
+  // refuse them with the bisection grid rather than ignore them).
+  std::vector<CLI::Option*> delaunay_only;
   void add(CLI::App* app);
   ReduceOptions options() const;
 };
@@ -24,6 +27,7 @@ struct PrepareFlags {
   bool verify = false;
   std::string gradients = "auto";
   bool sequential_delaunay = false;
+  CLI::Option* sequential = nullptr;
   std::uint32_t tree_depth = kDefaultTreeDepth;
   void add(CLI::App* app);
   PrepareOptions options(const std::string& source_path) const;

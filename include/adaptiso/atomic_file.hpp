@@ -1,5 +1,9 @@
 // adaptiso/atomic_file.hpp — every output is written to a temporary file beside the target and
-// renamed over it only when complete, so a failure never leaves a half-written file.
+// renamed over it only when complete, so a failure never leaves a half-written file. Where the file
+// system allows it the temporary file has no name until it is complete (O_TMPFILE, then linkat), so
+// nothing of it is visible while it is written and nothing is left when the process is killed,
+// even by SIGKILL; elsewhere it is ".NAME.tmp<pid>-<hex>", and such files whose process is gone are
+// removed when NAME is next written.
 #pragma once
 #include <cstddef>
 #include <functional>
@@ -14,7 +18,8 @@ constexpr std::size_t kAtomicFileBufferBytes = std::size_t{32} << 20;
 
 // Calls write(stream) on a temporary file in the target's folder, flushes and fsyncs it, then
 // renames it to `path`. A symbolic link is written through (its target is replaced, the link
-// stays); an existing file keeps its permission bits; anything at `path` that is not a regular file
+// stays; a dangling link's target is created, in its folder, which must exist); an existing file
+// keeps its permission bits; anything at `path` that is not a regular file
 // (a folder, device, FIFO) is refused with InputError rather than replaced. On any exception (or a
 // stream error) the temporary file is removed and InputError (for an unwritable path) or the
 // original exception propagates; SIGINT, SIGTERM and SIGHUP remove it too when they would

@@ -77,6 +77,9 @@ struct ErrorCodes {
   std::uint8_t threshold(double bound) const;  // the largest code whose error is ≤ bound
 };
 
+// The scale of the displacement codes (voxels): they span 0.0045 … 256 voxels.
+inline constexpr double kDisplacementCodeScale = 256;
+
 // What a coarser query needs of the hierarchy: the selection of the grid is every diamond whose
 // code exceeds the threshold; a coarser error raises the threshold (hierarchy_query.hpp).
 struct BisectionHierarchy {

@@ -2,8 +2,9 @@
 //
 // Layout (little-endian):
 //   0   char[16]  magic "ADAPTISO-GRID\0\0\0"
-//   16  u32       version (4; versions 1 to 3 are still read. 4 has 3's layout; its index lists
-//                 may hold equal keys in any order, where older ones sorted them by id)
+//   16  u32       version (5; versions 1 to 4 are still read. 4 and 5 have 3's layout; their
+//                 index lists may hold equal keys in any order, where older ones sorted them by
+//                 id; up to 4 the checksum restarted after every empty array)
 //   20  u32       flags (bit 0: the extraction index follows the tetrahedra; bit 1: the bisection
 //                 hierarchy follows [version 3]; bit 2: with the displacement criterion)
 //   24  u64       M, bytes of metadata
@@ -20,9 +21,14 @@
 //                  [u8[N] displacement codes]; f32[N][2] value spans     (bisection.hpp)
 //       u32       CRC-32 (zlib) of every preceding byte
 // Loading checks the magic, version, that the file size is exactly what the counts imply (so no
-// allocation exceeds the file), the checksum, tetrahedron indices and finite values, and refuses
-// anything else with InputError naming the file; the index is checked against the grid
-// (validate_interval_tree).
+// allocation exceeds the file), the checksum and the reserved fields, then everything the
+// extraction, the hierarchy's walks and the viewer rely on, in time linear in the file: the
+// metadata's fields and geometry (check_geometry), vertices in ascending voxel order with finite
+// values in the value range, tetrahedra tiling the box, and a bisection hierarchy that is the one
+// its own codes select (its corner and centre vertices present, codes saturated, thresholds and
+// scales from the metadata, the walk's leaves and value spans those of the file), and the index
+// against the grid (validate_interval_tree). A file that fails any of them is refused with
+// InputError naming it: checksums catch damage, these catch a file that was written to lie.
 #pragma once
 #include <string>
 

@@ -195,6 +195,18 @@ Histogram histogram(const Volume& v, int bins);
 Histogram histogram(const Volume& v, const ValueRange& range, int bins);
 Histogram histogram(std::span<const double> values, const ValueRange& range, int bins);
 
+// Rejects geometry that cannot give meshes of finite float32 coordinates (every mesh format here
+// stores float32): a spacing outside [kMinSpacing, kMaxSpacing], an origin or direction entry that
+// is not finite, a direction whose columns are not orthonormal within kDirectionTolerance (normals
+// and gradients are turned into the world frame by the direction itself, which only a rotation or
+// reflection allows; a sheared acquisition must be resampled first), or a box whose world
+// coordinates reach beyond kMaxCoordinate. Throws InputError naming `what`. Every volume read by
+// read_volume and given to prepare passes it, and so does every grid file loaded.
+inline constexpr double kMinSpacing = 1e-30, kMaxSpacing = 1e30, kMaxCoordinate = 1e30, kDirectionTolerance = 1e-3;
+void check_geometry(const Dims& dims, const Vec3& spacing, const Vec3& origin, const std::array<double, 9>& direction,
+                    const std::string& what);
+inline void check_geometry(const Volume& v, const std::string& what) { check_geometry(v.dims, v.spacing, v.origin, v.direction, what); }
+
 // Rejects NaN and ±Inf values (float types only): throws InputError naming `what`, the count and the
 // first offending voxel. adaptiso needs finite values: a NaN has no place on either side of an
 // iso-surface, and silently replacing it would invent data.

@@ -168,13 +168,21 @@ def test_origin_not_finite_is_refused(origin):
         adaptiso.Volume(sphere_distance(), origin=origin)
 
 
-@pytest.mark.parametrize("spacing", [1e-30, 1e30])
+# The largest spacing accepted is 1e30, but the box it spans must also stay within ±1e30 (as the
+# readers check): 1e27 × 32 voxels does.
+@pytest.mark.parametrize("spacing", [1e-30, 1e27])
 def test_extreme_spacings_that_are_accepted_give_finite_meshes(spacing):
     v = adaptiso.Volume(sphere_distance(), spacing=(spacing,) * 3, origin=(spacing,) * 3)
     verts, faces, normals = adaptiso.prepare(v, max_error=0.05, relative=True).extract(10.0)
     assert len(faces) and np.all(np.isfinite(verts)) and np.all(np.isfinite(normals))
     extent = verts.max(axis=0) - verts.min(axis=0)
     assert np.allclose(extent / spacing, 20.0, rtol=0.05)  # about the sphere's diameter, not collapsed
+
+
+def test_a_box_beyond_1e30_is_refused_before_preparing():
+    # Spacing 1e30 is in range, but 32 voxels of it reach 3.2e31: refused with the readers' message.
+    with pytest.raises(ValueError, match="box reaches world coordinate"):
+        adaptiso.prepare(adaptiso.Volume(sphere_distance(), spacing=(1e30,) * 3), max_error=0.05, relative=True)
 
 
 def test_paths_accept_os_pathlike_and_bytes(tmp_path):

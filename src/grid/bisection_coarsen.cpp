@@ -41,6 +41,14 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
     fine_numbers.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
   }
   fine_numbers.count();
+  // The selection below numbers the root cube's corners by their rank among the fine vertices
+  // without asking whether they are vertices (load_grid refuses a file without them; a grid made
+  // any other way is checked here, 8 lookups).
+  for (int corner = 0; corner < 8; ++corner) {
+    const Coord c{corner & 1 ? lat.S : 0, corner & 2 ? lat.S : 0, corner & 4 ? lat.S : 0};
+    if (lat.in_box(c) && !fine_numbers.used(lat.index(c)))
+      throw InputError("this grid's hierarchy does not match it (a root cube's corner is no vertex)");
+  }
   BisectionGrid out;
   auto& h = out.hierarchy;
   h.codes = fh.codes;

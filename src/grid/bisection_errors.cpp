@@ -172,8 +172,8 @@ inline constexpr FineBlock kFineBlock = make_fine_block();
 
 // The displacement criterion, when asked for: per diamond the ratio of its error bound to the
 // smallest gradient magnitude beneath it (floored at g0), in voxels, coded on a scale of its own.
-constexpr double kDisplacementScale = 256;  // voxels: displacement codes span 0.0045 … 256 voxels
-constexpr double kGradientFloor = 0.01;     // of the value range per voxel (bisection.hpp)
+constexpr double kDisplacementScale = kDisplacementCodeScale;  // voxels (bisection.hpp)
+constexpr double kGradientFloor = 0.01;                        // of the value range per voxel (bisection.hpp)
 
 struct Displacement {
   std::vector<std::uint8_t>* code = nullptr;  // per voxel, like the error codes

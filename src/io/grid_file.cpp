@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "adaptiso/atomic_file.hpp"
+#include "io/grid_check.hpp"
 #include "io/grid_file_stream.hpp"
 #include "util/big_array.hpp"
 #include "util/memory.hpp"
@@ -24,7 +25,10 @@ namespace {
 constexpr char kMagic[16] = {'A', 'D', 'A', 'P', 'T', 'I', 'S', 'O', '-', 'G', 'R', 'I', 'D', 0, 0, 0};
 // Version 4: the index lists' equal keys may come in any order (earlier ones: by tetrahedron id),
 // so a build that reads 3 does not call a version 4 file corrupt. The layout is version 3's.
-constexpr std::uint32_t kVersion = 4;
+// Version 5: the checksum covers every byte. Up to 4 it restarted at every empty array (the
+// writer passed the CRC a null pointer, which zlib and libdeflate answer with the initial value),
+// so an empty index list, or an empty grid, left whatever preceded it unprotected.
+constexpr std::uint32_t kVersion = 5, kLastRestartingChecksum = 4;
 constexpr std::uint64_t kHeaderV1 = 48, kHeader = 64;
 constexpr std::uint32_t kHasIndex = 1, kHasHierarchy = 2, kHasDisplacement = 4;
 constexpr std::uint64_t kHierarchyHeader = 40;  // i32 root size, u8 thresholds ×2, u16 reserved, f64 ×4
@@ -47,7 +51,7 @@ class CrcWriter {
 public:
   explicit CrcWriter(std::ostream& o) : out_(o) {}
   void write(const void* p, std::size_t n) {
-    crc_ = libdeflate_crc32(crc_, p, n);
+    if (n) crc_ = libdeflate_crc32(crc_, p, n);  // an empty array's null pointer would restart it
     written_ += n;
     out_.write(static_cast<const char*>(p), static_cast<std::streamsize>(n));
   }
@@ -63,21 +67,6 @@ private:
   std::uint32_t crc_ = 0;
   std::uint64_t written_ = 0;
 };
-
-// A hierarchy read from a file: scales and thresholds that codes can have, a root cube that is the
-// volume's, spans that are ordered (or empty).
-void validate_hierarchy(const BisectionHierarchy& h, const TetGrid& grid, const std::string& path) {
-  auto fail = [&](const char* why) { throw InputError(fmt::format("{}: grid hierarchy is corrupt ({})", path, why)); };
-  std::int64_t extent = 1;
-  for (int a = 0; a < 3; ++a) extent = std::max<std::int64_t>(extent, grid.source.dims[a] - 1);
-  if (static_cast<std::uint64_t>(h.root_size) != std::bit_ceil(static_cast<std::uint64_t>(extent))) fail("root cube");
-  for (const ErrorCodes* c : {&h.codes, &h.displacement_codes})
-    if (!(c->scale > 0) || !std::isfinite(c->scale) || !(c->zero >= 0) || !std::isfinite(c->zero)) fail("code scale");
-  if (h.error_threshold > 254 || h.displacement_threshold > 254) fail("threshold");
-  for (const auto& s : h.value_span)
-    if (std::isnan(s[0]) || std::isnan(s[1]) || (s[0] > s[1] && !(s[0] == std::numeric_limits<float>::infinity() && s[1] == -s[0])))
-      fail("value span");
-}
 
 }  // namespace
 
@@ -247,6 +236,9 @@ PreparedGrid load_grid(const std::string& path) {
     in.read(reinterpret_cast<char*>(h + kHeaderV1), kHeader - kHeaderV1);
     std::memcpy(&E, h + 48, 8);
     std::memcpy(&depth, h + 56, 4);
+    std::uint32_t reserved;
+    std::memcpy(&reserved, h + 60, 4);
+    if (reserved != 0) throw InputError(fmt::format("{}: grid file is corrupt (reserved header bytes are not zero)", path));
   }
   const bool has_index = version >= 2 && (flags & kHasIndex);
   const bool has_hierarchy = version >= 3 && (flags & kHasHierarchy), has_moves = version >= 3 && (flags & kHasDisplacement);
@@ -263,10 +255,14 @@ PreparedGrid load_grid(const std::string& path) {
   if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
     throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));
   std::uint32_t crc = libdeflate_crc32(0, h, header);
+  const bool restarting = version <= kLastRestartingChecksum;
   auto read = [&](void* p, std::size_t n) {
     in.read(static_cast<char*>(p), static_cast<std::streamsize>(n));
     if (static_cast<std::size_t>(in.gcount()) != n) throw InputError(fmt::format("{}: grid file is truncated", path));
-    crc = libdeflate_crc32(crc, p, n);
+    if (n)
+      crc = libdeflate_crc32(crc, p, n);
+    else if (restarting && !p)
+      crc = 0;  // what the older writers did
   };
   std::string meta(M, '\0');
   read(meta.data(), M);
@@ -303,6 +299,7 @@ PreparedGrid load_grid(const std::string& path) {
     read(&hh.error_threshold, 1);
     read(&hh.displacement_threshold, 1);
     read(&reserved, 2);
+    if (reserved != 0) throw InputError(fmt::format("{}: grid file is corrupt (reserved hierarchy bytes are not zero)", path));
     read(&hh.codes.scale, 8);
     read(&hh.codes.zero, 8);
     read(&hh.displacement_codes.scale, 8);
@@ -320,37 +317,19 @@ PreparedGrid load_grid(const std::string& path) {
   in.read(reinterpret_cast<char*>(&stored), 4);
   if (static_cast<std::uint32_t>(crc) != stored) throw InputError(fmt::format("{}: grid file is corrupt (checksum mismatch)", path));
   auto j = nlohmann::json::parse(meta, nullptr, false);
-  if (j.is_discarded() || !j.contains("source")) throw InputError(fmt::format("{}: grid metadata is not valid JSON", path));
-  try {
-    const auto& s = j["source"];
-    grid.source.dims = s.at("dims").get<Dims>();
-    grid.source.spacing = s.at("spacing").get<Vec3>();
-    grid.source.origin = s.at("origin").get<Vec3>();
-    grid.source.direction = s.at("direction").get<std::array<double, 9>>();
-    grid.source.type = s.at("type").get<std::string>();
-    grid.source.min = s.at("min").get<double>();
-    grid.source.max = s.at("max").get<double>();
-    grid.source.method = s.at("method").get<std::string>();
-    // No error criterion (+∞) is written as null, JSON having no infinity.
-    grid.source.max_error = s.at("max_error").is_null() ? std::numeric_limits<double>::infinity() : s.at("max_error").get<double>();
-    grid.source.threshold = s.at("threshold").get<double>();
-    grid.source.file = s.at("file").get<std::string>();
-  } catch (const nlohmann::json::exception& e) {
-    throw InputError(fmt::format("{}: grid metadata is incomplete ({})", path, e.what()));
+  if (j.is_discarded() || !j.is_object() || !j.contains("source"))
+    throw InputError(fmt::format("{}: grid metadata is not valid JSON", path));
+  grid.source = detail::grid_source_from_json(j["source"], path);
+  if (j.contains("prepare")) {
+    if (!j["prepare"].is_object()) throw InputError(fmt::format("{}: grid metadata is invalid (\"prepare\" is not an object)", path));
+    try {
+      p.stats = prepare_stats_from_json(j["prepare"].dump());
+    } catch (const nlohmann::json::exception& e) {
+      throw InputError(fmt::format("{}: grid metadata is invalid (\"prepare\": {})", path, e.what()));
+    }
   }
-  for (int a = 0; a < 3; ++a)
-    if (grid.source.dims[a] < 1 || !(grid.source.spacing[a] > 0))
-      throw InputError(fmt::format("{}: grid metadata has invalid dims or spacing", path));
-  for (const auto& t : grid.tets)
-    for (auto v : t)
-      if (v >= N) throw InputError(fmt::format("{}: a tetrahedron references vertex {} of {}", path, v, N));
-  for (std::size_t i = 0; i < N; ++i) {
-    if (!std::isfinite(grid.values[i])) throw InputError(fmt::format("{}: vertex {} has a non-finite value", path, i));
-    for (int a = 0; a < 3; ++a)
-      if (grid.ijk[i][a] >= static_cast<std::uint64_t>(grid.source.dims[a]))
-        throw InputError(fmt::format("{}: vertex {} lies outside the volume", path, i));
-  }
-  if (p.hierarchy) validate_hierarchy(*p.hierarchy, grid, path);
+  // Before the index's check, which costs more: what every later walk trusts.
+  detail::check_grid(p, path);
   if (has_index) {
     validate_interval_tree(tree, grid, path);
     finish_interval_tree(tree, grid);
@@ -358,7 +337,6 @@ PreparedGrid load_grid(const std::string& path) {
   } else {
     p.index = build_interval_tree(grid);  // an older file: build the index now
   }
-  if (j.contains("prepare") && j["prepare"].is_object()) p.stats = prepare_stats_from_json(j["prepare"].dump());
   return p;
 }
 

@@ -119,6 +119,8 @@ namespace detail {
 PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress,
                                Volume* release) {
   check_options(o);
+  // The grid file's loader refuses such geometry: refused here, no file is written that cannot be read.
+  check_geometry(v, o.source_name.empty() ? std::string("the volume") : o.source_name);
   PreparedGrid p;
   PrepareStats& stats = p.stats;
   StageClock clock(stats);

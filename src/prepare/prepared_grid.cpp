@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <type_traits>
 
 namespace adaptiso {
 
@@ -49,7 +50,17 @@ PrepareStats prepare_stats_from_json(const std::string& text) {
   const auto j = nlohmann::json::parse(text, nullptr, false);
   if (j.is_discarded() || !j.is_object()) return s;
   auto get = [&](const char* key, auto& out) {
-    if (auto it = j.find(key); it != j.end() && (it->is_number() || it->is_boolean())) out = it->get<std::decay_t<decltype(out)>>();
+    using T = std::decay_t<decltype(out)>;
+    const auto it = j.find(key);
+    if (it == j.end()) return;
+    if constexpr (std::is_integral_v<T>) {
+      // Counts only as whole numbers in range: a float or a negative number converted to an
+      // unsigned type is undefined behaviour (a grid file's metadata held 2.13e64 there).
+      if (it->is_number_unsigned() && it->template get<std::uint64_t>() <= std::numeric_limits<T>::max())
+        out = static_cast<T>(it->template get<std::uint64_t>());
+    } else if (it->is_number()) {
+      out = it->template get<T>();
+    }
   };
   if (auto it = j.find("grid"); it != j.end() && it->is_string()) s.grid = it->get<std::string>();
   get("voxels", s.voxels);

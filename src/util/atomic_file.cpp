@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <signal.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -16,6 +17,7 @@
 #include <future>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <ostream>
 #include <random>
 #include <streambuf>
@@ -91,12 +93,13 @@ class DirectFileBuf : public std::streambuf {
 public:
   static constexpr std::size_t kBuffer = kAtomicFileBufferBytes / 2, kBlock = 4096;
 
-  explicit DirectFileBuf(const fs::path& p) {
-    // ADAPTISO_NO_DIRECT_IO set: through the cache, for file systems where O_DIRECT misbehaves.
+  // Opens `p` with `flags` (and O_DIRECT where the file system takes it, unless
+  // ADAPTISO_NO_DIRECT_IO is set: through the cache, for file systems where O_DIRECT misbehaves).
+  DirectFileBuf(const fs::path& p, int flags) {
     const int direct = std::getenv("ADAPTISO_NO_DIRECT_IO") ? 0 : O_DIRECT;
-    fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | direct, 0666);
+    fd_ = ::open(p.c_str(), flags | O_CLOEXEC | direct, 0666);
     direct_ = fd_ >= 0 && direct;
-    if (fd_ < 0 && errno == EINVAL && direct) fd_ = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+    if (fd_ < 0 && errno == EINVAL && direct) fd_ = ::open(p.c_str(), flags | O_CLOEXEC, 0666);
     if (fd_ < 0) error_ = errno;
   }
   ~DirectFileBuf() override {
@@ -107,10 +110,16 @@ public:
   DirectFileBuf& operator=(const DirectFileBuf&) = delete;
 
   bool is_open() const { return fd_ >= 0; }
-  // Writes what is buffered and closes the file; 0, or the errno of the first failure.
+  int fd() const { return fd_; }
+  int error() const { return error_; }
+  // Writes what is buffered; 0, or the errno of the first failure. The file stays open (an unnamed
+  // one must be linked from its descriptor).
   int finish() {
     if (error_ == 0) hand_over(false);
     settle();
+    return error_;
+  }
+  int close() {
     if (fd_ >= 0 && ::close(std::exchange(fd_, -1)) != 0 && error_ == 0) error_ = errno;
     return error_;
   }
@@ -234,15 +243,18 @@ private:
   std::future<int> pending_;
 };
 
-// Where the bytes must land: through a symlink to its target, and only ever over a regular file
-// (renaming over /dev/null or a FIFO would replace the device, not write to it).
+// Where the bytes must land: through a symlink to its target (which need not exist yet: a dangling
+// link is written through and then points at the new file, rather than being replaced by it), and
+// only ever over a regular file (renaming over /dev/null or a FIFO would replace the device, not
+// write to it).
 fs::path resolve_target(const std::string& path) {
   std::error_code ec;
   fs::path target(path);
-  if (fs::is_symlink(fs::symlink_status(target, ec))) {
-    fs::path resolved = fs::weakly_canonical(target, ec);
+  for (int hops = 0; fs::is_symlink(fs::symlink_status(target, ec)); ++hops) {
+    if (hops == 40) throw InputError(fmt::format("{}: too many levels of symbolic links", path));
+    const fs::path next = fs::read_symlink(target, ec);
     if (ec) throw InputError(fmt::format("{}: cannot follow the symbolic link ({})", path, ec.message()));
-    target = resolved;
+    target = next.is_absolute() ? next : target.parent_path() / next;
   }
   auto st = fs::status(target, ec);
   if (fs::exists(st) && !fs::is_regular_file(st))
@@ -274,6 +286,42 @@ fs::path target_folder(const fs::path& target, const std::string& path) {
   return dir;
 }
 
+// Our temporary files' names: ".NAME.tmp<pid>-<random hex>" beside the target NAME.
+std::string temporary_prefix(const fs::path& target) { return "." + target.filename().string() + ".tmp"; }
+
+// Temporary files of ours for this target whose writer is gone (killed by SIGKILL or a power cut,
+// where nothing could remove them): a process id that no longer exists. Only where unnamed files
+// cannot be used, which a kill leaves nothing of.
+void remove_stale_temporaries(const fs::path& dir, const fs::path& target) {
+  const std::string prefix = temporary_prefix(target);
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (!name.starts_with(prefix)) continue;
+    const std::string rest = name.substr(prefix.size());
+    const std::size_t dash = rest.find('-');
+    if (dash == 0 || dash == std::string::npos || rest.find_first_not_of("0123456789") != dash ||
+        rest.find_first_not_of("0123456789abcdef", dash + 1) != std::string::npos)
+      continue;
+    const long pid = std::strtol(rest.c_str(), nullptr, 10);
+    if (pid > 0 && pid != getpid() && ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH) {
+      std::error_code ignored;
+      fs::remove(it->path(), ignored);
+    }
+  }
+}
+
+// Writes through `file` and flushes it; throws InputError naming path on any failure.
+void fill(DirectFileBuf& file, const std::string& path, const std::function<void(std::ostream&)>& write) {
+  if (!file.is_open()) throw InputError(fmt::format("{}: cannot write ({})", path, std::strerror(file.error())));
+  std::ostream out(&file);
+  write(out);
+  out.flush();
+  const int error = file.finish();
+  if (error != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(error)));
+  if (!out) throw InputError(fmt::format("{}: write failed", path));
+}
+
 void write_and_rename(const std::string& path, const std::function<void(std::ostream&)>& write) {
   const fs::path target = resolve_target(path);
   const fs::path dir = target_folder(target, path);
@@ -282,29 +330,52 @@ void write_and_rename(const std::string& path, const std::function<void(std::ost
   const bool replacing = ::stat(target.c_str(), &old) == 0;
 
   std::random_device rd;
-  const fs::path tmp = dir / fmt::format(".{}.tmp{}{:x}", target.filename().string(), getpid(), rd());
+  const fs::path tmp = dir / fmt::format("{}{}-{:x}", temporary_prefix(target), getpid(), rd());
   install_cleanup_handlers();
-  InFlight guard(tmp.string());
+  // Where the file system has them (ext4, xfs, btrfs, tmpfs): an unnamed file in the target's
+  // folder (O_TMPFILE), given a name only once complete. Nothing is visible while it is written,
+  // and a process killed meanwhile, even by SIGKILL, leaves nothing behind: the kernel frees an
+  // unnamed file with its last descriptor. It is linked under a temporary name and renamed over the
+  // target (linkat cannot replace a file), a window of two system calls. ADAPTISO_NO_TMPFILE=1
+  // uses a named temporary file throughout, as on file systems without them.
+  std::optional<DirectFileBuf> unnamed;
+  if (!std::getenv("ADAPTISO_NO_TMPFILE")) {
+    unnamed.emplace(dir, O_TMPFILE | O_WRONLY);
+    // Linked through /proc (linkat's AT_EMPTY_PATH would need a capability): without /proc the
+    // unnamed file could never be named, so it is not used.
+    if (!unnamed->is_open() || ::access(fmt::format("/proc/self/fd/{}", unnamed->fd()).c_str(), F_OK) != 0) unnamed.reset();
+  }
+  if (!unnamed) remove_stale_temporaries(dir, target);
+  InFlight guard(tmp.string());  // from here SIGINT, SIGTERM and SIGHUP remove the temporary name
+  bool named = false;
   try {
-    {
-      DirectFileBuf file(tmp);
-      if (!file.is_open()) throw InputError(fmt::format("{}: cannot write ({})", path, std::strerror(file.finish())));
-      std::ostream out(&file);
-      write(out);
-      out.flush();
-      const int error = file.finish();
-      if (error != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(error)));
-      if (!out) throw InputError(fmt::format("{}: write failed", path));
+    if (unnamed) {
+      fill(*unnamed, path, write);
+      // The replaced file keeps its permissions (a private 0600 result stays private); a new one
+      // gets 0666 less the umask, as open gave it.
+      if (replacing) ::fchmod(unnamed->fd(), old.st_mode & 07777);
+      // On disk before it gets a name, so a machine crash cannot leave an empty file under the final name.
+      if (::fsync(unnamed->fd()) != 0) throw InputError(fmt::format("{}: cannot flush the file to disk ({})", path, std::strerror(errno)));
+      const std::string from = fmt::format("/proc/self/fd/{}", unnamed->fd());
+      if (::linkat(AT_FDCWD, from.c_str(), AT_FDCWD, tmp.c_str(), AT_SYMLINK_FOLLOW) != 0)
+        throw InputError(fmt::format("{}: cannot name the finished file ({})", path, std::strerror(errno)));
+      named = true;
+      if (unnamed->close() != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(unnamed->error())));
+    } else {
+      named = true;
+      {
+        DirectFileBuf file(tmp, O_WRONLY | O_CREAT | O_TRUNC);
+        fill(file, path, write);
+        if (file.close() != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(file.error())));
+      }
+      if (replacing) ::chmod(tmp.c_str(), old.st_mode & 07777);
+      sync_file(tmp, path);
     }
-    // The replaced file keeps its permissions (a private 0600 result stays private).
-    if (replacing) ::chmod(tmp.c_str(), old.st_mode & 07777);
-    // On disk before the rename, so a machine crash cannot leave an empty file under the final name.
-    sync_file(tmp, path);
     fs::rename(tmp, target, ec);
     if (ec) throw InputError(fmt::format("{}: cannot rename the finished file into place: {}", path, ec.message()));
     sync_folder(dir);
   } catch (...) {
-    fs::remove(tmp, ec);
+    if (named) fs::remove(tmp, ec);
     throw;
   }
 }

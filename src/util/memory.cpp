@@ -67,9 +67,10 @@ std::uint64_t available_memory() {
 
 namespace {
 
+// Three significant digits at most: an estimate from absurd counts must not print 20 of them.
 std::string bytes_text(std::uint64_t b) {
   const double x = static_cast<double>(b);
-  return x >= 1e9 ? fmt::format("{:.1f} GB", x / 1e9) : fmt::format("{:.0f} MB", x / 1e6);
+  return x >= 1e9 ? fmt::format("{:.3g} GB", x / 1e9) : fmt::format("{:.0f} MB", x / 1e6);
 }
 
 }  // namespace
@@ -77,7 +78,7 @@ std::string bytes_text(std::uint64_t b) {
 std::string duration_text(double seconds) {
   if (seconds < 120) return fmt::format("{:.0f} s", std::max(seconds, 1.0));
   if (seconds < 7200) return fmt::format("{:.0f} min", seconds / 60);
-  return fmt::format("{:.1f} h", seconds / 3600);
+  return fmt::format("{:.3g} h", seconds / 3600);  // not 300 digits for an absurd estimate
 }
 
 void check_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice) {

@@ -178,7 +178,7 @@ Volume read_dicom_folder(const std::string& path) {
       double gap = slices[i].key - slices[i - 1].key;
       if (std::abs(gap - mean) > 0.1 * mean)
         throw InputError(
-            fmt::format("{}: slices are not evenly spaced ({:.3f} mm between {} and {}, mean {:.3f} mm); a slice may be missing", path, gap,
+            fmt::format("{}: slices are not evenly spaced ({:.6g} mm between {} and {}, mean {:.6g} mm); a slice may be missing", path, gap,
                         fs::path(slices[i - 1].file).filename().string(), fs::path(slices[i].file).filename().string(), mean));
     }
     v.spacing[2] = mean;

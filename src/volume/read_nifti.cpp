@@ -41,10 +41,15 @@ std::optional<ScalarType> from_nifti(int dt) {
 }
 // The image's bytes, from the .nii after vox_offset or from the .img, gzip'ed or not; the gzip
 // stream must be whole (its length and CRC trailer checked).
-std::vector<unsigned char> image_bytes(const nifti_image& nim, std::size_t bytes, const std::string& path) {
+std::vector<unsigned char> image_bytes(const nifti_image& nim, std::size_t bytes, const std::string& path, double vox_offset) {
   const std::string img = nim.iname ? nim.iname : path;
   const std::uint64_t on_disk = detail::file_size_or_throw(img);
   if (nim.iname_offset < 0) throw InputError(fmt::format("{}: vox_offset is negative", path));
+  // nifticlib raises a .nii's offset to its header's size; past that it must have read the
+  // header's own value, or it converted it wrongly.
+  if (vox_offset > static_cast<double>(nim.iname_offset) + 1)
+    throw InputError(
+        fmt::format("{}: vox_offset {:.6g} cannot be read (the NIfTI library made it {})", path, vox_offset, nim.iname_offset));
   const auto offset = static_cast<std::uint64_t>(nim.iname_offset);
   if (!detail::lower(img).ends_with(".gz")) {
     if (offset > on_disk) throw InputError(fmt::format("{}: vox_offset {} is past the end of the file ({} bytes)", path, offset, on_disk));
@@ -61,8 +66,10 @@ std::vector<unsigned char> image_bytes(const nifti_image& nim, std::size_t bytes
 }
 
 // nifticlib recurses without end on a NIfTI-2 header cut short, prints its own errors on others,
-// and trusts the rest: the header's size, magic, dimensions and type are checked here first.
-void check_header(const std::string& path, std::uint64_t size) {
+// and trusts the rest: the header's size, magic, dimensions, type and data offset are checked here
+// first. Returns the header's vox_offset (NIfTI-1 stores a float, which nifticlib converts to an
+// integer: 1e12 overflowed there and the data was read from just after the header).
+double check_header(const std::string& path, std::uint64_t size) {
   const bool gz = detail::lower(path).ends_with(".gz");
   std::vector<unsigned char> h = detail::read_bytes(path, 0, std::min<std::uint64_t>(size, gz ? 1 << 16 : 540));
   if (gz) h = detail::inflate_prefix(h.data(), h.size(), 540);
@@ -95,6 +102,24 @@ void check_header(const std::string& path, std::uint64_t size) {
         v2 ? get(16 + 8 * static_cast<std::size_t>(a), std::int64_t{}) : get(40 + 2 * static_cast<std::size_t>(a), std::int16_t{});
     if (d < 1) fail(fmt::format("dim[{}] = {}", a, d));
   }
+  double vox_offset = 0;
+  if (v2) {
+    vox_offset = static_cast<double>(get(168, std::int64_t{}));
+  } else {
+    float f;
+    std::memcpy(&f, &h[108], 4);
+    if (swap) detail::byteswap(reinterpret_cast<unsigned char*>(&f), 4, 1);
+    vox_offset = f;
+  }
+  if (!(vox_offset >= 0) || !std::isfinite(vox_offset)) fail(fmt::format("vox_offset {:.6g} is not an offset", vox_offset));
+  // In a .nii the data follows in the same file, which must reach that far (a .hdr's data is in
+  // its .img, checked when read).
+  const bool same_file = magic == (v2 ? std::string("n+2\0", 4) : std::string("n+1\0", 4));
+  const double reach = static_cast<double>(gz ? detail::max_inflated_size(size) : size);
+  if (same_file && vox_offset > reach)
+    throw InputError(
+        fmt::format("{}: vox_offset {:.6g} is past the end of the file ({} bytes{})", path, vox_offset, size, gz ? " compressed" : ""));
+  return vox_offset;
 }
 
 // nifticlib looks for the .img beside a .hdr by opening candidates; a FIFO there would block it.
@@ -116,7 +141,7 @@ struct NimFree {
 }  // namespace
 
 Volume read_nifti(const std::string& path) {
-  check_header(path, detail::file_size_or_throw(path));
+  const double vox_offset = check_header(path, detail::file_size_or_throw(path));
   refuse_special_image_files(path);
   std::lock_guard lock(nifti_mutex);
   nifti_set_debug_level(0);
@@ -135,7 +160,7 @@ Volume read_nifti(const std::string& path) {
   Volume v;
   v.dims = dims;
   v.type = *type;
-  v.bytes = image_bytes(*nim, bytes, path);
+  v.bytes = image_bytes(*nim, bytes, path, vox_offset);
   // nifti_image_load would turn NaN/Inf into 0 silently; reading the bytes ourselves keeps them
   // for check_finite to refuse, as for every other format.
   if (es > 1 && nim->byteorder != nifti_short_order()) detail::byteswap(v.bytes.data(), es, bytes / es);

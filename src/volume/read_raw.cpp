@@ -10,7 +10,10 @@ namespace adaptiso {
 Volume read_raw(const std::string& path, const RawOptions& o) {
   const std::uint64_t size = detail::file_size_or_throw(path);
   const std::size_t bytes = checked_volume_bytes(o.dims, scalar_size(o.type), path);
-  if (size < o.header_bytes || size - o.header_bytes != bytes)
+  // Apart: header + data would wrap around for a header near 2^64, and report a wrapped size.
+  if (o.header_bytes > size)
+    throw OptionError("header_bytes", fmt::format("{} bytes reach past the end of {} ({} bytes)", o.header_bytes, path, size));
+  if (size - o.header_bytes != bytes)
     throw InputError(fmt::format("{}: file has {} bytes but {}x{}x{} {} plus a {}-byte header needs {}", path, size, o.dims[0], o.dims[1],
                                  o.dims[2], scalar_name(o.type), o.header_bytes, bytes + o.header_bytes));
   Volume v;

@@ -233,6 +233,39 @@ Histogram histogram(std::span<const double> values, const ValueRange& r, int bin
   return {r.min, r.max, bin_counts(values, r, bins)};
 }
 
+void check_geometry(const Dims& dims, const Vec3& spacing, const Vec3& origin, const std::array<double, 9>& direction,
+                    const std::string& what) {
+  for (int a = 0; a < 3; ++a) {
+    if (!(spacing[a] >= kMinSpacing && spacing[a] <= kMaxSpacing))
+      throw InputError(
+          fmt::format("{}: spacing {:.6g} along axis {} is outside [{:g}, {:g}]", what, spacing[a], a, kMinSpacing, kMaxSpacing));
+    if (!(std::abs(origin[a]) <= kMaxCoordinate))
+      throw InputError(
+          fmt::format("{}: origin {:.6g} along axis {} is not a finite coordinate within ±{:g}", what, origin[a], a, kMaxCoordinate));
+  }
+  for (double d : direction)
+    if (!std::isfinite(d)) throw InputError(fmt::format("{}: the direction matrix holds a non-finite entry", what));
+  // Columns a and b of the row-major matrix: their dot product must be δ_ab.
+  for (int a = 0; a < 3; ++a)
+    for (int b = a; b < 3; ++b) {
+      const double dot = direction[a] * direction[b] + direction[3 + a] * direction[3 + b] + direction[6 + a] * direction[6 + b];
+      if (!(std::abs(dot - (a == b ? 1.0 : 0.0)) <= kDirectionTolerance))
+        throw InputError(
+            fmt::format("{}: the direction matrix is not orthonormal (columns {} and {}: dot product {:.6g}); adaptiso "
+                        "needs a rotation or reflection (resample a sheared volume first)",
+                        what, a, b, dot));
+    }
+  // The box's world coordinates: origin plus each column times the box's extent along its axis.
+  for (int r = 0; r < 3; ++r) {
+    double reach = std::abs(origin[r]);
+    for (int a = 0; a < 3; ++a)
+      reach += std::abs(direction[3 * r + a]) * spacing[a] * static_cast<double>(std::max<std::int64_t>(dims[a] - 1, 0));
+    if (!(reach <= kMaxCoordinate))
+      throw InputError(
+          fmt::format("{}: the volume's box reaches world coordinate {:.3g} along axis {}, beyond ±{:g}", what, reach, r, kMaxCoordinate));
+  }
+}
+
 void check_finite(const Volume& v, const std::string& what) {
   if (v.type != ScalarType::f32 && v.type != ScalarType::f64) return;
   visit_values(v, [&]<class T>(std::span<const T> vals) {

@@ -11,7 +11,9 @@
 
 namespace adaptiso {
 
-Volume read_volume(const std::string& path, const ReadOptions& options) {
+namespace {
+
+Volume read_any(const std::string& path, const ReadOptions& options) {
   namespace fs = std::filesystem;
   if (options.raw) return read_raw(path, *options.raw);
   std::error_code ec;
@@ -47,6 +49,14 @@ Volume read_volume(const std::string& path, const ReadOptions& options) {
       fmt::format("{}: unknown volume format (expected .nrrd .nhdr .nii[.gz] .mha .mhd .vti .vtk, a DICOM folder, or raw samples with "
                   "their dimensions and type)",
                   path));
+}
+
+}  // namespace
+
+Volume read_volume(const std::string& path, const ReadOptions& options) {
+  Volume v = read_any(path, options);
+  check_geometry(v, path);
+  return v;
 }
 
 void write_nrrd(const Volume& v, const std::string& path, bool gzip) {

@@ -7,12 +7,14 @@
 
 #include <algorithm>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <functional>
 #include <nlohmann/json.hpp>
 
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/mesh_io.hpp"
+#include "adaptiso/number.hpp"
 #include "adaptiso/volume_io.hpp"
 #include "data_sets.hpp"
 #include "test_util.hpp"
@@ -205,6 +207,49 @@ std::vector<BadCase> bad_cases() {
                  return t / "n.nii";
                },
                "n.nii"});
+  // Issue 41, item 9: a float vox_offset of 1e12 overflowed in nifticlib's conversion and the data
+  // was read from just after the header, exit 0 (smaller offsets past the end were refused).
+  c.push_back({"nifti_vox_offset_1e12_past_a_64kB_file",
+               [=](TempDir& t) {
+                 Volume r = make_volume({40, 40, 40}, ScalarType::u8);
+                 testutil::write_nifti(t / "n.nii", r, 1, 0, 0);
+                 std::string f = testutil::read_bytes(t / "n.nii");
+                 const float offset = 1e12f;
+                 std::memcpy(f.data() + 108, &offset, 4);
+                 testutil::write_bytes(t / "n.nii", f);
+                 return t / "n.nii";
+               },
+               "vox_offset 1e+12 is past the end of the file"});
+  // Issue 41, item 10: the size it needed was reported wrapped around 2^64 ("needs 1023").
+  c.push_back({"raw_header_bytes_near_2_to_64",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.raw", data);
+                 return t / "a.raw --dims 8,8,8 --type int16 --header-bytes 18446744073709551615";
+               },
+               "--header-bytes: 18446744073709551615 bytes reach past the end"});
+  // Geometry no float32 mesh can hold (check_geometry): refused when read, not as infinite vertices.
+  c.push_back({"nrrd_spacing_1e308",
+               [=](TempDir& t) {
+                 testutil::write_bytes(t / "a.nrrd",
+                                       "NRRD0004\ntype: short\ndimension: 3\nsizes: 8 8 8\nspacings: 1e308 1 1\nendian: "
+                                       "little\nencoding: raw\n\n" +
+                                           data);
+                 return t / "a.nrrd";
+               },
+               "spacing 1e+308 along axis 0 is outside"});
+  c.push_back({"vti_all_zero_direction",
+               [=](TempDir& t) {
+                 std::string values;
+                 for (int i = 0; i < 512; ++i) values += i % 7 ? " 0" : " 5";
+                 testutil::write_bytes(t / "a.vti",
+                                       "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" "
+                                       "byte_order=\"LittleEndian\"><ImageData WholeExtent=\"0 7 0 7 0 7\" Origin=\"0 0 "
+                                       "0\" Spacing=\"1 1 1\" Direction=\"0 0 0 0 0 0 0 0 0\"><Piece Extent=\"0 7 0 7 0 "
+                                       "7\"><PointData Scalars=\"s\"><DataArray type=\"Int16\" Name=\"s\" format=\"ascii\">" +
+                                           values + "</DataArray></PointData></Piece></ImageData></VTKFile>\n");
+                 return t / "a.vti";
+               },
+               "not orthonormal"});
   return c;
 }
 }  // namespace
@@ -511,7 +556,8 @@ TEST(HostileArguments, SubnormalIsoIsAcceptedAndNanVoxelIsRefused) {
 TEST(HostileArguments, GridRangeOfPlusMinus1e308WithRelativeNamesTheFileAndOption) {
   TempDir t("hostile");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
-  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --quiet -o " + (t / "g.adg")).code, 0);
+  // A Delaunay grid: a bisection grid's hierarchy is coded on its range, which must then match.
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid delaunay --quiet -o " + (t / "g.adg")).code, 0);
   PreparedGrid p = load_grid(t / "g.adg");
   p.grid.source.min = -1e308;
   p.grid.source.max = 1e308;
@@ -564,4 +610,149 @@ TEST(OutputsNeverDestroy, InterruptedWritesLeaveNoTemporaryFiles) {
       for (const auto& e : std::filesystem::directory_iterator(t.path))
         EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << sig << " after " << delay << " s: " << e.path();
     }
+}
+
+// ---------------- Issue 41, item 10: asked for, an option is used or refused, never ignored ----------------
+
+namespace {
+// Exit 2 with one line holding `fragment`.
+void expect_refused(const testutil::RunResult& r, const std::string& fragment, const std::string& what) {
+  EXPECT_EQ(r.code, 2) << what << ": " << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << what << ": " << r.err;
+  EXPECT_NE(r.err.find(fragment), std::string::npos) << what << ": " << r.err;
+}
+}  // namespace
+
+TEST(ExtractCli, MaxErrorMinusOneIsRefusedNotIgnored) {
+  TempDir t("cli41");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --quiet -o " + (t / "g.adg")).code, 0);
+  expect_refused(testutil::run_cli("extract " + (t / "g.adg") + " --iso 500 --max-error -1 -o " + (t / "m.ply")), "--max-error",
+                 "--max-error -1");
+  expect_refused(testutil::run_cli("extract " + (t / "g.adg") + " --iso 500 --max-displacement -1 -o " + (t / "m.ply")),
+                 "--max-displacement", "--max-displacement -1");
+  EXPECT_FALSE(std::filesystem::exists(t / "m.ply"));
+  EXPECT_EQ(testutil::run_cli("extract " + (t / "g.adg") + " --iso 500 --max-error 0 --quiet -o " + (t / "m.ply")).code, 0);
+}
+
+TEST(ExtractCli, MaxDisplacementOnAGridPreparedWithoutItIsRefused) {
+  TempDir t("cli41");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --quiet -o " + (t / "g.adg")).code, 0);
+  expect_refused(testutil::run_cli("extract " + (t / "g.adg") + " --iso 500 --max-displacement 1 -o " + (t / "m.ply")),
+                 "--max-displacement: " + (t / "g.adg") + " was prepared without the displacement criterion", "bisection");
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid delaunay --quiet -o " + (t / "d.adg")).code, 0);
+  expect_refused(testutil::run_cli("extract " + (t / "d.adg") + " --iso 500 --max-displacement 1 -o " + (t / "m.ply")),
+                 "has no bisection hierarchy", "delaunay");
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-displacement 0.5 --quiet -o " + (t / "h.adg")).code, 0);
+  EXPECT_EQ(testutil::run_cli("extract " + (t / "h.adg") + " --iso 500 --max-displacement 1 --quiet -o " + (t / "m.ply")).code, 0);
+}
+
+TEST(PrepareCli, DelaunayOnlyOptionsWithTheBisectionGridAreRefused) {
+  TempDir t("cli41");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
+  for (const std::string option :
+       {"--method structural", "--threshold 0.1", "--gradient canny", "--sigma 2", "--kernel 5", "--sequential-delaunay"}) {
+    for (const std::string command : {"prepare", "run", "view"}) {
+      const std::string extra = command == "run"    ? " --iso 500 -o " + (t / "m.ply")
+                                : command == "view" ? std::string(" --port 0")  // refused before it serves
+                                                    : " -o " + (t / "g.adg");
+      expect_refused(testutil::run_cli(command + " " + (t / "s.nrrd") + " " + option + extra),
+                     option.substr(0, option.find(' ')) + " is an option of the Delaunay grid", command + " " + option);
+    }
+    EXPECT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid delaunay " + option + " --quiet -o " + (t / "g.adg")).code, 0)
+        << option;
+  }
+}
+
+TEST(OutputsNeverDestroy, PrepareOutputThatIsItsInputIsRefused) {
+  TempDir t("cli41");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
+  const std::string before = testutil::read_bytes(t / "s.nrrd");
+  expect_refused(testutil::run_cli("prepare " + (t / "s.nrrd") + " -o " + (t / "s.nrrd")), "itself", "prepare X -o X");
+  std::filesystem::create_symlink("s.nrrd", t.path / "alias.adg");  // the same file under another name
+  expect_refused(testutil::run_cli("prepare " + (t / "s.nrrd") + " -o " + (t / "alias.adg")), "itself", "through a link");
+  EXPECT_EQ(testutil::read_bytes(t / "s.nrrd"), before);
+}
+
+TEST(OutputsNeverDestroy, RunMeshAndSavedGridOnOneFileAreRefused) {
+  TempDir t("cli41");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
+  expect_refused(testutil::run_cli("run " + (t / "s.nrrd") + " --iso 500 -o " + (t / "x.ply") + " --save-grid " + (t / "x.ply")),
+                 "--save-grid", "run -o X --save-grid X");
+  EXPECT_FALSE(std::filesystem::exists(t / "x.ply"));
+  EXPECT_EQ(testutil::run_cli("run " + (t / "s.nrrd") + " --iso 500 --quiet -o " + (t / "x.ply") + " --save-grid " + (t / "x.adg")).code,
+            0);
+}
+
+// README: "a symbolic link is written through". A dangling one was replaced by the file instead.
+TEST(OutputsNeverDestroy, DanglingSymlinkIsWrittenThrough) {
+  TempDir t("cli41");
+  std::filesystem::create_directory(t.path / "out");
+  std::filesystem::create_symlink("out/target.nrrd", t.path / "link.nrrd");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "link.nrrd")).code, 0);
+  EXPECT_TRUE(std::filesystem::is_symlink(t.path / "link.nrrd"));
+  EXPECT_GT(std::filesystem::file_size(t.path / "out" / "target.nrrd"), 100u);
+  // A link whose target's folder does not exist is refused, naming the folder.
+  std::filesystem::create_symlink("nowhere/target.nrrd", t.path / "lost.nrrd");
+  expect_refused(testutil::run_cli("generate sphere --size 8 -o " + (t / "lost.nrrd")), "does not exist", "lost");
+  EXPECT_TRUE(std::filesystem::is_symlink(t.path / "lost.nrrd"));
+}
+
+TEST(HostileArguments, HexadecimalNumbersAreRefused) {
+  TempDir t("cli41");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "s.nrrd")).code, 0);
+  for (const std::string args :
+       {"mc " + (t / "s.nrrd") + " --iso 0x10 -o " + (t / "m.ply"), "mc " + (t / "s.nrrd") + " --iso 0x1p4 -o " + (t / "m.ply"),
+        "prepare " + (t / "s.nrrd") + " --max-error 0x10 -o " + (t / "g.adg")})
+    expect_refused(testutil::run_cli(args), "0x1", args);
+  EXPECT_FALSE(parse_finite("0x10"));
+  EXPECT_FALSE(parse_finite("infinity"));
+  EXPECT_FALSE(parse_finite("1e"));
+  EXPECT_EQ(parse_finite("+1.5e-3"), 1.5e-3);
+  EXPECT_EQ(parse_finite(".5"), 0.5);
+  EXPECT_EQ(parse_finite("5."), 5.0);
+  EXPECT_THROW(parse_number_list("1 0x10 2", 3, "sizes"), InputError);
+  EXPECT_EQ(parse_number_list("1, nan,2", 3, "sizes").size(), 3u);  // the reader refuses a NaN by name
+}
+
+// Issue 41, item 7: kill -9 during prepare left hidden .NAME.tmp* files of 50-227 MB. Where the
+// file system has unnamed files (O_TMPFILE) a kill leaves nothing; elsewhere (ADAPTISO_NO_TMPFILE
+// stands for such a file system) the next write of the same output removes what a killed one left.
+TEST(OutputsNeverDestroy, SigkillDuringPrepareLeavesNoTemporaryFile) {
+  TempDir t("cli41");
+  ASSERT_EQ(testutil::run_cli("generate marschner-lobb --size 128 --type float32 -o " + (t / "v.nrrd")).code, 0);
+  auto names = [&] {
+    std::vector<std::string> out;
+    for (const auto& e : std::filesystem::directory_iterator(t.path)) out.push_back(e.path().filename().string());
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  for (const bool named : {false, true}) {
+    // Killed once its output is open: an unnamed file among its descriptors, or the temporary name.
+    const std::string cmd = fmt::format(
+        "{} {} prepare {} --max-error 0 --quiet -o {} & p=$!; for i in $(seq 3000); do "
+        "if ls -l /proc/$p/fd 2>/dev/null | grep -q '(deleted)' || ls -a {} | grep -q '^\\.g\\.adg\\.tmp'; then break; fi; sleep 0.01; "
+        "done; "
+        "kill -9 $p; wait $p; echo $?",
+        named ? "ADAPTISO_NO_TMPFILE=1" : "", ADAPTISO_CLI, t / "v.nrrd", t / "g.adg", t.path.string());
+    std::FILE* f = popen(cmd.c_str(), "r");
+    ASSERT_NE(f, nullptr);
+    char status[16] = {};
+    ASSERT_NE(std::fgets(status, sizeof status, f), nullptr);
+    pclose(f);
+    ASSERT_EQ(std::string(status), "137\n") << "not killed mid-write (exit status " << status << ")";
+    const std::vector<std::string> left = names();
+    if (!named) {
+      EXPECT_EQ(left, std::vector<std::string>{"v.nrrd"});
+      continue;
+    }
+    ASSERT_EQ(left.size(), 2u);  // the named temporary file a kill must leave there
+    EXPECT_TRUE(left[0].starts_with(".g.adg.tmp")) << left[0];
+    setenv("ADAPTISO_NO_TMPFILE", "1", 1);
+    const int code = testutil::run_cli("prepare " + (t / "v.nrrd") + " --quiet -o " + (t / "g.adg")).code;
+    unsetenv("ADAPTISO_NO_TMPFILE");
+    ASSERT_EQ(code, 0);
+    EXPECT_EQ(names(), (std::vector<std::string>{"g.adg", "v.nrrd"}));
+  }
 }

@@ -1,0 +1,36 @@
+// What a grid read from a file must satisfy before anything uses it (grid_file.hpp). A grid file
+// whose checksums match may still lie: every array the extraction, the hierarchy's walks
+// (grid/traversal.hpp: they take a voxel's rank among the vertices for its vertex number) and the
+// viewer trust is checked here, in time linear in the file. Internal.
+#pragma once
+#include <nlohmann/json.hpp>
+
+#include <string>
+
+#include "adaptiso/prepared_grid.hpp"
+
+namespace adaptiso::detail {
+
+// The metadata's "source" object: every field present with its type and count (dims: 3 whole
+// numbers from 2 to 2^30 + 1; spacing, origin: 3 numbers; direction: 9), the geometry within
+// check_geometry's limits, a value range min ≤ max of finite numbers, one of the element type
+// names. Throws InputError naming `path`.
+GridSource grid_source_from_json(const nlohmann::json& source, const std::string& path);
+
+// The grid against its own invariants (tet_grid.hpp, bisection.hpp), or InputError naming `path`:
+// - vertices at distinct voxels inside the box, in ascending voxel order, with finite values
+//   within [min, max] and gradients that are numbers;
+// - at least one tetrahedron, every index a vertex, every vertex a corner of some tetrahedron;
+// - without a hierarchy: every tetrahedron positively oriented, their volumes summing to the box's
+//   (exact integer arithmetic in index space);
+// - with one (bisection grids): code scales and thresholds those the metadata implies; the root
+//   cube's corners inside the box are vertices; every other vertex is the centre of a diamond the
+//   grid's thresholds split, whose parents inside the box are vertices with codes at least its own
+//   (conformity, and the codes' saturation the coarser selections rely on), coded as always split
+//   where it crosses the box, with a code at least its own midpoint's deviation from its refinement
+//   edge; and the hierarchy's walk at the grid's thresholds gives exactly the file's tetrahedra in
+//   their order, tiling the box, with the file's value spans.
+// The index is checked apart (validate_interval_tree).
+void check_grid(const PreparedGrid& grid, const std::string& path);
+
+}  // namespace adaptiso::detail
