@@ -3,29 +3,25 @@
 #include "adaptiso/view_server.hpp"
 #include "view/elastic_pool.hpp"
 #include "view/request.hpp"
+#include "view/sessions.hpp"
 
 #include <fmt/format.h>
 #include <httplib.h>
 
-#include <tbb/task_arena.h>
 #include <unistd.h>
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
-#include <condition_variable>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <limits>
-#include <list>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <set>
 #include <thread>
-#include <unordered_map>
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
@@ -135,132 +131,6 @@ struct Served {
   std::shared_ptr<const PreparedGrid> at(std::size_t level) const { return level ? levels->grid(level) : grid; }
 };
 
-// One incremental Extractor of a page at one level of detail, with its own lock, so a request for
-// a coarse level never waits behind a long extraction at a fine one.
-struct LevelExtractor {
-  std::mutex mutex;
-  // Raised by a page's request for this level: the background follower's extraction yields.
-  std::atomic<bool> page_waiting{false};
-  std::atomic<std::uint64_t> page_requests{0};  // counts them: a follower's job queued before one is stale
-  std::unique_ptr<Extractor> extractor;
-  double iso = std::numeric_limits<double>::quiet_NaN();  // of the surface it holds
-  // What the follower is extracting now (NaN, null: nothing).
-  std::atomic<double> following{std::numeric_limits<double>::quiet_NaN()};
-  std::atomic<const PreparedGrid*> following_grid{nullptr};
-  // The lock for a page's request for the surface at `value` on `grid`: the follower's extraction
-  // under way yields at its next stage, unless it is extracting that very surface (at rest the
-  // page asks for the drag's last iso-value, which the follower was given): its work is then the
-  // page's, and cancelling it to march afresh only threw that work away (on the MR head a rest
-  // request took 4.5 s of fresh march after cancelling the follower).
-  std::unique_lock<std::mutex> lock_for_page(double value, const PreparedGrid* grid) {
-    page_requests.fetch_add(1);
-    if (!(following.load() == value && following_grid.load() == grid)) page_waiting.store(true);
-    std::unique_lock lock(mutex);
-    page_waiting.store(false);
-    return lock;
-  }
-  ExtractStats made;  // of the extraction that made the surface held
-  // The surface at iso on grid: extracted unless it already is (the follower's, for one), with the
-  // statistics of the extraction that made it. With a cancel flag it may throw ExtractCancelled,
-  // leaving no surface (the next call extracts afresh).
-  const Mesh& at(const std::shared_ptr<const PreparedGrid>& grid, double value, ExtractStats* stats = nullptr,
-                 const std::atomic<bool>* cancel = nullptr) {
-    if (!extractor || &extractor->grid() != grid.get()) {
-      extractor = std::make_unique<Extractor>(grid);
-      iso = std::numeric_limits<double>::quiet_NaN();
-    }
-    if (value != iso) {
-      iso = std::numeric_limits<double>::quiet_NaN();  // until the extraction completes
-      made = extractor->extract(value, cancel);
-      iso = value;
-    }
-    if (stats) *stats = made;
-    return extractor->mesh();
-  }
-};
-
-// A page's state: its extractors by level (level 0 is the prepared grid).
-struct Client {
-  std::mutex mutex;  // guards the vector
-  std::vector<std::shared_ptr<LevelExtractor>> levels;
-  std::shared_ptr<LevelExtractor> level(std::size_t k) {
-    std::lock_guard lock(mutex);
-    if (levels.size() <= k) levels.resize(k + 1);
-    if (!levels[k]) levels[k] = std::make_shared<LevelExtractor>();
-    return levels[k];
-  }
-};
-
-// While a page drags (coarse surfaces within a budget), its surface at rest follows in the
-// background at low priority, the latest iso-value only; so when the slider rests the accurate
-// surface is a small step away, not a long one. It uses every core: the coarse requests are small
-// (under a millisecond of extraction on the MR head), and on a noisy scan each step of the
-// follower is a march of millions of triangles. A page's own request for the level makes the
-// follower's extraction yield at its next stage rather than wait for it to finish. (A follower
-// alone on a thread at nice 19 was tried: the page's request at rest then waited 7.2 s on the MR
-// head for the starved follower to reach a checkpoint and let go of the level.)
-class Follower {
-public:
-  Follower() : arena_(tbb::task_arena::automatic, 1, tbb::task_arena::priority::low), thread_([this] { run(); }) {}
-  ~Follower() {
-    {
-      std::lock_guard lock(mutex_);
-      stop_ = true;
-    }
-    ready_.notify_all();
-    thread_.join();
-  }
-  void follow(const std::shared_ptr<LevelExtractor>& slot, std::shared_ptr<const PreparedGrid> grid, double iso) {
-    {
-      std::lock_guard lock(mutex_);
-      jobs_[slot.get()] = {slot, std::move(grid), iso, slot->page_requests.load()};
-    }
-    ready_.notify_one();
-  }
-
-private:
-  struct Job {
-    std::weak_ptr<LevelExtractor> slot;
-    std::shared_ptr<const PreparedGrid> grid;
-    double iso = 0;
-    std::uint64_t page_requests = 0;  // the slot's count when queued
-  };
-  void run() {
-    for (;;) {
-      Job job;
-      {
-        std::unique_lock lock(mutex_);
-        ready_.wait(lock, [&] { return stop_ || !jobs_.empty(); });
-        if (stop_) return;
-        job = std::move(jobs_.begin()->second);
-        jobs_.erase(jobs_.begin());
-      }
-      auto slot = job.slot.lock();
-      if (!slot) continue;  // the client is gone
-      std::lock_guard lock(slot->mutex);
-      // The page asked for this level since the job was queued (or is asking now): it has, or is
-      // about to get, the surface it wants; following an older iso-value would only move away.
-      if (slot->page_requests.load() != job.page_requests) continue;
-      slot->following_grid.store(job.grid.get());
-      slot->following.store(job.iso);
-      try {
-        arena_.execute([&] { slot->at(job.grid, job.iso, nullptr, &slot->page_waiting); });
-      } catch (const ExtractCancelled&) {  // the page asked meanwhile: its request extracts
-      } catch (const std::exception& e) {  // the page's own request will meet and report it
-        std::cerr << "adaptiso view: background extraction failed: " << e.what() << "\n";
-      }
-      slot->following.store(std::numeric_limits<double>::quiet_NaN());
-      slot->following_grid.store(nullptr);
-    }
-  }
-  tbb::task_arena arena_;
-  std::mutex mutex_;
-  std::condition_variable ready_;
-  std::unordered_map<const LevelExtractor*, Job> jobs_;
-  bool stop_ = false;
-  std::thread thread_;
-};
-
 // The host name of a Host header ("name", "name:port", "[v6]:port").
 std::string host_name(const std::string& header) {
   if (!header.empty() && header[0] == '[') return header.substr(0, header.find(']') + 1);
@@ -296,14 +166,11 @@ struct ViewServer::Impl {
   std::shared_ptr<const HierarchyQuery> query;
   std::shared_ptr<const Volume> volume;
   nlohmann::json histogram;
-  std::list<std::string> lru;  // most recent first
-  std::unordered_map<std::string, std::pair<std::shared_ptr<Client>, std::list<std::string>::iterator>> clients;
 
   std::thread level_builder;
   std::atomic<bool> stop_building{false};
-  Follower follower;
+  std::unique_ptr<detail::Sessions> sessions;  // the pages' extractors and the follower (sessions.hpp)
 
-  std::shared_ptr<Client> client(const std::string& id);
   std::mutex builder_mutex;  // guards level_builder
   void build_levels(std::shared_ptr<LevelsOfDetail> lod);
   void need_levels();
@@ -321,23 +188,6 @@ struct ViewServer::Impl {
   void tetrahedra(const httplib::Request& req, httplib::Response& res);
   void serve_static(const httplib::Request& req, httplib::Response& res);
 };
-
-std::shared_ptr<Client> ViewServer::Impl::client(const std::string& id) {
-  std::lock_guard lock(state_mutex);
-  auto it = clients.find(id);
-  if (it != clients.end()) {
-    lru.splice(lru.begin(), lru, it->second.second);
-    return it->second.first;
-  }
-  while (clients.size() >= opt.max_clients && !lru.empty()) {
-    clients.erase(lru.back());
-    lru.pop_back();
-  }
-  lru.push_front(id);
-  auto c = std::make_shared<Client>();
-  clients[id] = {c, lru.begin()};
-  return c;
-}
 
 Served ViewServer::Impl::served_now() {
   std::lock_guard lock(state_mutex);
@@ -367,6 +217,7 @@ ViewServer::ViewServer(ViewOptions options) : impl_(std::make_unique<Impl>()) {
   if (ec || !fs::is_regular_file(impl_->web_root / "index.html"))
     throw OptionError("web_dir", fmt::format("{}: the viewer page is not there (no index.html)", impl_->opt.web_dir));
   impl_->served = read_served_files(impl_->web_root);
+  impl_->sessions = std::make_unique<detail::Sessions>(impl_->opt.max_clients);
   impl_->routes();
 }
 
@@ -451,8 +302,7 @@ void ViewServer::set_grid(std::shared_ptr<const PreparedGrid> g) {
   impl_->levels = lod;
   impl_->levels_started = false;
   impl_->query = query;
-  impl_->clients.clear();  // a client's Extractor keeps its own grid alive; new requests start on this one
-  impl_->lru.clear();
+  impl_->sessions->clear();  // a client's Extractor keeps its own grid alive; new requests start on this one
   impl_->histogram = hist;
   impl_->grid = std::move(g);
   impl_->stage = "ready";
@@ -521,8 +371,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const std::size_t level =
       s.levels && budget ? s.levels->level_for_budget(static_cast<std::size_t>(std::min(*budget, 4e9)), rest, iso) : rest;
   const auto grid = s.at(level);
-  auto c = client(id);
-  auto slot = c->level(level);
+  auto slot = sessions->slot(id, level);
   const auto queued = std::chrono::steady_clock::now();
   // One extraction at a time per page and level; others run freely. The follower yields to this
   // request (or finishes, when it is extracting this very surface), and its jobs for the level
@@ -534,7 +383,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   ExtractStats st;
   slot->at(grid, iso, &st);
   if (s.levels) s.levels->record(level, st.triangles, iso);
-  if (level != rest) follower.follow(c->level(rest), s.at(rest), iso);
+  if (level != rest) sessions->follow(id, rest, s.at(rest), iso);
   const Extractor* ex = slot->extractor.get();
   const auto t0 = std::chrono::steady_clock::now();
   // After incremental steps the mesh's triangles are in an order of its history's making, which
@@ -615,7 +464,7 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   if (within) {
     mesh = s.query->extract_within(iso, *within);
   } else {
-    auto slot = client(id)->level(level);
+    auto slot = sessions->slot(id, level);
     const auto lock = slot->lock_for_page(iso, grid.get());
     mesh = slot->at(grid, iso);
   }
