@@ -38,6 +38,7 @@
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
+#include "adaptiso/prepare_to_file.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/version.hpp"
 #include "adaptiso/volume_io.hpp"
@@ -343,6 +344,20 @@ GradientOperator gradient_operator(const std::string& s) {
   throw OptionError("structural_gradient", "must be 'central' or 'canny', got '" + s + "'");
 }
 
+// The reduction's options by the command line's names, for prepare (the Delaunay grid's) and reduce
+// alike; the error bound is each caller's.
+ReduceOptions reduce_options(const std::string& method, double threshold, const std::string& gradient, double sigma, int kernel,
+                             bool relative) {
+  ReduceOptions o;
+  o.method = reduce_method(method);
+  o.threshold = threshold;
+  o.gradient = gradient_operator(gradient);
+  o.sigma = sigma;
+  o.kernel = kernel;
+  o.relative = relative;
+  return o;
+}
+
 GradientMethod gradient_method(const std::string& s) {
   if (s == "auto") return GradientMethod::automatic;
   if (s == "lsq") return GradientMethod::least_squares;
@@ -350,21 +365,7 @@ GradientMethod gradient_method(const std::string& s) {
   throw OptionError("gradients", "must be 'auto', 'lsq' or 'central', got '" + s + "'");
 }
 
-py::dict extract_stats(const ExtractStats& s) {
-  py::dict d;
-  d["iso"] = s.iso;
-  d["in_range"] = s.in_range;
-  d["triangles"] = s.triangles;
-  d["vertices"] = s.vertices;
-  d["active_tetrahedra"] = s.active;
-  d["walked_entries"] = s.walked;
-  d["marched_tetrahedra"] = s.marched;
-  d["incremental"] = s.incremental;
-  d["seconds"] = s.sweep_seconds + s.march_seconds;
-  d["sweep_seconds"] = s.sweep_seconds;
-  d["march_seconds"] = s.march_seconds;
-  return d;
-}
+py::dict extract_stats(const ExtractStats& s) { return py::module_::import("json").attr("loads")(to_json(s)); }
 
 py::dict distance_stats(const DistanceQueryStats& s) {
   py::dict d;
@@ -541,13 +542,13 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
             std::optional<ExtractStats> full;
             {
               py::gil_scoped_release release;
-              const auto& src = g.grid->grid.source;
-              const double value = relative ? src.min + iso * (src.max - src.min) : iso;
+              const ValueRange range{g.grid->grid.source.min, g.grid->grid.source.max};
+              const double value = relative ? from_fraction(range, iso, FractionOf::value, "iso") : iso;
               if (distance) {
                 within.emplace();
                 mesh = g.hierarchy().extract_within(value, *distance, &*within);
               } else if (max_error) {
-                const double e = relative ? *max_error * (src.max - src.min) : *max_error;
+                const double e = relative ? from_fraction(range, *max_error, FractionOf::width, "max_error") : *max_error;
                 query.emplace();
                 mesh = g.hierarchy().extract(value, e, 0, &*query);
               } else {
@@ -673,11 +674,7 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
     o.relative = relative;
     o.max_displacement = max_displacement;
     o.gradients = gradient_method(gradients);
-    o.method = reduce_method(method);
-    o.threshold = threshold;
-    o.structural_gradient = gradient_operator(structural_gradient);
-    o.sigma = sigma;
-    o.kernel = kernel;
+    o.reduce = reduce_options(method, threshold, structural_gradient, sigma, kernel, relative);
     o.tree_depth = tree_depth;
     o.verify = verify;
     o.parallel_delaunay = parallel_delaunay;
@@ -834,13 +831,7 @@ statistics (Grid.stats). ValueError on a bad option, OSError when the path canno
       [](py::handle volume, std::optional<double> max_error, bool relative, const std::string& method, double threshold,
          const std::string& gradient, double sigma, int kernel) {
         const Volume& v = volume_of(volume);
-        ReduceOptions o;
-        o.method = reduce_method(method);
-        o.relative = relative;
-        o.threshold = threshold;
-        o.gradient = gradient_operator(gradient);
-        o.sigma = sigma;
-        o.kernel = kernel;
+        ReduceOptions o = reduce_options(method, threshold, gradient, sigma, kernel, relative);
         std::vector<std::int64_t> kept;
         {
           py::gil_scoped_release release;

@@ -1,4 +1,4 @@
-// adaptiso viewer page: talks to `adaptiso view` (README "Viewer API"), draws with three.js.
+// adaptiso viewer page: talks to `adaptiso view` (docs/API.md), draws with three.js.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { MeshoptDecoder } from 'meshoptimizer/decoder';

@@ -113,18 +113,13 @@ nlohmann::json volume_json(const Volume& v, const ValueRange& r) {
           {"bytes", v.bytes.size()}};
 }
 
-std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, double min, double max,
+std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, const ValueRange& range,
                                      const std::string& source) {
   std::vector<double> out;
   for (const auto& s : tokens) {
     auto x = parse_finite(s);
     if (!x) throw InputError(fmt::format("--iso: '{}' is not a finite number", s.substr(0, 40)));
-    const double iso = relative ? min + *x * (max - min) : *x;
-    // A range from corrupt metadata (±1e308) overflows when scaled.
-    if (!std::isfinite(iso))
-      throw InputError(
-          fmt::format("--iso {} with --relative: the value range [{:g}, {:g}] of {} is too wide to scale", s, min, max, source));
-    out.push_back(iso);
+    out.push_back(relative ? from_fraction(range, *x, FractionOf::value, fmt::format("{}: --iso {} with --relative", source, s)) : *x);
   }
   if (out.empty()) throw InputError("--iso: give at least one iso-value");
   return out;

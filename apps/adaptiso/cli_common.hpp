@@ -65,9 +65,9 @@ double seconds_since(std::chrono::steady_clock::time_point t0);
 std::string error_summary(const PrepareStats& stats);
 nlohmann::json volume_json(const Volume& v, const ValueRange& range);
 
-// Parses "--iso" values (comma-separated numbers); relative ones map [0,1] onto [min, max], the
-// value range of `source` (named in the message when the scaled value overflows).
-std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, double min, double max,
+// Parses "--iso" values (comma-separated numbers); relative ones map [0,1] onto the value range
+// of `source` (volume.hpp: from_fraction; `source` is named when the scaled value overflows).
+std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, const ValueRange& range,
                                      const std::string& source);
 
 // The command-line flag of a library option named in an OptionError ("max_error" → "--max-error").

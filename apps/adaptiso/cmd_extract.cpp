@@ -56,8 +56,8 @@ struct MeshOutputFlags {
       if (!other.empty()) refuse_same_file(path(i), other, other_option);
     }
   }
-  std::vector<double> values(bool relative, double min, double max, const std::string& source) const {
-    return parse_iso_values(isos, relative, min, max, source);
+  std::vector<double> values(bool relative, const ValueRange& range, const std::string& source) const {
+    return parse_iso_values(isos, relative, range, source);
   }
   std::string path(std::size_t i) const { return output_name(output, isos[i], isos.size() > 1); }
 
@@ -117,19 +117,10 @@ nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const M
     auto t0 = Clock::now();
     const auto [simplified, how] = mesh_out.write(mesh, path, grid.source.spacing);
     const double t_write = seconds_since(t0);
-    results.push_back({{"iso", st.iso},
-                       {"in_range", st.in_range},
-                       {"triangles", st.triangles},
-                       {"vertices", st.vertices},
-                       {"active_tetrahedra", st.active},
-                       {"walked_entries", st.walked},
-                       {"marched_tetrahedra", st.marched},
-                       {"incremental", st.incremental},
-                       {"seconds", st.sweep_seconds + st.march_seconds},
-                       {"sweep_seconds", st.sweep_seconds},
-                       {"march_seconds", st.march_seconds},
-                       {"write_seconds", t_write},
-                       {"output", path}});
+    nlohmann::json r = nlohmann::json::parse(to_json(st));
+    r["write_seconds"] = t_write;
+    r["output"] = path;
+    results.push_back(std::move(r));
     if (!simplified.is_null()) results.back()["simplify"] = simplified;
     if (!out.json && !out.quiet)
       print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
@@ -255,16 +246,15 @@ void add_extract(CLI::App& app) {
     if (*max_displacement > 0 && p->hierarchy->displacement_code.empty())
       throw OptionError("max_displacement",
                         fmt::format("{} was prepared without the displacement criterion (prepare it with --max-displacement)", *input));
-    auto values = mesh_out->values(*relative, grid.source.min, grid.source.max, *input);
+    const ValueRange range{grid.source.min, grid.source.max};
+    auto values = mesh_out->values(*relative, range, *input);
     nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
     if (*distance >= 0) {
       if (query) throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
       j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
     } else if (query) {
-      const double e = *relative ? *max_error * (grid.source.max - grid.source.min) : *max_error;
-      if (!std::isfinite(e))
-        throw InputError(fmt::format("--max-error with --relative: the value range [{:g}, {:g}] of {} is too wide to scale",
-                                     grid.source.min, grid.source.max, *input));
+      const double e =
+          *relative ? from_fraction(range, *max_error, FractionOf::width, *input + ": --max-error with --relative") : *max_error;
       j["surfaces"] = query_all(p, *mesh_out, values, e, *max_displacement, *out);
     } else {
       j["surfaces"] = extract_all(p, *mesh_out, values, *out);
@@ -301,7 +291,7 @@ void add_run(CLI::App& app) {
     const PrepareOptions options = pf->options(in->path);
     if (*distance >= 0 && options.grid != GridKind::bisection)
       throw OptionError("distance", "needs the bisection grid (the Delaunay grid keeps no hierarchy to refine)");
-    auto values = mesh_out->values(options.relative, range.min, range.max, in->path);
+    auto values = mesh_out->values(options.relative, range, in->path);
     TerminalProgress tp(!out->quiet && !out->json);
     auto p =
         std::make_shared<const PreparedGrid>(prepare(std::move(v), range, options, tp.callback()));  // frees the voxels before the index
@@ -339,7 +329,7 @@ void add_mc(CLI::App& app) {
     Volume v = in->load();
     const double t_load = seconds_since(t0);
     auto range = value_range(v);
-    auto values = mesh_out->values(*relative, range.min, range.max, in->path);
+    auto values = mesh_out->values(*relative, range, in->path);
     nlohmann::json j = {{"voxels", v.voxel_count()}, {"load_seconds", t_load}, {"surfaces", nlohmann::json::array()}};
     for (std::size_t i = 0; i < values.size(); ++i) {
       auto t1 = Clock::now();

@@ -7,6 +7,7 @@
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/point_cloud.hpp"
 #include "adaptiso/prepare.hpp"
+#include "adaptiso/prepare_to_file.hpp"
 #include "cli_common.hpp"
 #include "options.hpp"
 

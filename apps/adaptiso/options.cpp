@@ -60,15 +60,10 @@ PrepareOptions PrepareFlags::options(const std::string& source_path) const {
                         "--grid delaunay, or leave it out)",
                         opt->get_name()));
   }
-  const ReduceOptions r = reduce.options();
   PrepareOptions p;
-  if (reduce.max_error->count() > 0) p.max_error = r.max_error;  // otherwise the library's default
-  p.relative = r.relative;
-  p.method = r.method;
-  p.threshold = r.threshold;
-  p.structural_gradient = r.gradient;
-  p.sigma = r.sigma;
-  p.kernel = r.kernel;
+  p.reduce = reduce.options();
+  if (reduce.max_error->count() > 0) p.max_error = p.reduce.max_error;  // otherwise the library's default
+  p.relative = p.reduce.relative;
   p.gradients = gradients == "lsq"       ? GradientMethod::least_squares
                 : gradients == "central" ? GradientMethod::central
                                          : GradientMethod::automatic;

@@ -18,6 +18,12 @@
 // nothing here: the hierarchy lives in index space, and the grid frame scales it. A dimension of 1
 // leaves no volume to tile and is refused (InputError).
 //
+// Bricks: the hierarchy is that of the volume's own box (its root cube starts at its voxel 0), so
+// grids built from bricks of a larger volume are separate hierarchies. The global lattice keys
+// (tet_grid.hpp) name the vertices and edges of a face two bricks share alike, but nothing here
+// makes their triangulations of that face agree: a brick's far faces are lined with its finest
+// tetrahedra, its near faces follow its own selection.
+//
 // The error guarantee (max norm, data units): every voxel is reproduced within max_error by the
 // linear interpolant of the tetrahedron that holds it (each tetrahedron holding it, on shared
 // faces). Per diamond a conservative signed bound of value − interpolant over every voxel beneath
@@ -75,7 +81,7 @@ struct ErrorCodes {
 inline constexpr double kDisplacementCodeScale = 256;
 
 // What a coarser query needs of the hierarchy: the selection of the grid is every diamond whose
-// code exceeds the threshold; a coarser error raises the threshold (query.hpp).
+// code exceeds the threshold; a coarser error raises the threshold (hierarchy_query.hpp).
 struct BisectionHierarchy {
   std::int32_t root_size = 0;  // S
   ErrorCodes codes;

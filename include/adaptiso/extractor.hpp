@@ -24,10 +24,11 @@
 #include <cstdint>
 #include <memory>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "adaptiso/mesh.hpp"
-#include "adaptiso/prepare.hpp"
+#include "adaptiso/prepared_grid.hpp"
 
 namespace adaptiso {
 
@@ -53,6 +54,11 @@ struct ExtractStats {
   bool incremental = false;  // the mesh was updated from the previous one
 };
 
+// One JSON object, the figures the command line's --json and Python's Mesh.stats give: iso,
+// in_range, triangles, vertices, active_tetrahedra, walked_entries, marched_tetrahedra,
+// incremental, seconds (sweep and march), sweep_seconds, march_seconds.
+std::string to_json(const ExtractStats& stats);
+
 struct ExtractCancelled : std::runtime_error {
   ExtractCancelled() : std::runtime_error("extraction cancelled") {}
 };
@@ -75,7 +81,9 @@ public:
   const std::vector<std::uint32_t>& triangles_in_march_order() const;
   // The active tetrahedra of the last extract, in slot order (ascending after a fresh march).
   const std::vector<std::uint32_t>& active() const;
-  // Per mesh vertex, its cut edge as (below vertex << 32 | above vertex), grid vertex ids.
+  // Per mesh vertex, its cut edge as (below vertex << 32 | above vertex), grid vertex ids; the
+  // same edge in every grid of the volume is grid().grid.lattice_edge(key >> 32, key & 0xffffffff)
+  // (tet_grid.hpp: global lattice keys).
   const std::vector<std::uint64_t>& vertex_edges() const;
   bool last_was_incremental() const;
   const PreparedGrid& grid() const;

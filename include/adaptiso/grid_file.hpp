@@ -13,7 +13,7 @@
 //   48  u64       E, index entries (non-constant tetrahedra)       [version 2]
 //   56  u32       D, index depth; u32 reserved                      [version 2]
 //   64  char[M]   metadata: UTF-8 JSON: "source" (GridSource: dims, spacing, origin, direction,
-//                 value range, reduction settings) and "prepare" (PrepareStats, prepare.hpp)
+//                 value range, reduction settings) and "prepare" (PrepareStats, prepared_grid.hpp)
 //       u32[N][3] ijk;  f64[N] values;  f32[N][3] gradients;  u32[T][4] tets
 //       index: (f64 split, u64 begin, u64 end)[2^(D+1) - 1];  u32[E] by_min;  u32[E] by_max
 //       hierarchy: i32 root size; u8 error threshold; u8 displacement threshold; u16 0;
@@ -33,7 +33,7 @@
 #include <string>
 
 #include "adaptiso/interval_tree.hpp"
-#include "adaptiso/prepare.hpp"
+#include "adaptiso/prepared_grid.hpp"
 #include "adaptiso/tet_grid.hpp"
 
 namespace adaptiso {
@@ -43,9 +43,6 @@ namespace adaptiso {
 void save_grid(const PreparedGrid& grid, const std::string& path, bool with_index = true);
 // The grid, its index (built now when the file has none) and its statistics.
 PreparedGrid load_grid(const std::string& path);
-
-// Bytes the grid and its index occupy in memory (= the file without header and metadata), per vertex.
-double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index);
 
 // VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
 // point data "value" and "gradient" (world frame). Written atomically.

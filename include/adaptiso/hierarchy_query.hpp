@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "adaptiso/mesh.hpp"
-#include "adaptiso/prepare.hpp"
+#include "adaptiso/prepared_grid.hpp"
 
 namespace adaptiso {
 

@@ -15,7 +15,7 @@
 //   errors of half the range, and the next level is then a blob of a few hundred; a floor cuts a
 //   surface some 4× a step on any data. Their bounds are measured when they are built (bound()),
 //   and guaranteed like the others; a surface on one has the bound of the tetrahedra it cuts
-//   (prepare.hpp: surface_error_bound).
+//   (prepared_grid.hpp: surface_error_bound).
 // Levels are built from the last (cheapest) towards level 1 by build(), meant for a background
 // thread; until a level is built it is simply not offered.
 //
@@ -38,7 +38,7 @@
 #include <mutex>
 #include <vector>
 
-#include "adaptiso/prepare.hpp"
+#include "adaptiso/prepared_grid.hpp"
 
 namespace adaptiso {
 

@@ -1,7 +1,7 @@
 // adaptiso/marching_cubes.hpp — classic marching cubes on the full grid: the paper's baseline and
 // the full-resolution reference that adaptiso's surfaces are measured against.
 //
-// Same conventions as the tetrahedral extraction (extract.hpp): a voxel equal to the iso-value
+// Same conventions as the tetrahedral extraction (marching_tetrahedra.hpp): a voxel equal to the iso-value
 // counts as above it; one mesh vertex per cut grid edge (watertight where the surface stays inside
 // the volume); normals are the volume's gradient (central differences, one-sided at the border)
 // interpolated along the edge, pointing towards lower values; world coordinates.

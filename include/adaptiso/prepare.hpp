@@ -1,13 +1,15 @@
 // adaptiso/prepare.hpp — the preprocessing pipeline as one call: volume → tetrahedral grid →
 // vertex gradients (§2.3) → reconstruction error → extraction index (§2.4). The command line, the
-// viewer, the Python module, the tests and the benches all prepare grids through prepare().
+// viewer, the Python module, the tests and the benches all prepare grids through prepare(); what
+// it makes is a PreparedGrid (prepared_grid.hpp); prepare_to_file.hpp writes it to a grid file as
+// it is made.
 //
 // Two grid builders, same output (tet_grid.hpp):
 // - bisection (bisection.hpp): longest-edge bisection on the voxel lattice; the error bound is a
 //   guarantee for the grid's own piecewise-linear reconstruction; linear time; gradients by
 //   central differences by default.
-// - delaunay (delaunay.hpp): the paper's pipeline, reduction (§2.1: the options method, threshold,
-//   structural_gradient, sigma, kernel) then Delaunay tetrahedrization (§2.2); its bound holds for
+// - delaunay (delaunay.hpp): the paper's pipeline, reduction (§2.1: PrepareOptions::reduce, its
+//   method, threshold, gradient, sigma, kernel) then Delaunay tetrahedrization (§2.2); its bound holds for
 //   trilinear interpolation in the octree's cubes, not for the tetrahedra, so the grid's error is
 //   measured (pl_max_error) and may exceed it; least-squares gradients by default.
 //
@@ -24,11 +26,9 @@
 #include <string>
 #include <vector>
 
-#include "adaptiso/bisection.hpp"
-#include "adaptiso/interval_tree.hpp"
+#include "adaptiso/prepared_grid.hpp"
 #include "adaptiso/progress.hpp"
 #include "adaptiso/reduce.hpp"
-#include "adaptiso/tet_grid.hpp"
 
 namespace adaptiso {
 
@@ -50,18 +50,16 @@ enum class GradientMethod {
 
 struct PrepareOptions {
   GridKind grid = GridKind::bisection;
-  // The error bound of the grid (max norm). Unset: kDefaultRelativeError of the value range,
-  // whatever `relative` says, or no error criterion when max_displacement is given (the
-  // displacement alone). +∞ (bisection grid): no error criterion.
+  // The error bound of the grid (max norm), for either builder. Unset: kDefaultRelativeError of
+  // the value range, whatever `relative` says, or no error criterion when max_displacement is given
+  // (the displacement alone). +∞ (bisection grid): no error criterion.
   std::optional<double> max_error;
-  bool relative = false;        // max_error and threshold relative to the value range / largest gradient
+  bool relative = false;        // max_error and reduce.threshold relative to the value range / largest gradient
   double max_displacement = 0;  // bisection: voxels an iso-surface may move, to first order (0: not used)
-  // The paper's reduction (§2.1).
-  ReduceMethod method = ReduceMethod::reconstruction;
-  double threshold = 0;
-  GradientOperator structural_gradient = GradientOperator::central;
-  double sigma = 1.0;
-  int kernel = 0;
+  // The Delaunay grid's reduction (§2.1, reduce.hpp): method, threshold, gradient operator, sigma,
+  // kernel. Its max_error and relative are not read: the two fields above are the bound of either
+  // grid, and prepare hands them to reduce() as they are (converted to data units once, there).
+  ReduceOptions reduce;
   bool parallel_delaunay = true;
   GradientMethod gradients = GradientMethod::automatic;
   std::uint32_t tree_depth = kDefaultTreeDepth;
@@ -75,60 +73,9 @@ struct PrepareOptions {
 // of the range, or data units (the reduction alone, in the command line and Python, uses it too).
 double default_max_error(const ValueRange& range, bool relative);
 
-// The error bound that PrepareOptions asks for, in data units, for a volume with this value range.
+// The error bound that PrepareOptions asks for, in data units, for a volume with this value range
+// (volume.hpp: from_fraction). Throws InputError when a relative bound overflows.
 double absolute_max_error(const PrepareOptions& options, const ValueRange& range);
-
-// The reduction options that PrepareOptions implies (the threshold as given, the error bound in
-// the same unit: relative to the range with `relative`).
-ReduceOptions reduce_options(const PrepareOptions& options, const ValueRange& range);
-
-struct StageStats {
-  std::string name;  // "reduce", "tetrahedralize", "gradients", "pl_error", "index", ...
-  double seconds = 0;
-  std::uint64_t peak_bytes = 0;  // resident memory peak of the process up to the stage's end (Linux; 0 elsewhere)
-};
-
-struct PrepareStats {
-  std::string grid;  // "bisection" or "delaunay"
-  std::int64_t voxels = 0;
-  std::uint64_t kept = 0, tetrahedra = 0;
-  double max_error = 0;                         // the absolute bound asked for
-  double threshold = 0;                         // the absolute structural threshold used
-  double error_bound = -1;                      // bisection: the guaranteed max-norm error (< 0: no guarantee)
-  double max_displacement = 0;                  // bisection: the displacement criterion used (voxels; 0: none)
-  double pl_max_error = -1, pl_rms_error = -1;  // measured (< 0: not measured)
-  std::uint32_t index_depth = 0;
-  double grid_bytes_per_vertex = 0;
-  std::vector<StageStats> stages;
-  double seconds(const std::string& stage) const;  // 0 when the stage did not run
-};
-
-// One JSON object: grid, voxels, kept, ratio, tetrahedra, max_error, pl_max_error, pl_rms_error,
-// error_bound, index_depth, grid_bytes_per_vertex, seconds{stage}, peak_bytes{stage}; and back (fields that
-// are missing keep their defaults, so older grid files load).
-std::string to_json(const PrepareStats& stats);
-PrepareStats prepare_stats_from_json(const std::string& json);
-
-// A grid ready for extraction: the tetrahedra, the index over them and how they were made.
-struct PreparedGrid {
-  TetGrid grid;
-  IntervalTree index;
-  PrepareStats stats;
-  std::optional<BisectionHierarchy> hierarchy;  // bisection grids: for queries at a coarser error
-  // Floored levels (coarsen_floored): per tetrahedron the code of its own guaranteed bound, in
-  // tet_codes; empty otherwise.
-  std::vector<std::uint8_t> tet_error_code;
-  ErrorCodes tet_codes;
-};
-
-// The error of a grid's surfaces, data units: guaranteed on a bisection grid, measured on a
-// Delaunay grid.
-double surface_error(const PrepareStats& stats);
-
-// The error of a surface made of the given tetrahedra of the grid (data units; the Extractor's
-// active() after an extract): on a floored level the largest guaranteed bound among them (0 for
-// none: a unit tetrahedron holds no voxel but its corners), elsewhere surface_error.
-double surface_error_bound(const PreparedGrid& grid, const std::vector<std::uint32_t>& tetrahedra);
 
 PreparedGrid prepare(const Volume& v, const PrepareOptions& options, const Progress& progress = {});
 
@@ -142,19 +89,6 @@ PreparedGrid prepare(const Volume& v, const ValueRange& range, const PrepareOpti
 PreparedGrid prepare(Volume&& v, const PrepareOptions& options, const Progress& progress = {});
 PreparedGrid prepare(Volume&& v, const ValueRange& range, const PrepareOptions& options, const Progress& progress = {});
 
-// prepare(std::move(v), ...) and save_grid(grid, path) in one, for a caller that wants the file:
-// the same bytes, written as they are made. The grid's positions and gradients are on disk and
-// freed before the index is built, and the index's sort takes what the file's bytes plus 2.5
-// volumes leave, so the peak stays there where the grid and its index in memory at once cannot
-// (the 256×256×133 chest CT: 304 MB file, 2.5 volumes 22 MB). Returns the statistics, with the
-// writing's time as the stage "save". Throws what prepare and save_grid throw; on any failure no
-// file is left at path.
-PrepareStats prepare_to_file(Volume&& v, const PrepareOptions& options, const std::string& path, const Progress& progress = {});
-PrepareStats prepare_to_file(Volume&& v, const ValueRange& range, const PrepareOptions& options, const std::string& path,
-                             const Progress& progress = {});
-// The same, lending the volume (it keeps its voxels, which then stay resident: the Python module).
-PrepareStats prepare_to_file(const Volume& v, const PrepareOptions& options, const std::string& path, const Progress& progress = {});
-
 // A bisection grid at a coarser bound (data units; +∞: the coarsest) from a prepared one, without
 // the volume: what prepare would give at that bound, with its own index (the viewer's levels of
 // detail). Throws InputError for a grid without a hierarchy.
@@ -165,5 +99,31 @@ PreparedGrid coarsen(const PreparedGrid& grid, double max_error, double max_disp
 // smaller a step of the floor on any data. Its error bound (stats.error_bound, guaranteed) is
 // measured, not asked for; it has no hierarchy, being no selection at one bound.
 PreparedGrid coarsen_floored(const PreparedGrid& grid, double max_error, int cell_floor, const Progress& progress = {});
+
+// The steps prepare() combines, for the callers that combine them otherwise (prepare_to_file.hpp:
+// with the grid file's writer, the index built while the file is written).
+namespace detail {
+
+// Every stage before the index (the grid, its gradients, the check of `verify`), timed into the
+// grid's stats. `release`, when not null, is v itself, whose voxels go once nothing reads them.
+// Throws what prepare throws.
+PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& options, const Progress& progress,
+                               Volume* release);
+
+// What the index's build may hold beyond its lists (bytes) for the process's peak to stay within
+// grid_bytes (the grid's bytes besides the lists: resident in memory, or still to be written to a
+// file) plus 2.5 times volume_bytes (README "Memory"); what else the process holds now (VmRSS)
+// comes out of the 2.5 volumes. 0 when nothing is left.
+std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes);
+
+// The extraction index over the grid (options.tree_depth), within `scratch` bytes beyond its
+// lists, timed into stats as the stage "index".
+IntervalTree build_index(const TetGrid& grid, const PrepareOptions& options, std::size_t scratch, PrepareStats& stats,
+                         const Progress& progress);
+
+// Records a stage that took `seconds` in stats, with the process's peak memory so far.
+void record_stage(PrepareStats& stats, const std::string& name, double seconds);
+
+}  // namespace detail
 
 }  // namespace adaptiso

@@ -88,9 +88,4 @@ double verify_reconstruction(const Volume& v, const ReduceResult& r);
 // Voxel indices of the 8 corners of the volume (fewer when a dimension is 1).
 std::vector<std::int64_t> volume_corners(const Volume& v);
 
-// Rounding allowance used when comparing errors with the bound: a few ulps of the data magnitude,
-// so that error 0 means "exact up to floating-point rounding".
-double error_tolerance(const Volume& v, double bound);
-double error_tolerance(const ValueRange& range, double bound);
-
 }  // namespace adaptiso

@@ -8,8 +8,21 @@
 // physical unit (grid frame). tets[t] holds 4 vertex indices, positively oriented in the grid frame
 // (positive volume), with no zero-volume tetrahedron; together they tile the volume's box exactly.
 // Vertices are numbered in ascending linear voxel index (x fastest).
+//
+// Global lattice keys. Vertex ids (indices into ijk) are the grid's own; a lattice key names a
+// vertex, or an edge, the same way in every grid built over the same volume's voxel lattice, so
+// that bricks, ranks and queries can tell they hold the same one:
+// - a vertex's key is its linear voxel index in the volume, i + X·(j + Y·k) for dims (X, Y, Z),
+//   x fastest (ascending with the vertex ids of one grid);
+// - an edge's key is its two endpoints' keys in canonical order, the smaller first, whichever way
+//   the edge is walked or cut (the Extractor's vertex_edges keep below/above order and ids).
+// A grid built from a brick of a larger volume (a sub-volume whose voxel (0, 0, 0) is voxel o of
+// the whole) names its vertices in the whole volume's lattice: lattice_key(whole dims, ijk + o).
+// Grids that share a face then give each vertex and edge of the face one key; whether they cut
+// the face into the same triangles is their builders' matter, not the keys'.
 #pragma once
 #include <array>
+#include <compare>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -17,6 +30,22 @@
 #include "adaptiso/volume.hpp"
 
 namespace adaptiso {
+
+using LatticeKey = std::uint64_t;
+
+struct LatticeEdge {
+  LatticeKey lo = 0, hi = 0;  // lo ≤ hi (equal only for a degenerate edge, which no grid has)
+  friend auto operator<=>(const LatticeEdge&, const LatticeEdge&) = default;
+};
+
+// The key of the voxel at (i, j, k) of a volume of these dims (see above). No check: (i, j, k) is
+// the caller's to keep inside dims.
+inline LatticeKey lattice_key(const Dims& dims, const std::array<std::uint32_t, 3>& voxel) {
+  return voxel[0] + static_cast<LatticeKey>(dims[0]) * (voxel[1] + static_cast<LatticeKey>(dims[1]) * voxel[2]);
+}
+
+// The edge between two vertices, in canonical order.
+inline LatticeEdge lattice_edge(LatticeKey a, LatticeKey b) { return a < b ? LatticeEdge{a, b} : LatticeEdge{b, a}; }
 
 // What the grid was built from and how (kept with the grid, and in the grid file).
 struct GridSource {
@@ -48,6 +77,10 @@ struct TetGrid {
     return {source.spacing[0] * ijk[v][0], source.spacing[1] * ijk[v][1], source.spacing[2] * ijk[v][2]};
   }
   Vec3 world_position(std::uint32_t v) const { return grid_to_world(source.origin, source.direction, position(v)); }
+  // The global lattice keys (see above) of vertex v and of the edge between vertices a and b, in
+  // the lattice of source.dims.
+  LatticeKey lattice_key(std::uint32_t v) const { return adaptiso::lattice_key(source.dims, ijk[v]); }
+  LatticeEdge lattice_edge(std::uint32_t a, std::uint32_t b) const { return adaptiso::lattice_edge(lattice_key(a), lattice_key(b)); }
 };
 
 }  // namespace adaptiso

@@ -173,6 +173,20 @@ struct ValueRange {
 // Parallel min/max over all voxels.
 ValueRange value_range(const Volume& v);
 
+// Relative to data units, the one conversion the command line, the library and Python share: a
+// fraction f of the value range as a value in it (FractionOf::value, an iso-value:
+// min + f·(max − min)) or as an amount of its width (FractionOf::width, an error bound:
+// f·(max − min)). Throws InputError "<what>: the value range [min, max] is too wide to scale"
+// when the result is not finite (a range from corrupt metadata, ±1e308, scaled); f itself is
+// the caller's to check.
+enum class FractionOf { value, width };
+double from_fraction(const ValueRange& range, double fraction, FractionOf kind, std::string_view what);
+
+// Rounding allowance used when comparing errors with the bound: a few ulps of the data magnitude,
+// so that error 0 means "exact up to floating-point rounding".
+double error_tolerance(const Volume& v, double bound);
+double error_tolerance(const ValueRange& range, double bound);
+
 struct Histogram {
   double min = 0, max = 0;            // the value range the bins cover
   std::vector<std::uint64_t> counts;  // bin b covers [min + b·w, min + (b+1)·w), the last bin includes max

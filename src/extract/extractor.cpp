@@ -1,6 +1,11 @@
 // The Extractor: sweeping simplices plus marching tetrahedra, with an incremental update of the
 // mesh for small changes of iso-value (see extractor.hpp).
 //
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.4 (browsing iso-values: sweep, then march).
+// - Shen, Johnson. Sweeping simplices: a fast iso-surface extraction algorithm for unstructured
+//   grids. IEEE Visualization 1995.
+//
 // After a step from c0 to c1 a tetrahedron keeps its triangles, and every corner keeps its cut
 // edge, unless one of its vertices lies in [min(c0,c1), max(c0,c1)): its case code changes. Every
 // active tetrahedron owns a slot that carries its case, the interval of iso-values keeping that
@@ -23,6 +28,7 @@
 #include <atomic>
 #include <chrono>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <numeric>
 #include <stdexcept>
 
@@ -554,6 +560,21 @@ ExtractStats Extractor::extract(double iso, const std::atomic<bool>* cancel) {
   st.sweep_seconds = std::chrono::duration<double>(t1 - t0).count();
   st.march_seconds = std::chrono::duration<double>(t2 - t1).count();
   return st;
+}
+
+std::string to_json(const ExtractStats& s) {
+  return nlohmann::json{{"iso", s.iso},
+                        {"in_range", s.in_range},
+                        {"triangles", s.triangles},
+                        {"vertices", s.vertices},
+                        {"active_tetrahedra", s.active},
+                        {"walked_entries", s.walked},
+                        {"marched_tetrahedra", s.marched},
+                        {"incremental", s.incremental},
+                        {"seconds", s.sweep_seconds + s.march_seconds},
+                        {"sweep_seconds", s.sweep_seconds},
+                        {"march_seconds", s.march_seconds}}
+      .dump();
 }
 
 }  // namespace adaptiso

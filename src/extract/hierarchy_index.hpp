@@ -11,7 +11,7 @@
 #include <mutex>
 #include <vector>
 
-#include "adaptiso/prepare.hpp"
+#include "adaptiso/prepared_grid.hpp"
 #include "grid/traversal.hpp"
 
 namespace adaptiso::detail {

@@ -1,6 +1,11 @@
 // Queries of a bisection grid at a coarser error (see hierarchy_query.hpp): the walk of the
 // selection (grid/traversal.hpp) with the query's threshold, pruned where the values beneath a
 // diamond do not straddle the iso-value, then marching tetrahedra over the leaves it finds.
+//
+// This work is based on:
+// - Gregorski, Duchaineau, Lindstrom, Pascucci, Joy. Interactive view-dependent rendering of large
+//   isosurfaces. IEEE Visualization 2002 (the diamond hierarchy walked at a coarser error).
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.4 (marching the tetrahedra found).
 #include "adaptiso/hierarchy_query.hpp"
 
 #include <fmt/format.h>

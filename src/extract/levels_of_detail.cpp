@@ -1,4 +1,8 @@
 // Levels of detail of a bisection grid (see levels_of_detail.hpp).
+//
+// This work is based on:
+// - Gregorski, Duchaineau, Lindstrom, Pascucci, Joy. Interactive view-dependent rendering of large
+//   isosurfaces. IEEE Visualization 2002 (coarser selections of the diamond hierarchy).
 #include "adaptiso/levels_of_detail.hpp"
 
 #include <algorithm>
@@ -7,6 +11,7 @@
 #include <limits>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/prepare.hpp"
 
 namespace adaptiso {
 

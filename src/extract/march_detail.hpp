@@ -15,6 +15,7 @@
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/tet_grid.hpp"
 #include "extract/edge_point.hpp"
+#include "grid/grid_prefetch.hpp"
 #include "util/big_array.hpp"
 #include "util/prefetch.hpp"
 
@@ -231,7 +232,7 @@ void number_chunk_edges(std::vector<MarchChunk>& chunks, std::vector<std::uint64
 void sort_ids(std::vector<std::uint32_t>& ids, std::size_t bound, std::vector<std::uint64_t>& bitmap);
 
 // The tetrahedra a march visits, in order: the grid's own by id, or ad hoc ones over the grid's
-// vertices (a bisection grid's query at a coarser error, query.hpp).
+// vertices (a bisection grid's query at a coarser error, hierarchy_query.hpp).
 struct GridTets {
   const TetGrid& grid;
   std::span<const std::uint32_t> ids;

@@ -1,4 +1,11 @@
 // Marching cubes with a generated, crack-free case table (see marching_cubes.hpp).
+//
+// This work is based on:
+// - Lorensen, Cline. Marching cubes: a high resolution 3D surface construction algorithm.
+//   SIGGRAPH 1987 (the classic table, kClassicTriangles).
+// - Dürst. Additional reference to "marching cubes". Computer Graphics, 1988 (the face ambiguity,
+//   resolved here by one rule both cubes of a face apply).
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §3 (the paper's baseline).
 #include "adaptiso/marching_cubes.hpp"
 
 #include <tbb/enumerable_thread_specific.h>

@@ -1,5 +1,10 @@
 // Marching tetrahedra (Lürig & Ertl §2.4) with shared vertices per cut edge; see
 // marching_tetrahedra.hpp. The chunk-parallel march here is also the Extractor's fresh march.
+//
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.4.
+// - Doi, Koide. An efficient method of triangulating equi-valued surfaces by using tetrahedral
+//   cells. IEICE Transactions, 1991.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>

@@ -1,5 +1,9 @@
 // Vertex gradients — least squares over the 1-ring (Lürig & Ertl §2.3) or central differences of
 // the volume — and the error of the tetrahedral grid's linear reconstruction at every original voxel.
+//
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.3 (least squares over the 1-ring; the reconstruction
+//   error of §2.1 measured on the grid).
 #include "adaptiso/gradients.hpp"
 
 #include "util/big_array.hpp"

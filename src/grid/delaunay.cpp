@@ -1,6 +1,11 @@
 // Delaunay tetrahedrization — Lürig & Ertl §2.2. The paper's own O(n²) triangulator needed a
 // workaround for coplanar points; CGAL's incremental Delaunay with exact predicates and symbolic
 // perturbation handles the lattice's coplanar and cospherical sets by construction.
+//
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.2.
+// - The CGAL 3D Triangulations package (Jamin, Pion, Teillaud): incremental Delaunay with exact
+//   predicates and symbolic perturbation.
 #include <CGAL/Delaunay_triangulation_3.h>
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>

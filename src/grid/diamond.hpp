@@ -1,6 +1,7 @@
 // The longest-edge bisection hierarchy on the voxel lattice, as diamonds (Maubach's bisection of
 // the Kuhn cube; the diamond view of Gregorski, Duchaineau, Lindstrom, Pascucci and Joy 2002).
-// Internal to the bisection grid (bisection.cpp) and its queries.
+// Internal to the bisection grid (bisection_errors.cpp, bisection.cpp, bisection_coarsen.cpp) and
+// its queries.
 //
 // The root cube [0,S]³ (S = 2^k) is split into 6 tetrahedra around its main diagonal; every
 // tetrahedron is split at the midpoint of its longest edge (unique in this hierarchy), down to the

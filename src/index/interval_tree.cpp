@@ -1,5 +1,13 @@
-// Sweeping simplices (Lürig & Ertl §2.4): the interval tree, its per-client sweep state, and the
-// brute-force scan used as the reference. See interval_tree.hpp for the invariants.
+// The interval tree's build (see interval_tree.hpp for the invariants): the splits from a sample,
+// the entries placed in their nodes, each node's two lists sorted. Its validation against a loaded
+// grid is interval_tree_validate.cpp's, the sweep and the queries interval_tree_sweep.cpp's.
+//
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.4 (finding the cut tetrahedra).
+// - Shen, Johnson. Sweeping simplices: a fast iso-surface extraction algorithm for unstructured
+//   grids. IEEE Visualization 1995 (the sweep).
+// - Cignoni, Marino, Montani, Puppo, Scopigno. Speeding up isosurface extraction using interval
+//   trees. IEEE TVCG, 1997 (the tree; after Edelsbrunner's interval tree, 1980).
 #include "adaptiso/interval_tree.hpp"
 
 #include <tbb/blocked_range.h>
@@ -21,36 +29,19 @@
 #include <utility>
 
 #include "adaptiso/error.hpp"
+#include "index/tet_range.hpp"
 #include "util/big_array.hpp"
 #include "util/memory.hpp"
-#include "util/prefetch.hpp"
 #include "util/radix_sort.hpp"
 
 namespace adaptiso {
 namespace {
 using detail::prefetch_values;
-
-struct Range {
-  double lo, hi;
-};
-
-inline Range tet_range(const TetGrid& grid, std::uint32_t t) {
-  const auto& q = grid.tets[t];
-  const double* v = grid.values.data();
-  double a = v[q[0]], b = v[q[1]], c = v[q[2]], d = v[q[3]];
-  return {std::min(std::min(a, b), std::min(c, d)), std::max(std::max(a, b), std::max(c, d))};
-}
-
-inline double tet_min(const TetGrid& grid, std::uint32_t t) { return tet_range(grid, t).lo; }
-inline double tet_max(const TetGrid& grid, std::uint32_t t) { return tet_range(grid, t).hi; }
-
-// The range of ids[i], in a loop over ids[begin, end) that reads ahead: the tetrahedra and their
-// values lie at scattered places, so later ones are prefetched.
-inline Range range_reading_ahead(const TetGrid& grid, const std::uint32_t* ids, std::uint64_t i, std::uint64_t end) {
-  if (i + 16 < end) detail::prefetch(&grid.tets[ids[i + 16]]);
-  if (i + 8 < end) prefetch_values(grid, ids[i + 8]);
-  return tet_range(grid, ids[i]);
-}
+using detail::Range;
+using detail::range_reading_ahead;
+using detail::tet_max;
+using detail::tet_min;
+using detail::tet_range;
 
 // Fills lo/hi of every node bottom-up from its own entries and its children.
 void compute_bounds(IntervalTree& tree, const TetGrid& grid) {
@@ -537,319 +528,5 @@ IntervalTreeShape interval_tree_shape(const TetGrid& grid, std::uint32_t depth) 
 }
 
 void finish_interval_tree(IntervalTree& tree, const TetGrid& grid) { compute_bounds(tree, grid); }
-
-namespace {
-
-// A non-empty node and its first entry: the nodes in pre-order tile the lists, so an entry's node
-// is found by binary search and the entries can be checked in even chunks (the root alone holds
-// a tenth of the bunny's 52 M).
-struct NodeStart {
-  std::uint64_t begin;
-  std::size_t node;
-};
-
-// Calls check(node, b, e) on the pieces of nodes that tile each chunk of [0, entries), in
-// parallel; check returns false to stop its chunk.
-template <class Check>
-void check_entries_in_chunks(const std::vector<NodeStart>& starts, const IntervalTree& tree, Check check) {
-  tbb::parallel_for(tbb::blocked_range<std::uint64_t>(0, tree.entries(), std::uint64_t{1} << 16), [&](const auto& r) {
-    auto s = std::upper_bound(starts.begin(), starts.end(), r.begin(), [](std::uint64_t k, const NodeStart& n) { return k < n.begin; });
-    for (std::uint64_t k = r.begin(); k < r.end(); ++s) {
-      const std::size_t i = std::prev(s)->node;
-      const std::uint64_t e = std::min<std::uint64_t>(tree.nodes[i].end, r.end());
-      if (!check(i, k, e)) return;
-      k = e;
-    }
-  });
-}
-
-}  // namespace
-
-void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const std::string& what) {
-  auto fail = [&](const std::string& why) { throw InputError(fmt::format("{}: extraction index is corrupt ({})", what, why)); };
-  const std::size_t T = grid.tet_count();
-  if (tree.depth > 30 || tree.nodes.size() != (std::size_t{2} << tree.depth) - 1) fail("node count");
-  if (tree.by_min.size() != tree.by_max.size() || tree.by_min.size() > T) fail("list sizes");
-  // 1. The nodes, in pre-order: own entries first, children follow; each with the key interval its
-  // ancestors' splits allow.
-  struct Allowed {
-    double lo, hi;
-  };
-  std::vector<Allowed> allowed(tree.nodes.size());
-  std::vector<NodeStart> starts;
-  std::uint64_t cursor = 0;
-  std::vector<std::size_t> stack{0};
-  allowed[0] = {-std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
-  while (!stack.empty()) {
-    const std::size_t i = stack.back();
-    stack.pop_back();
-    const auto& n = tree.nodes[i];
-    if (n.begin != cursor || n.end < n.begin || n.end > tree.by_min.size()) fail("node ranges");
-    if (n.end > n.begin) starts.push_back({n.begin, i});
-    cursor = n.end;
-    if (!tree.is_leaf(i)) {
-      if (!std::isfinite(n.split) && n.end > n.begin) fail("split value");
-      allowed[2 * i + 2] = {std::max(allowed[i].lo, n.split), allowed[i].hi};
-      allowed[2 * i + 1] = {allowed[i].lo, std::min(allowed[i].hi, n.split)};
-      stack.push_back(2 * i + 2);  // right first, so the left subtree is visited next
-      stack.push_back(2 * i + 1);
-    }
-  }
-  if (cursor != tree.by_min.size()) fail("node ranges do not cover the lists");
-  // 2. Every node's entries, in parallel: in range, once each, inside their node's interval,
-  // straddling its split, both lists sorted and holding the same tetrahedra. Each entry reads its
-  // tetrahedron, four values and its node_of slot at scattered places: those are the cost (8 of
-  // the bunny's 13 s load when read one by one), so they are prefetched a few entries ahead and
-  // the previous entry's key is carried instead of read again.
-  constexpr std::uint32_t kUnseen = std::numeric_limits<std::uint32_t>::max();
-  std::vector<std::uint32_t> node_of;
-  detail::assign_big(node_of, T, kUnseen);
-  std::atomic<bool> bad{false};
-  std::string why;
-  std::mutex why_mutex;
-  auto report = [&](const char* reason) {
-    std::lock_guard lock(why_mutex);
-    if (!bad.exchange(true)) why = reason;
-    return false;
-  };
-  auto ahead = [&](const std::uint32_t* list, std::uint64_t k, std::uint64_t e) {
-    if (k + 16 < e && list[k + 16] < T) {
-      detail::prefetch(&grid.tets[list[k + 16]]);
-      detail::prefetch(&node_of[list[k + 16]]);
-    }
-    if (k + 8 < e && list[k + 8] < T) prefetch_values(grid, list[k + 8]);
-  };
-  // One list's entries, chunk by chunk: entry(i, t, key) checks tetrahedron t in node i and gives
-  // its key (false once it has reported); the keys must not decrease within a node. The key of the
-  // entry before a chunk's first is read afresh (−∞ at a node's first).
-  auto check_list = [&](const std::vector<std::uint32_t>& entries, auto key_of, const char* unsorted, auto entry) {
-    check_entries_in_chunks(starts, tree, [&](std::size_t i, std::uint64_t b, std::uint64_t e) {
-      if (bad.load(std::memory_order_relaxed)) return false;
-      const std::uint32_t* list = entries.data();  // local, so the atomics below need not make it be reloaded
-      double prev = -std::numeric_limits<double>::infinity();
-      if (b > tree.nodes[i].begin) {
-        if (list[b - 1] >= T) return report("entry out of range or repeated");
-        prev = key_of(grid, list[b - 1]);
-      }
-      for (std::uint64_t k = b; k < e; ++k) {
-        ahead(list, k, e);
-        double key = 0;  // set by entry whenever it returns true
-        if (!entry(i, list[k], key)) return false;
-        if (prev > key) return report(unsorted);  // ties in any order (repeats are caught by entry)
-        prev = key;
-      }
-      return true;
-    });
-    if (bad) fail(why);
-  };
-  check_list(tree.by_min, tet_min, "list by minimum not sorted", [&](std::size_t i, std::uint32_t t, double& key) {
-    std::uint32_t unseen = kUnseen;
-    if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(unseen, static_cast<std::uint32_t>(i)))
-      return report("entry out of range or repeated");
-    const Range q = tet_range(grid, t);
-    if (!(q.lo < q.hi) || q.lo < allowed[i].lo || q.hi > allowed[i].hi) return report("entry outside its node");
-    if (!tree.is_leaf(i) && !(q.lo < tree.nodes[i].split && q.hi > tree.nodes[i].split)) return report("entry does not straddle its split");
-    key = q.lo;
-    return true;
-  });
-  check_list(tree.by_max, tet_max, "list by maximum not sorted", [&](std::size_t i, std::uint32_t t, double& key) {
-    std::uint32_t mine = static_cast<std::uint32_t>(i);
-    if (t >= T || !std::atomic_ref<std::uint32_t>(node_of[t]).compare_exchange_strong(mine, kUnseen - 1)) return report("lists disagree");
-    key = tet_max(grid, t);
-    return true;
-  });
-  // 3. Every tetrahedron that is not constant is in the lists.
-  const std::size_t nonconstant = tbb::parallel_reduce(
-      tbb::blocked_range<std::size_t>(0, T, 1 << 16), std::size_t{0},
-      [&](const auto& r, std::size_t c) {
-        for (std::size_t t = r.begin(); t < r.end(); ++t) {
-          const Range q = tet_range(grid, static_cast<std::uint32_t>(t));
-          c += q.lo < q.hi;
-        }
-        return c;
-      },
-      std::plus<>());
-  if (nonconstant != tree.by_min.size()) fail("tetrahedra missing");
-}
-
-namespace {
-
-void init_node(const IntervalTree& tree, const TetGrid& grid, SweepState& s, std::size_t i, double iso) {
-  const auto& n = tree.nodes[i];
-  const auto* mn = tree.by_min.data();
-  const auto* mx = tree.by_max.data();
-  auto pm = std::partition_point(mn + n.begin, mn + n.end, [&](std::uint32_t t) { return tet_min(grid, t) < iso; });
-  auto px = std::partition_point(mx + n.begin, mx + n.end, [&](std::uint32_t t) { return tet_max(grid, t) < iso; });
-  s.pmin[i] = static_cast<std::uint32_t>(pm - (mn + n.begin));
-  s.pmax[i] = static_cast<std::uint32_t>(px - (mx + n.begin));
-}
-
-// Walks node i's two positions from the state's iso to `iso`, flipping the flags of the entries
-// passed. Each entry's range needs its tetrahedron and four values from scattered places, so both
-// are prefetched a few entries ahead (a few wasted fetches past the stopping point are cheap).
-void walk_node(const IntervalTree& tree, const TetGrid& grid, SweepState& s, std::size_t i, double iso) {
-  const auto& n = tree.nodes[i];
-  const std::uint32_t size = static_cast<std::uint32_t>(n.end - n.begin);
-  const std::uint32_t* mn = tree.by_min.data() + n.begin;
-  const std::uint32_t* mx = tree.by_max.data() + n.begin;
-  std::uint8_t* f = s.flags.data();
-  auto ahead = [&](const std::uint32_t* list, std::int64_t k, int dir) {
-    const std::int64_t far = k + 16 * dir, near = k + 8 * dir;
-    if (far >= 0 && far < size) __builtin_prefetch(&grid.tets[list[far]]);
-    if (near >= 0 && near < size) prefetch_values(grid, list[near]);
-  };
-  std::uint32_t p = s.pmin[i], q = s.pmax[i];
-  if (iso > s.iso) {
-    for (; p < size && (ahead(mn, p, 1), tet_min(grid, mn[p]) < iso); ++p) f[mn[p]] |= 1;
-    for (; q < size && (ahead(mx, q, 1), tet_max(grid, mx[q]) < iso); ++q) f[mx[q]] &= std::uint8_t(~2);
-  } else {
-    for (; p > 0 && (ahead(mn, p - 1, -1), tet_min(grid, mn[p - 1]) >= iso); --p) f[mn[p - 1]] &= std::uint8_t(~1);
-    for (; q > 0 && (ahead(mx, q - 1, -1), tet_max(grid, mx[q - 1]) >= iso); --q) f[mx[q - 1]] |= 2;
-  }
-  s.pmin[i] = p;
-  s.pmax[i] = q;
-}
-
-}  // namespace
-
-void sweep_to(const IntervalTree& tree, const TetGrid& grid, SweepState& s, double iso) {
-  if (!std::isfinite(iso)) throw InputError("the iso-value must be a finite number");
-  if (!s.valid || s.flags.size() != grid.tet_count() || s.pmin.size() != tree.nodes.size()) {
-    s.pmin.assign(tree.nodes.size(), 0);
-    s.pmax.assign(tree.nodes.size(), 0);
-    detail::assign_big(s.flags, grid.tet_count(), std::uint8_t{0});
-    tbb::parallel_for(std::size_t{0}, tree.nodes.size(), [&](std::size_t i) { init_node(tree, grid, s, i, iso); });
-    // Flags in tetrahedron order (coherent memory access), not list order; constant ones stay 0.
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, grid.tet_count(), 16384), [&](const auto& r) {
-      for (std::size_t t = r.begin(); t < r.end(); ++t) {
-        Range q = tet_range(grid, static_cast<std::uint32_t>(t));
-        if (q.lo < q.hi) s.flags[t] = static_cast<std::uint8_t>((q.lo < iso) | ((q.hi >= iso) << 1));
-      }
-    });
-    s.iso = iso;
-    s.valid = true;
-    s.walked = tree.entries();
-    s.entering.clear();
-    s.entering_complete = false;
-    return;
-  }
-  s.walked = 0;
-  s.entering.clear();
-  s.entering_complete = true;
-  if (iso == s.iso) return;
-  // A key crosses when it lies in [L, H); prune subtrees whose keys all lie outside. The nodes to
-  // walk are listed in pre-order and walked in parallel: each tetrahedron lives in one node, so the
-  // walks write disjoint flags; the entering entries are then concatenated in the same pre-order.
-  const double L = std::min(iso, s.iso), H = std::max(iso, s.iso);
-  struct Visit {
-    std::size_t node;
-    std::uint32_t p0, q0;
-  };
-  std::vector<Visit> visits;
-  std::vector<std::size_t> stack{0};
-  while (!stack.empty()) {
-    std::size_t i = stack.back();
-    stack.pop_back();
-    const auto& n = tree.nodes[i];
-    if (!(n.lo < H && n.hi >= L)) continue;
-    visits.push_back({i, s.pmin[i], s.pmax[i]});
-    if (!tree.is_leaf(i)) {
-      stack.push_back(2 * i + 2);
-      stack.push_back(2 * i + 1);
-    }
-  }
-  tbb::parallel_for(std::size_t{0}, visits.size(), [&](std::size_t k) { walk_node(tree, grid, s, visits[k].node, iso); });
-  // Per visited node, the entries walked in each list: [min(old, new), max(old, new)) positions.
-  auto span = [&](const Visit& v, bool by_max) {
-    const std::uint32_t now = by_max ? s.pmax[v.node] : s.pmin[v.node], then = by_max ? v.q0 : v.p0;
-    return std::pair{std::min(now, then), std::max(now, then)};
-  };
-  // A tetrahedron becomes active when its minimum drops below a rising iso-value, or its maximum
-  // reaches a falling one: only that list's walked entries can enter.
-  const bool rising = iso > s.iso;
-  std::vector<std::uint64_t> at(visits.size() + 1, 0);
-  for (std::size_t k = 0; k < visits.size(); ++k) {
-    const auto [a, b] = span(visits[k], false);
-    const auto [c, d] = span(visits[k], true);
-    s.walked += (b - a) + (d - c);
-    at[k + 1] = at[k] + (rising ? b - a : d - c);
-  }
-  s.iso = iso;
-  if (at.back() > s.entering_limit) {
-    s.entering_complete = false;
-    return;
-  }
-  s.entering.resize(at.back());
-  const auto& list = rising ? tree.by_min : tree.by_max;
-  tbb::parallel_for(std::size_t{0}, visits.size(), [&](std::size_t k) {
-    const auto& n = tree.nodes[visits[k].node];
-    const auto [a, b] = span(visits[k], !rising);
-    std::copy(list.begin() + static_cast<std::ptrdiff_t>(n.begin + a), list.begin() + static_cast<std::ptrdiff_t>(n.begin + b),
-              s.entering.begin() + static_cast<std::ptrdiff_t>(at[k]));
-  });
-}
-
-void active_tetrahedra(const IntervalTree& tree, const SweepState& s, std::vector<std::uint32_t>& out) {
-  if (!s.valid) return;
-  for (std::size_t i = 0;;) {
-    const auto& n = tree.nodes[i];
-    const std::uint32_t* mn = tree.by_min.data() + n.begin;
-    if (tree.is_leaf(i)) {
-      for (std::uint32_t k = 0; k < s.pmin[i]; ++k)
-        if (s.flags[mn[k]] & 2) out.push_back(mn[k]);
-      return;
-    }
-    if (s.iso <= n.split) {  // every entry has tmax > split >= iso: active iff tmin < iso
-      out.insert(out.end(), mn, mn + s.pmin[i]);
-      i = 2 * i + 1;
-    } else {  // every entry has tmin < split < iso: active iff tmax >= iso
-      out.insert(out.end(), tree.by_max.begin() + static_cast<std::ptrdiff_t>(n.begin + s.pmax[i]),
-                 tree.by_max.begin() + static_cast<std::ptrdiff_t>(n.end));
-      i = 2 * i + 2;
-    }
-  }
-}
-
-void query_active(const IntervalTree& tree, const TetGrid& grid, double iso, std::vector<std::uint32_t>& out) {
-  if (!std::isfinite(iso)) throw InputError("the iso-value must be a finite number");
-  if (tree.nodes.empty()) return;
-  for (std::size_t i = 0;;) {
-    const auto& n = tree.nodes[i];
-    const std::uint32_t* mn = tree.by_min.data() + n.begin;
-    const std::uint32_t* mx = tree.by_max.data() + n.begin;
-    const std::uint32_t size = static_cast<std::uint32_t>(n.end - n.begin);
-    if (tree.is_leaf(i)) {
-      for (std::uint32_t k = 0; k < size; ++k) {
-        Range q = tet_range(grid, mn[k]);
-        if (q.lo >= iso) break;
-        if (q.hi >= iso) out.push_back(mn[k]);
-      }
-      return;
-    }
-    if (iso <= n.split) {
-      auto e = std::partition_point(mn, mn + size, [&](std::uint32_t t) { return tet_min(grid, t) < iso; });
-      out.insert(out.end(), mn, e);
-      i = 2 * i + 1;
-    } else {
-      auto b = std::partition_point(mx, mx + size, [&](std::uint32_t t) { return tet_max(grid, t) < iso; });
-      out.insert(out.end(), b, mx + size);
-      i = 2 * i + 2;
-    }
-  }
-}
-
-void scan_active(const TetGrid& grid, double iso, std::vector<std::uint32_t>& out) {
-  const std::size_t T = grid.tet_count();
-  const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(256, T / 65536 + 1));
-  std::vector<std::vector<std::uint32_t>> parts(chunks);
-  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t c) {
-    const std::size_t b = T * c / chunks, e = T * (c + 1) / chunks;
-    for (std::size_t t = b; t < e; ++t) {
-      Range q = tet_range(grid, static_cast<std::uint32_t>(t));
-      if (q.lo < iso && q.hi >= iso) parts[c].push_back(static_cast<std::uint32_t>(t));
-    }
-  });
-  for (const auto& p : parts) out.insert(out.end(), p.begin(), p.end());
-}
 
 }  // namespace adaptiso

@@ -18,7 +18,7 @@
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/error.hpp"
-#include "adaptiso/reduce.hpp"
+#include "adaptiso/volume.hpp"
 #include "grid/diamond.hpp"
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"

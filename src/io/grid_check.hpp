@@ -7,7 +7,7 @@
 
 #include <string>
 
-#include "adaptiso/prepare.hpp"
+#include "adaptiso/prepared_grid.hpp"
 
 namespace adaptiso::detail {
 

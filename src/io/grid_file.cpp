@@ -340,23 +340,6 @@ PreparedGrid load_grid(const std::string& path) {
   return p;
 }
 
-namespace {
-double bytes_per_vertex(const TetGrid& grid, std::uint64_t entries, std::uint64_t nodes) {
-  const double bytes = grid.vertex_count() * (12.0 + 8 + 12) + grid.tet_count() * 16.0 + entries * 8.0 + nodes * 24.0;
-  return grid.vertex_count() ? bytes / static_cast<double>(grid.vertex_count()) : 0;
-}
-}  // namespace
-
-double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index) {
-  return bytes_per_vertex(grid, index.entries(), index.nodes.size());
-}
-
-namespace detail {
-double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTreeShape& shape) {
-  return bytes_per_vertex(grid, shape.entries, shape.nodes());
-}
-}  // namespace detail
-
 void write_vtu(const TetGrid& grid, const std::string& path) {
   const std::uint64_t n = grid.vertex_count(), t = grid.tet_count();
   std::vector<float> pts(n * 3), grad(n * 3);

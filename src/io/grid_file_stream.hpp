@@ -1,4 +1,4 @@
-// The grid file written while the index is built (prepare_to_file, prepare.hpp): the grid's
+// The grid file written while the index is built (prepare_to_file.hpp): the grid's
 // positions and gradients are on disk and freed before the index takes its memory, so the peak
 // holds the grid file's parts one after another rather than all at once.
 #pragma once
@@ -7,7 +7,7 @@
 #include <string>
 
 #include "adaptiso/interval_tree.hpp"
-#include "adaptiso/prepare.hpp"
+#include "adaptiso/prepared_grid.hpp"
 
 namespace adaptiso::detail {
 
@@ -22,8 +22,5 @@ namespace adaptiso::detail {
 void save_grid_building_index(PreparedGrid& p, const std::string& path, const IntervalTreeShape& shape,
                               const std::function<std::size_t(std::uint64_t file_bytes)>& scratch_left,
                               const std::function<IntervalTree(const TetGrid& grid, std::size_t scratch)>& build_index);
-
-// grid_bytes_per_vertex (grid_file.hpp) for an index of that shape, before it is built.
-double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTreeShape& shape);
 
 }  // namespace adaptiso::detail

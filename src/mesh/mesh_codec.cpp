@@ -1,4 +1,9 @@
 // The compact mesh encoding (see mesh_codec.hpp), with meshoptimizer's codecs.
+//
+// This work is based on:
+// - Cigolle, Donow, Evangelakos, Mara, McGuire, Meyer. A survey of efficient representations for
+//   independent unit vectors. JCGT, 2014 (the octahedral encoding of the normals).
+// - Kapoulkine. meshoptimizer's vertex and index buffer codecs (used as a library).
 #include "adaptiso/mesh_codec.hpp"
 
 #include <fmt/format.h>

@@ -1,5 +1,9 @@
 // Mesh simplification to a distance (see simplify.hpp), with meshoptimizer's simplifier.
 //
+// This work is based on:
+// - Garland, Heckbert. Surface simplification using quadric error metrics. SIGGRAPH 1997 (the
+//   error metric of meshoptimizer's simplifier, used here).
+//
 // meshoptimizer's simplifier runs on one thread and its time grows with the mesh, so a large mesh
 // is cut into spatial chunks (a k-d split of the triangles' centroids at the median of the longest
 // side, until a chunk holds at most `chunk_triangles`), and the chunks are simplified in parallel.

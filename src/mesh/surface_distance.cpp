@@ -1,4 +1,8 @@
 // Symmetric surface distance (see surface_distance.hpp).
+//
+// This work is based on:
+// - Cignoni, Rocchini, Scopigno. Metro: measuring error on simplified surfaces. Computer
+//   Graphics Forum, 1998 (distances from dense samples of one surface to the other).
 #include "adaptiso/surface_distance.hpp"
 
 #include <CGAL/AABB_traits.h>

@@ -3,32 +3,22 @@
 #include "adaptiso/prepare.hpp"
 
 #include <fmt/format.h>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_reduce.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <limits>
-#include <nlohmann/json.hpp>
 
-#include "adaptiso/atomic_file.hpp"
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/delaunay.hpp"
 #include "adaptiso/error.hpp"
 #include "adaptiso/gradients.hpp"
-#include "adaptiso/grid_file.hpp"
-#include "io/grid_file_stream.hpp"
 #include "util/memory.hpp"
 
 namespace adaptiso {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-// Peak resident memory of this process so far (Linux: VmHWM; 0 elsewhere). Never reset (writing
-// to /proc/self/clear_refs would give per-stage peaks, but it also resets what getrusage, time(1)
-// and wait4 report for the whole process: the bunny's 2.8 GB index peak read as 2.0 GB).
-std::uint64_t peak_rss() { return detail::process_status_bytes("VmHWM"); }
 
 // Times one stage and records the process's peak at its end into stats.
 class StageClock {
@@ -41,7 +31,7 @@ public:
       PrepareStats& stats;
       const char* name;
       Clock::time_point t0;
-      ~Record() { stats.stages.push_back({name, std::chrono::duration<double>(Clock::now() - t0).count(), peak_rss()}); }
+      ~Record() { detail::record_stage(stats, name, std::chrono::duration<double>(Clock::now() - t0).count()); }
     } record{stats_, name, t0};
     return f();
   }
@@ -57,19 +47,6 @@ std::uint64_t resident_grid_bytes(const PreparedGrid& p) {
     bytes += p.hierarchy->error_code.size() + p.hierarchy->displacement_code.size() +
              p.hierarchy->value_span.size() * sizeof(p.hierarchy->value_span[0]);
   return bytes;
-}
-
-// What the index's build may hold beyond its lists for the peak to stay within the saved grid
-// plus 2.5 times the volume's bytes (README): grid_bytes are the grid's bytes besides the lists
-// (resident in memory, or still to be written to the file), and what else the process holds now
-// (its code and libraries, the heap's remains; from VmRSS) comes out of the 2.5 volumes. The
-// bunny's nodes all sort the fast way within it; the MR head's noisy scan, whose largest node
-// alone would take 426 MiB that way, sorts its largest nodes with 2 bytes an entry.
-std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes) {
-  const std::uint64_t resident = detail::process_status_bytes("VmRSS");
-  const std::uint64_t other = resident > grid_bytes ? resident - grid_bytes : 0;
-  const std::uint64_t allowance = volume_bytes / 2 * 5;
-  return allowance > other ? allowance - other : 0;
 }
 
 void check_options(const PrepareOptions& o) {
@@ -90,22 +67,7 @@ double default_max_error(const ValueRange& range, bool relative) {
 
 double absolute_max_error(const PrepareOptions& o, const ValueRange& range) {
   if (!o.max_error) return o.max_displacement > 0 ? std::numeric_limits<double>::infinity() : default_max_error(range, false);
-  return o.relative ? *o.max_error * (range.max - range.min) : *o.max_error;
-}
-
-ReduceOptions reduce_options(const PrepareOptions& o, const ValueRange& range) {
-  ReduceOptions r;
-  r.method = o.method;
-  const double span = range.max - range.min;
-  // ReduceOptions::relative covers the error and the threshold alike: keep the error in the unit
-  // the threshold is given in.
-  r.max_error = o.relative && span > 0 ? absolute_max_error(o, range) / span : absolute_max_error(o, range);
-  r.threshold = o.threshold;
-  r.gradient = o.structural_gradient;
-  r.sigma = o.sigma;
-  r.kernel = o.kernel;
-  r.relative = o.relative;
-  return r;
+  return o.relative ? from_fraction(range, *o.max_error, FractionOf::width, "max_error") : *o.max_error;
 }
 
 PreparedGrid prepare(const Volume& v, const PrepareOptions& options, const Progress& progress) {
@@ -117,13 +79,19 @@ namespace {
 // The paper's grid: reduction (§2.1), then Delaunay (§2.2).
 TetGrid delaunay_pipeline(const Volume& v, const ValueRange& range, const PrepareOptions& o, StageClock& clock, PrepareStats& stats,
                           const Progress& progress) {
-  const ReduceResult r = clock.run("reduce", [&] { return reduce(v, range, reduce_options(o, range), progress); });
+  // The bound in the unit the threshold is given in (ReduceOptions::relative covers both): reduce()
+  // converts it to data units, once.
+  ReduceOptions reduction = o.reduce;
+  reduction.relative = o.relative;
+  reduction.max_error = o.max_error ? *o.max_error : default_max_error(range, o.relative);
+  const ReduceResult r = clock.run("reduce", [&] { return reduce(v, range, reduction, progress); });
   stats.max_error = r.max_error;
   stats.threshold = r.threshold;
   DelaunayOptions delaunay;
   delaunay.parallel = o.parallel_delaunay;
   TetGrid grid = clock.run("tetrahedralize", [&] { return delaunay_grid(v, range, r.kept, delaunay, progress); });
-  grid.source.method = o.method == ReduceMethod::structural ? "structural" : o.method == ReduceMethod::both ? "both" : "reconstruction";
+  const ReduceMethod method = o.reduce.method;
+  grid.source.method = method == ReduceMethod::structural ? "structural" : method == ReduceMethod::both ? "both" : "reconstruction";
   grid.source.max_error = r.max_error;
   grid.source.threshold = r.threshold;
   return grid;
@@ -146,10 +114,8 @@ TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const Prepa
 
 }  // namespace
 
-namespace {
+namespace detail {
 
-// Every stage before the index; `release`, when given, is v itself, whose voxels go once nothing
-// reads them.
 PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress,
                                Volume* release) {
   check_options(o);
@@ -180,7 +146,7 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
   stats.kept = p.grid.vertex_count();
   stats.tetrahedra = p.grid.tet_count();
   if (release) release->bytes = VoxelBuffer();
-  detail::release_free_heap();  // what the selection freed in the heap's arenas (the MR head: 9 MiB)
+  release_free_heap();  // what the selection freed in the heap's arenas (the MR head: 9 MiB)
   return p;
 }
 
@@ -191,40 +157,36 @@ IntervalTree build_index(const TetGrid& grid, const PrepareOptions& o, std::size
   });
 }
 
+// What else the process holds is read from VmRSS (its code and libraries, the heap's remains). The
+// bunny's nodes all sort the fast way within it; the MR head's noisy scan, whose largest node
+// alone would take 426 MiB that way, sorts its largest nodes with 2 bytes an entry.
+std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes) {
+  const std::uint64_t resident = process_status_bytes("VmRSS");
+  const std::uint64_t other = resident > grid_bytes ? resident - grid_bytes : 0;
+  const std::uint64_t allowance = volume_bytes / 2 * 5;
+  return allowance > other ? allowance - other : 0;
+}
+
+// Peak resident memory of this process so far (Linux: VmHWM; 0 elsewhere). Never reset (writing
+// to /proc/self/clear_refs would give per-stage peaks, but it also resets what getrusage, time(1)
+// and wait4 report for the whole process: the bunny's 2.8 GB index peak read as 2.0 GB).
+void record_stage(PrepareStats& stats, const std::string& name, double seconds) {
+  stats.stages.push_back({name, seconds, process_status_bytes("VmHWM")});
+}
+
+}  // namespace detail
+
+namespace {
+
 PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress, Volume* release) {
   const std::uint64_t volume_bytes = v.bytes.size();
-  PreparedGrid p = prepare_unindexed(v, range, o, progress, release);
+  PreparedGrid p = detail::prepare_unindexed(v, range, o, progress, release);
   // At least 64 MiB: prepare's grid in memory may not fit its allowance at all (the chest CT).
-  const std::size_t scratch = std::max(index_scratch(volume_bytes, resident_grid_bytes(p)), std::size_t{64} << 20);
-  p.index = build_index(p.grid, o, scratch, p.stats, progress);
+  const std::size_t scratch = std::max(detail::index_scratch(volume_bytes, resident_grid_bytes(p)), std::size_t{64} << 20);
+  p.index = detail::build_index(p.grid, o, scratch, p.stats, progress);
   p.stats.index_depth = p.index.depth;
   p.stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
   return p;
-}
-
-PrepareStats prepare_file(const Volume& v, const ValueRange& range, const PrepareOptions& o, const std::string& path,
-                          const Progress& progress, Volume* release) {
-  check_output_path(path);  // before minutes of work, not after
-  const std::uint64_t volume_bytes = v.bytes.size();
-  PreparedGrid p = prepare_unindexed(v, range, o, progress, release);
-  const IntervalTreeShape shape = interval_tree_shape(p.grid, o.tree_depth);
-  p.stats.index_depth = shape.depth;
-  p.stats.grid_bytes_per_vertex = detail::grid_bytes_per_vertex(p.grid, shape);
-  const auto t0 = Clock::now();
-  detail::save_grid_building_index(
-      p, path, shape,
-      [&](std::uint64_t file_bytes) {
-        // The grid's part of the file: what the lists and the nodes (as held in memory) leave.
-        const std::uint64_t index_bytes = shape.entries * 8 + shape.nodes() * sizeof(IntervalTree::Node);
-        return index_scratch(volume_bytes, file_bytes > index_bytes ? file_bytes - index_bytes : 0);
-      },
-      [&](const TetGrid& grid, std::size_t scratch) {
-        // At least 16 MiB: the nodes that do not fit sort with 2 bytes an entry.
-        return build_index(grid, o, std::max(scratch, std::size_t{16} << 20), p.stats, progress);
-      });
-  const double seconds = std::chrono::duration<double>(Clock::now() - t0).count() - p.stats.seconds("index");
-  p.stats.stages.push_back({"save", seconds, peak_rss()});
-  return std::move(p.stats);
 }
 
 }  // namespace
@@ -240,20 +202,6 @@ PreparedGrid prepare(Volume&& v, const ValueRange& range, const PrepareOptions& 
 PreparedGrid prepare(Volume&& v, const PrepareOptions& o, const Progress& progress) {
   const ValueRange range = value_range(v);
   return prepare_grid(v, range, o, progress, &v);
-}
-
-PrepareStats prepare_to_file(Volume&& v, const ValueRange& range, const PrepareOptions& o, const std::string& path,
-                             const Progress& progress) {
-  return prepare_file(v, range, o, path, progress, &v);
-}
-
-PrepareStats prepare_to_file(const Volume& v, const PrepareOptions& o, const std::string& path, const Progress& progress) {
-  return prepare_file(v, value_range(v), o, path, progress, nullptr);
-}
-
-PrepareStats prepare_to_file(Volume&& v, const PrepareOptions& o, const std::string& path, const Progress& progress) {
-  const ValueRange range = value_range(v);
-  return prepare_file(v, range, o, path, progress, &v);
 }
 
 namespace {
@@ -285,20 +233,6 @@ PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, c
 }
 
 }  // namespace
-
-double surface_error(const PrepareStats& s) { return s.error_bound >= 0 ? s.error_bound : s.pl_max_error; }
-
-double surface_error_bound(const PreparedGrid& g, const std::vector<std::uint32_t>& tetrahedra) {
-  if (g.tet_error_code.empty()) return surface_error(g.stats);
-  const std::uint8_t worst = tbb::parallel_reduce(
-      tbb::blocked_range<std::size_t>(0, tetrahedra.size(), 1 << 14), std::uint8_t{0},
-      [&](const auto& r, std::uint8_t m) {
-        for (std::size_t i = r.begin(); i < r.end(); ++i) m = std::max(m, g.tet_error_code[tetrahedra[i]]);
-        return m;
-      },
-      [](std::uint8_t a, std::uint8_t b) { return std::max(a, b); });
-  return tetrahedra.empty() ? 0.0 : g.tet_codes.error(worst);
-}
 
 PreparedGrid coarsen(const PreparedGrid& fine, double max_error, double max_displacement, const Progress& progress) {
   BisectionOptions b;

@@ -1,5 +1,8 @@
 // Reconstruction analysis — Lürig & Ertl §2.1, "reconstruction analysis" (Tables 1–3).
 //
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.1, "reconstruction analysis" (Tables 1–3).
+//
 // The octree is implicit: a cube at level l (edge L = 2^l voxels) with index c spans voxels
 // [c·L, c·L + L] on each axis, clipped to the volume. Cubes are processed depth first; a cube
 // merges when its 8 children merged and every voxel of its (clipped) box is reproduced within the

@@ -1,5 +1,8 @@
 // Vertex reduction front door: resolves relative units, runs the chosen criteria, unites the
 // kept sets with the 8 corners of the volume (Lürig & Ertl §2.1).
+//
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.1 (the two criteria united, the corners kept).
 #include <fmt/format.h>
 #include <algorithm>
 #include <cmath>
@@ -16,13 +19,6 @@ std::vector<std::int64_t> volume_corners(const Volume& v) {
   return c;
 }
 
-double error_tolerance(const Volume& v, double bound) { return error_tolerance(value_range(v), bound); }
-
-double error_tolerance(const ValueRange& r, double bound) {
-  double mag = std::max({std::abs(r.min), std::abs(r.max), std::abs(bound), 1e-300});
-  return 16 * std::numeric_limits<double>::epsilon() * mag;
-}
-
 ReduceResult reduce(const Volume& v, const ReduceOptions& o, const Progress& progress) { return reduce(v, value_range(v), o, progress); }
 
 ReduceResult reduce(const Volume& v, const ValueRange& range, const ReduceOptions& o, const Progress& progress) {
@@ -30,7 +26,7 @@ ReduceResult reduce(const Volume& v, const ValueRange& range, const ReduceOption
   ReduceResult r;
   if (!(o.max_error >= 0) || !std::isfinite(o.max_error))
     throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
-  r.max_error = o.relative ? o.max_error * (range.max - range.min) : o.max_error;
+  r.max_error = o.relative ? from_fraction(range, o.max_error, FractionOf::width, "max_error") : o.max_error;
   std::vector<std::int64_t> a, b;
   if (o.method != ReduceMethod::structural) {
     a = reconstruction_analysis(v, range, r.max_error, &r.octree, progress);

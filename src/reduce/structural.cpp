@@ -2,6 +2,11 @@
 // magnitude exceeds a threshold and is a local maximum along the gradient direction (non-maximum
 // suppression as in Canny's edge detector, extended to 3D).
 //
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §2.1, "structural analysis".
+// - Canny. A computational approach to edge detection. IEEE TPAMI, 1986 (non-maximum suppression,
+//   the derivative-of-Gaussian operator).
+//
 // Central differences are evaluated on the fly (no gradient field is stored; a voxel below the
 // threshold costs six reads). The Canny operator convolves the volume with the partial derivatives
 // of a 3D Gaussian (separable: one 1D pass per axis), which needs three float fields of the

@@ -194,6 +194,12 @@ public:
     std::lock_guard lock(mutex_);
     jobs_.clear();
   }
+  // Jobs queued or running (a test waits for none before moving its clock: a job that finishes
+  // stamps its level as used).
+  std::size_t pending() const {
+    std::lock_guard lock(mutex_);
+    return jobs_.size() + (running_ ? 1 : 0);
+  }
 
 private:
   void loop() {
@@ -205,29 +211,36 @@ private:
         if (stop_) return;
         job = std::move(jobs_.begin()->second);
         jobs_.erase(jobs_.begin());
+        running_ = true;
       }
-      auto slot = job.slot.lock();
-      if (!slot) continue;  // the client is gone
-      std::lock_guard lock(slot->mutex);
-      // The page asked for this level since the job was queued (or is asking now): it has, or is
-      // about to get, the surface it wants; following an older iso-value would only move away.
-      if (slot->page_requests.load() != job.page_requests) continue;
-      slot->following_grid.store(job.grid.get());
-      slot->following.store(job.iso);
-      try {
-        arena_.execute([&] { run_(*slot, job, &slot->page_waiting); });
-      } catch (const ExtractCancelled&) {  // the page asked meanwhile: its request extracts
-      } catch (const OverBudget&) {        // no room for background work now: the page's request will ask
-      } catch (const std::exception& e) {  // the page's own request will meet and report it
-        std::cerr << "adaptiso view: background extraction failed: " << e.what() << "\n";
-      }
-      slot->following.store(kNaN);
-      slot->following_grid.store(nullptr);
+      run_one(job);
+      std::lock_guard lock(mutex_);
+      running_ = false;
     }
+  }
+  void run_one(const Job& job) {
+    auto slot = job.slot.lock();
+    if (!slot) return;  // the client is gone
+    std::lock_guard lock(slot->mutex);
+    // The page asked for this level since the job was queued (or is asking now): it has, or is
+    // about to get, the surface it wants; following an older iso-value would only move away.
+    if (slot->page_requests.load() != job.page_requests) return;
+    slot->following_grid.store(job.grid.get());
+    slot->following.store(job.iso);
+    try {
+      arena_.execute([&] { run_(*slot, job, &slot->page_waiting); });
+    } catch (const ExtractCancelled&) {  // the page asked meanwhile: its request extracts
+    } catch (const OverBudget&) {        // no room for background work now: the page's request will ask
+    } catch (const std::exception& e) {  // the page's own request will meet and report it
+      std::cerr << "adaptiso view: background extraction failed: " << e.what() << "\n";
+    }
+    slot->following.store(kNaN);
+    slot->following_grid.store(nullptr);
   }
   Runner run_;
   tbb::task_arena arena_;
-  std::mutex mutex_;
+  mutable std::mutex mutex_;
+  bool running_ = false;
   std::condition_variable ready_;
   std::unordered_map<const Slot*, Job> jobs_;
   bool stop_ = false;
@@ -595,6 +608,7 @@ std::vector<Sessions::Level> Sessions::levels() const {
 Sessions::Memory Sessions::memory() const {
   Memory m;
   m.budget = impl_->opt.memory_budget;
+  m.background = impl_->follower->pending();
   m.resident = impl_->opt.resident();
   m.extractors_bytes = impl_->cached->load();
   m.reserved = impl_->promised.reserved.load();

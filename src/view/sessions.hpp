@@ -127,6 +127,7 @@ public:
     std::uint64_t reserved = 0;          // for requests in flight
     std::size_t clients = 0, extractors = 0;
     std::size_t levels_built = 0;            // levels of detail held, level 0 included
+    std::size_t background = 0;              // the follower's extractions queued or running
     std::uint64_t evicted = 0, refused = 0;  // extractors dropped, requests refused, since the start
   };
   Memory memory() const;

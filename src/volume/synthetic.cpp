@@ -1,4 +1,7 @@
 // Built-in volumes (see synthetic.hpp); the sphere follows Lürig & Ertl §3.
+//
+// This work is based on:
+// - Lürig, Ertl. Adaptive Iso-surface Generation. 1998. §3 (the sphere).
 #include "adaptiso/synthetic.hpp"
 #include "util/memory.hpp"
 

@@ -177,6 +177,20 @@ ValueRange value_range(const Volume& v) {
   });
 }
 
+double from_fraction(const ValueRange& range, double fraction, FractionOf kind, std::string_view what) {
+  const double width = fraction * (range.max - range.min);
+  const double x = kind == FractionOf::value ? range.min + width : width;
+  if (!std::isfinite(x)) throw InputError(fmt::format("{}: the value range [{:g}, {:g}] is too wide to scale", what, range.min, range.max));
+  return x;
+}
+
+double error_tolerance(const Volume& v, double bound) { return error_tolerance(value_range(v), bound); }
+
+double error_tolerance(const ValueRange& r, double bound) {
+  double mag = std::max({std::abs(r.min), std::abs(r.max), std::abs(bound), 1e-300});
+  return 16 * std::numeric_limits<double>::epsilon() * mag;
+}
+
 namespace {
 
 // Counts of `vals` in `bins` equal bins over r (values outside r land in the end bins).

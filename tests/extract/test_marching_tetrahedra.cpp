@@ -2,6 +2,7 @@
 // 2-manifold, oriented, no degenerate triangles, the same numbering for any chunking.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <set>
@@ -181,4 +182,98 @@ TEST(MarchingTets, OutsideTheRangeGivesAnEmptyMesh) {
   st = extract_into(ex, g.source.min, m);  // everything is at or above the minimum: nothing below
   EXPECT_EQ(st.triangles, 0u);
   EXPECT_THROW(extract_into(ex, std::nan(""), m), InputError);
+}
+
+// ---- Hand-built cases: one tetrahedron cut by hand ----
+//
+//      z
+//      3            The tetrahedron 0 (0,0,0), 1 (1,0,0), 2 (0,1,0), 3 (0,0,1): positive volume
+//      |            (det[1−0, 2−0, 3−0] = 1). Values 0 or 1 on its corners, iso-value 0.5: every
+//      |            cut edge is cut at its midpoint, exactly; the vertex gradients are the linear
+//      0------2  y  field's, so every normal is the field's, negated.
+//     /
+//    1
+//   x
+namespace {
+
+TetGrid one_tetrahedron(std::array<double, 4> values) {
+  TetGrid g;
+  g.source.dims = {2, 2, 2};
+  g.source.min = 0;
+  g.source.max = 1;
+  g.ijk = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};  // voxels 0, 1, 2, 4: ascending
+  g.values.assign(values.begin(), values.end());
+  const std::array<float, 3> gradient{float(values[1] - values[0]), float(values[2] - values[0]), float(values[3] - values[0])};
+  g.gradients.assign(4, gradient);
+  g.tets = {{0, 1, 2, 3}};
+  return g;
+}
+
+std::array<double, 3> cross_of(const Mesh& m, const std::array<std::uint32_t, 3>& t) {
+  const auto &a = m.positions[t[0]], &b = m.positions[t[1]], &c = m.positions[t[2]];
+  const std::array<double, 3> u{b[0] - a[0], b[1] - a[1], b[2] - a[2]}, w{c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+  return {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+}
+
+}  // namespace
+
+TEST(MarchingTetsByHand, OneCornerAboveGivesOneTriangle) {
+  // Corner 0 below, 1, 2, 3 above (f = x + y + z): the triangle at the midpoints of 0-1, 0-2, 0-3.
+  const TetGrid g = one_tetrahedron({0, 1, 1, 1});
+  std::vector<std::uint64_t> edges;
+  const std::uint32_t active[] = {0};
+  const Mesh m = march_tetrahedra(g, active, 0.5, {}, &edges);
+  ASSERT_EQ(m.triangle_count(), 1u);
+  ASSERT_EQ(m.vertex_count(), 3u);
+  std::vector<std::array<float, 3>> at = m.positions;
+  std::sort(at.begin(), at.end());
+  EXPECT_EQ(at, (std::vector<std::array<float, 3>>{{0, 0, 0.5f}, {0, 0.5f, 0}, {0.5f, 0, 0}}));
+  // Normals towards lower values, −(1,1,1)/√3; the triangle counter-clockwise seen from there.
+  const float s = float(-1 / std::sqrt(3.0));
+  for (const auto& n : m.normals)
+    for (float x : n) EXPECT_FLOAT_EQ(x, s);
+  EXPECT_EQ(cross_of(m, m.triangles[0]), (std::array<double, 3>{-0.25, -0.25, -0.25}));
+  // Each vertex's edge, below vertex first: 0 → 1, 0 → 2, 0 → 3 in some order.
+  std::sort(edges.begin(), edges.end());
+  EXPECT_EQ(edges, (std::vector<std::uint64_t>{1, 2, 3}));
+  // The same edges by their global lattice keys (tet_grid.hpp): voxel indices, smaller first.
+  EXPECT_EQ(g.lattice_edge(2, 0), (LatticeEdge{0, 2}));
+  EXPECT_EQ(g.lattice_edge(0, 3), (LatticeEdge{0, 4}));
+}
+
+TEST(MarchingTetsByHand, TwoCornersAboveGiveAQuadOfTwoTriangles) {
+  // 0, 1 below, 2, 3 above (f = y + z): the parallelogram at the midpoints of 0-2, 0-3, 1-2, 1-3,
+  // area |(½,0,0) × (0,−½,½)| = √2/4, normals −(0,1,1)/√2.
+  const TetGrid g = one_tetrahedron({0, 0, 1, 1});
+  const std::uint32_t active[] = {0};
+  const Mesh m = march_tetrahedra(g, active, 0.5);
+  ASSERT_EQ(m.triangle_count(), 2u);
+  ASSERT_EQ(m.vertex_count(), 4u);
+  std::vector<std::array<float, 3>> at = m.positions;
+  std::sort(at.begin(), at.end());
+  EXPECT_EQ(at, (std::vector<std::array<float, 3>>{{0, 0, 0.5f}, {0, 0.5f, 0}, {0.5f, 0, 0.5f}, {0.5f, 0.5f, 0}}));
+  EXPECT_DOUBLE_EQ(mesh_area(m), std::sqrt(2.0) / 4);
+  const float s = float(-1 / std::sqrt(2.0));
+  for (const auto& n : m.normals) {
+    EXPECT_EQ(n[0], 0.0f);
+    EXPECT_FLOAT_EQ(n[1], s);
+    EXPECT_FLOAT_EQ(n[2], s);
+  }
+  for (const auto& t : m.triangles) {
+    const auto c = cross_of(m, t);
+    EXPECT_EQ(c[0], 0.0);
+    EXPECT_EQ(c[1], -0.25);
+    EXPECT_EQ(c[2], -0.25);
+  }
+}
+
+TEST(MarchingTetsByHand, CornerOnTheIsoValueCountsAsAbove) {
+  // Values 0, 0.5, 0.5, 0.5 at iso 0.5: corners 1, 2, 3 are "above" (equal counts as above), so
+  // the tetrahedron is cut (min < iso <= max) and its triangle lies 1/1024 of each edge from
+  // them, not on them (marching_tetrahedra.hpp): no collapsed triangle.
+  const TetGrid g = one_tetrahedron({0, 0.5, 0.5, 0.5});
+  const std::uint32_t active[] = {0};
+  const Mesh m = march_tetrahedra(g, active, 0.5);
+  ASSERT_EQ(m.triangle_count(), 1u);
+  for (const auto& p : m.positions) EXPECT_FLOAT_EQ(p[0] + p[1] + p[2], float(1 - 1.0 / 1024));
 }

@@ -11,6 +11,7 @@
 #include "adaptiso/error.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/prepare.hpp"
+#include "adaptiso/prepare_to_file.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "test_util.hpp"
 

@@ -3,7 +3,9 @@
 
 #include <cmath>
 #include <limits>
+#include <string>
 
+#include "adaptiso/error.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "adaptiso/volume.hpp"
 #include "test_util.hpp"
@@ -114,6 +116,28 @@ TEST(Volume, CheckFiniteRejectsNaNAndInf) {
   v.set(13, 0);
   v.set(0, std::numeric_limits<double>::infinity());
   EXPECT_THROW(check_finite(v, "x"), InputError);
+}
+
+TEST(Volume, FractionOfTheValueRange) {
+  const ValueRange r{-100, 300};
+  EXPECT_EQ(from_fraction(r, 0.25, FractionOf::value, "iso"), 0.0);  // an iso-value: min + f·(max − min)
+  EXPECT_EQ(from_fraction(r, 1, FractionOf::value, "iso"), 300.0);
+  EXPECT_EQ(from_fraction(r, 0.25, FractionOf::width, "max_error"), 100.0);  // an error bound: f·(max − min)
+  EXPECT_EQ(from_fraction(r, 0, FractionOf::width, "max_error"), 0.0);
+  // The same arithmetic the command line and Python used before, bit for bit.
+  const ValueRange ct{-1024, 3071};
+  EXPECT_EQ(from_fraction(ct, 0.37, FractionOf::value, "iso"), ct.min + 0.37 * (ct.max - ct.min));
+  EXPECT_EQ(from_fraction(ct, 0.02, FractionOf::width, "max_error"), 0.02 * (ct.max - ct.min));
+  // A range from corrupt metadata overflows when scaled: refused, naming what was scaled.
+  const ValueRange wide{-1e308, 1e308};
+  try {
+    from_fraction(wide, 0.5, FractionOf::width, "--max-error");
+    FAIL() << "no throw";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("--max-error: the value range"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("too wide to scale"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(from_fraction(wide, 0.75, FractionOf::value, "iso"), InputError);
 }
 
 TEST(Synthetic, SphereMatchesDocumentedDefinition) {

@@ -1,11 +1,15 @@
-// PrepareStats as JSON (see prepare.hpp): what prepare measured, stored in grid files and printed
-// by --json. Apart from prepare.cpp so the grid file loader (and its fuzz target) needs no
-// grid builder.
+// The prepared grid's statistics as JSON and the error of its surfaces (see prepared_grid.hpp):
+// what prepare measured, stored in grid files and printed by --json. Apart from prepare.cpp so the
+// grid file loader (and its fuzz target) needs no grid builder.
+#include "adaptiso/prepared_grid.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <type_traits>
-
-#include "adaptiso/prepare.hpp"
 
 namespace adaptiso {
 
@@ -81,6 +85,37 @@ PrepareStats prepare_stats_from_json(const std::string& text) {
       s.stages.push_back(stage);
     }
   return s;
+}
+
+namespace {
+double bytes_per_vertex(const TetGrid& grid, std::uint64_t entries, std::uint64_t nodes) {
+  const double bytes = grid.vertex_count() * (12.0 + 8 + 12) + grid.tet_count() * 16.0 + entries * 8.0 + nodes * 24.0;
+  return grid.vertex_count() ? bytes / static_cast<double>(grid.vertex_count()) : 0;
+}
+}  // namespace
+
+double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index) {
+  return bytes_per_vertex(grid, index.entries(), index.nodes.size());
+}
+
+namespace detail {
+double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTreeShape& shape) {
+  return bytes_per_vertex(grid, shape.entries, shape.nodes());
+}
+}  // namespace detail
+
+double surface_error(const PrepareStats& s) { return s.error_bound >= 0 ? s.error_bound : s.pl_max_error; }
+
+double surface_error_bound(const PreparedGrid& g, const std::vector<std::uint32_t>& tetrahedra) {
+  if (g.tet_error_code.empty()) return surface_error(g.stats);
+  const std::uint8_t worst = tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, tetrahedra.size(), 1 << 14), std::uint8_t{0},
+      [&](const auto& r, std::uint8_t m) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) m = std::max(m, g.tet_error_code[tetrahedra[i]]);
+        return m;
+      },
+      [](std::uint8_t a, std::uint8_t b) { return std::max(a, b); });
+  return tetrahedra.empty() ? 0.0 : g.tet_codes.error(worst);
 }
 
 }  // namespace adaptiso

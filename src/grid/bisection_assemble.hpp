@@ -1,0 +1,223 @@
+// From a split rule to a grid: the walk over the bisection hierarchy that the selection
+// (bisection.cpp) and coarsening (bisection_coarsen.cpp) share, and their split rules. Internal.
+#pragma once
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "adaptiso/bisection.hpp"
+#include "adaptiso/error.hpp"
+#include "grid/diamond.hpp"
+#include "grid/traversal.hpp"
+#include "util/big_array.hpp"
+#include "util/memory.hpp"
+
+namespace adaptiso::detail {
+
+// Float bounds of doubles, rounded outwards, and their atomic updates (several tetrahedra of one
+// diamond lie in different subtrees).
+inline float down(double x) {
+  const auto f = static_cast<float>(x);
+  return f > x ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
+}
+inline float up(double x) {
+  const auto f = static_cast<float>(x);
+  return f < x ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
+}
+inline void atomic_min(float& target, float v) {
+  std::atomic_ref<float> a(target);
+  for (float cur = a.load(std::memory_order_relaxed); v < cur && !a.compare_exchange_weak(cur, v, std::memory_order_relaxed);) {
+  }
+}
+template <class T>
+void atomic_max(T& target, T v) {
+  std::atomic_ref<T> a(target);
+  for (T cur = a.load(std::memory_order_relaxed); v > cur && !a.compare_exchange_weak(cur, v, std::memory_order_relaxed);) {
+  }
+}
+
+// The selection at a bound: split where a diamond's codes exceed the thresholds.
+struct CodedSplits {
+  static constexpr bool kUpwardClosed = true;  // the codes are saturated
+  const std::vector<std::uint8_t>& code;
+  std::uint8_t threshold;
+  const std::vector<std::uint8_t>* displacement;  // displacement codes, when that criterion is used
+  std::uint8_t displacement_threshold;
+  bool split(std::int64_t voxel) const {
+    const auto i = static_cast<std::size_t>(voxel);
+    return code[i] > threshold || (displacement && (*displacement)[i] > displacement_threshold);
+  }
+  Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
+};
+
+// The selection under a cell floor: a diamond centred at (x, y, z) splits cubes of side 2^(t+1)
+// into cubes of side 2^t, t the fewest trailing zeros among x, y, z (ctz(x | y | z)), so the
+// diamonds of scale below the floor stay whole, but those the box forces (their codes say so,
+// and so do their ancestors'). The largest codes of the diamonds the floor kept whole are the
+// grid's measured bounds.
+struct FlooredSplits {
+  static constexpr bool kUpwardClosed = false;  // a diamond below the floor stays whole, though its parents split
+  CodedSplits coded;
+  std::int64_t nx, nxy;
+  std::int64_t below;                                          // 2^floor − 1: a centre with any of these bits set is below the floor
+  mutable std::uint8_t kept_error = 0, kept_displacement = 0;  // raised atomically by the walks' threads
+  bool split(std::int64_t voxel) const {
+    if (!coded.split(voxel)) return false;
+    const auto i = static_cast<std::size_t>(voxel);
+    if (coded.code[i] == ErrorCodes::kForced) return true;
+    const std::int64_t x = voxel % nx, y = voxel % nxy / nx, z = voxel / nxy;
+    if (((x | y | z) & below) == 0) return true;
+    atomic_max(kept_error, coded.code[i]);
+    if (coded.displacement) atomic_max(kept_displacement, (*coded.displacement)[i]);
+    return false;
+  }
+  Decision decide(std::int64_t voxel) const { return split(voxel) ? Decision::descend : Decision::leaf; }
+};
+
+// The grid's vertices under a rule whose splits are closed upwards (a split diamond's parents
+// split too: the codes are saturated), without a walk: the centres of the split diamonds in the
+// box and the root cube's corners in it. A split tetrahedron's midpoint is a vertex of both
+// halves, and of every descendant that contains it, so of the leaves that cover it; and every
+// vertex of a leaf is a root corner or the midpoint of an ancestor's split.
+template <class Rule>
+std::vector<std::uint64_t> split_centres(const Lattice& lat, const Rule& rule, std::size_t voxels) {
+  std::vector<std::uint64_t> bits;
+  assign_big(bits, (voxels + 63) / 64, std::uint64_t{0});
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bits.size(), 4096), [&](const auto& r) {
+    for (std::size_t w = r.begin(); w < r.end(); ++w) {
+      std::uint64_t word = 0;
+      const std::size_t n = std::min<std::size_t>(64, voxels - w * 64);
+      for (std::size_t b = 0; b < n; ++b) word |= std::uint64_t{rule.split(static_cast<std::int64_t>(w * 64 + b))} << b;
+      bits[w] = word;
+    }
+  });
+  for (int corner = 0; corner < 8; ++corner) {
+    const Coord c{corner & 1 ? lat.S : 0, corner & 2 ? lat.S : 0, corner & 4 ? lat.S : 0};
+    if (!lat.in_box(c)) continue;
+    const auto v = static_cast<std::size_t>(lat.index(c));
+    bits[v >> 6] |= std::uint64_t{1} << (v & 63);
+  }
+  return bits;
+}
+
+// The grid of a traversal's leaves inside the box. A first walk counts the leaves of each subtree.
+// The vertices are the split diamonds' centres (split_centres) under a rule closed upwards; under
+// another, the first walk marks the leaves' corners among the `voxels` voxels, a byte each (a
+// relaxed atomic byte store is a plain store; a bit would need a locked read-modify-write). They
+// are numbered in voxel order, size(count) sizes the arrays and fill(voxel, id) gives each vertex
+// its data (out.grid.values at least); then a second walk writes the tetrahedra with their final
+// numbers, and each split diamond gets the span of the values beneath it. Both walks cut the
+// hierarchy 12 splits below the roots into subtrees run in parallel and placed in depth-first
+// order, so the grid is the same for any thread count.
+//
+// With `own_code` (the codes by voxel), each tetrahedron's own bound is kept too, in
+// out.tet_code: the code of the diamond it would split at, at least `own_least` (0 for a unit
+// tetrahedron).
+template <class Rule, class Size, class Fill>
+void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size size, Fill fill, BisectionGrid& out, const Progress& progress,
+              const std::vector<std::uint8_t>* own_code = nullptr, std::uint8_t own_least = 0) {
+  const Traversal<Rule> walk(lat, rule);
+  const Frontier top = walk.frontier(12);
+  const std::vector<Subtree>& roots = top.roots;
+  std::vector<std::uint64_t> leaves(roots.size() + 1, 0);
+  report(progress, "select", 0);
+  constexpr bool kMarked = !Rule::kUpwardClosed;  // the vertices marked by the leaves, not found from the codes
+  std::vector<std::uint8_t> used;
+  if constexpr (kMarked) assign_big(used, voxels, std::uint8_t{0});
+  tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
+    std::uint64_t count = 0;
+    walk.visit(
+        roots[f],
+        [&](const Tet& t, std::int64_t) {
+          ++count;
+          if constexpr (kMarked)
+            for (const Coord& c : t)
+              std::atomic_ref<std::uint8_t>(used[static_cast<std::size_t>(lat.index(c))]).store(1, std::memory_order_relaxed);
+          return ValueSpan{};
+        },
+        [](std::int64_t, const Tet&, const ValueSpan&) {});
+    leaves[f + 1] = count;
+  });
+  VertexNumbers numbers;  // over the voxels
+  if constexpr (kMarked) {
+    numbers.bits.assign((used.size() + 63) / 64, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 4096), [&](const auto& r) {
+      for (std::size_t w = r.begin(); w < r.end(); ++w) {
+        std::uint64_t bits = 0;
+        for (std::size_t b = 0; b < 64 && w * 64 + b < used.size(); ++b) bits |= std::uint64_t{used[w * 64 + b]} << b;
+        numbers.bits[w] = bits;
+      }
+    });
+    std::vector<std::uint8_t>().swap(used);
+  } else {
+    numbers.bits = split_centres(lat, rule, voxels);
+  }
+  for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
+  numbers.count();
+  const std::uint64_t vertices = numbers.before.back(), tets = leaves.back();
+  // The grid and the rest of the preparation: tetrahedra (16 bytes), their index (8 bytes, and
+  // while built 16 more for each entry of the two nodes being sorted: about 8 a tetrahedron on the
+  // noisiest scan here, the MR head, whose two largest nodes hold 39 M of 84 M entries), vertices
+  // with values, gradients and codes (33 bytes).
+  check_memory(tets * 36 + vertices * 33, fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
+  if (vertices >= std::numeric_limits<std::uint32_t>::max() || tets >= std::numeric_limits<std::uint32_t>::max())
+    throw OptionError("max_error", fmt::format("{} vertices and {} tetrahedra exceed the grid's 32-bit indices; raise it", vertices, tets));
+  report(progress, "select", 0.5);
+  TetGrid& g = out.grid;
+  size(vertices);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 1024), [&](const auto& r) {
+    for (std::size_t w = r.begin(); w < r.end(); ++w) {
+      std::uint64_t id = numbers.before[w];
+      for (std::uint64_t b = numbers.bits[w]; b; b &= b - 1) fill(w * 64 + static_cast<std::size_t>(std::countr_zero(b)), id++);
+    }
+  });
+  resize_big(g.tets, tets);
+  if (own_code) resize_big(out.tet_code, tets);
+  auto& spans = out.hierarchy.value_span;
+  assign_big(spans, vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
+  auto merge = [&](std::uint32_t id, const ValueSpan& s) {
+    auto& span = spans[id];
+    atomic_min(span[0], down(s.lo));
+    atomic_max(span[1], up(s.hi));
+  };
+  std::vector<ValueSpan> root_spans(roots.size());
+  tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
+    std::uint64_t at = leaves[f];
+    root_spans[f] = walk.visit(
+        roots[f], numbers, g.values,
+        [&](const Tet&, const Corners& c, std::int64_t split_at) {
+          if (own_code)
+            out.tet_code[at] = split_at >= 0 ? std::max((*own_code)[static_cast<std::size_t>(split_at)], own_least) : std::uint8_t{0};
+          g.tets[at++] = c.id;
+          return ValueSpan{std::min({c.value[0], c.value[1], c.value[2], c.value[3]}),
+                           std::max({c.value[0], c.value[1], c.value[2], c.value[3]})};
+        },
+        [&](std::int64_t, std::uint32_t id, const Tet&, const ValueSpan& s) { merge(id, s); });
+  });
+  for (const auto& split : top.splits) {  // children first: the spans of the subtrees below
+    ValueSpan s;
+    for (std::size_t r = split.first; r < split.last; ++r) s.add(root_spans[r]);
+    merge(numbers.id(split.voxel), s);
+  }
+  report(progress, "select", 1);
+  out.hierarchy.root_size = lat.S;
+}
+
+inline void check_bounds(const BisectionOptions& o) {
+  if (o.cell_floor < 0 || o.cell_floor > 30)
+    throw OptionError("cell_floor", fmt::format("must be between 0 and 30 (cubes of 1 to 2^30 voxels), got {}", o.cell_floor));
+  if (!(o.max_error >= 0))  // +∞: no error criterion (the displacement alone, or the coarsest grid)
+    throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
+  if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
+    throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", o.max_displacement));
+}
+
+}  // namespace adaptiso::detail
