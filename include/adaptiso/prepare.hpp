@@ -36,7 +36,7 @@ enum class GridKind { bisection, delaunay };
 
 // The default error bound, as a fraction of the value range. Measured with bench/defaults.py and
 // bench/grids.py on every shared CT, MR and simulation volume at their suggested iso-values
-// (docs/RESULTS.md "Defaults"): at 0.02 every surface stays within 0.17 voxels of full-resolution
+// (docs/RESULTS.md; bench/results/HISTORY.md "Defaults"): at 0.02 every surface stays within 0.17 voxels of full-resolution
 // marching cubes on average (95 % of it within 0.72), and the 512×512×361 CT bunny prepares in
 // well under a minute; 0.05 prepares about 1.6× faster with ~15 % fewer triangles but drifts to
 // 0.21 (0.89) voxels, so the default keeps the accuracy.

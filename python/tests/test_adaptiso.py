@@ -265,7 +265,7 @@ def test_marching_cubes_matches_scikit_image_on_a_real_volume():
     assert o.shape == t.shape and np.array_equal(o, t)
     # Pieces with 4 to 7 cut edges are fanned from one edge here and triangulated per case by the
     # classic table there, which moves the area of this noisy surface by about 0.4 % (both lie 2.5 to
-    # 3 % above the area of the trilinear interpolant's surface: docs/RESULTS.md).
+    # 3 % above the area of the trilinear interpolant's surface: bench/results/HISTORY.md).
     assert abs(area(ours[0], ours[1]) / area(theirs[0], theirs[1]) - 1) < 0.01
     # method="lorensen" is their table: the same triangles, wound the same way.
     classic = adaptiso.marching_cubes(v.array, 200.5, spacing=spacing, method="lorensen")
