@@ -53,7 +53,10 @@ void LiningSpans::build(const Lattice& lat, const VertexNumbers& numbers, const 
       return s;
     }
     if (!splits || !(lat.in_box(m) ? numbers.used(lat.index(m)) : placement(classify(m, lat.k), lat).forced)) return s;
-    const auto [a, b] = halves(t, o, m, i, j);
+    // Not a structured binding: clang before 16 (the fuzz build's) cannot capture one in a lambda.
+    const auto both = halves(t, o, m, i, j);
+    const auto& a = both[0];
+    const auto& b = both[1];
     ValueSpan sa, sb;
     if (depth < 12)
       tbb::parallel_invoke([&] { sa = self(self, a.tet, a.order, depth + 1); }, [&] { sb = self(self, b.tet, b.order, depth + 1); });
