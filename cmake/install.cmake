@@ -1,7 +1,6 @@
 # Installation: `cmake --install BUILD [--prefix P]` puts the shared library, the public headers,
 # the CMake package (find_package(adaptiso 0.2) → adaptiso::adaptiso), a pkg-config file, the
 # command line with its viewer page, and (with ADAPTISO_BUILD_PYTHON) the Python module.
-include(GNUInstallDirs)
 include(CMakePackageConfigHelpers)
 
 install(TARGETS adaptiso_shared EXPORT adaptisoTargets
