@@ -68,11 +68,23 @@ def run(cmd):
     return r.stdout
 
 
-def distance(exe, mesh, ref, voxel):
-    """Symmetric mean and 95th percentile distance between two meshes, in voxels (adaptiso compare)."""
+def compare(exe, mesh, ref, voxel):
+    """Symmetric mean, 95th percentile and largest distance between two meshes in voxels, and the
+    first mesh's triangles (adaptiso compare)."""
     d = json.loads(run([exe, "compare", mesh, ref, "--voxel", f"{voxel:.9g}", "--json"]))
-    return (0.5 * (d["a_to_b"]["mean_voxels"] + d["b_to_a"]["mean_voxels"]), max(d["a_to_b"]["p95_voxels"], d["b_to_a"]["p95_voxels"]),
-            d["a_triangles"])
+    a, b = d["a_to_b"], d["b_to_a"]
+    return (0.5 * (a["mean_voxels"] + b["mean_voxels"]), max(a["p95_voxels"], b["p95_voxels"]), d["hausdorff_voxels"], d["a_triangles"])
+
+
+def distance(exe, mesh, ref, voxel):
+    """Symmetric mean and 95th percentile distance between two meshes in voxels, and the first's triangles."""
+    mean, p95, _, triangles = compare(exe, mesh, ref, voxel)
+    return mean, p95, triangles
+
+
+def last_json(text):
+    """The last line of a tool's output, which holds its JSON record."""
+    return json.loads(text.strip().splitlines()[-1])
 
 
 def main():

@@ -27,16 +27,10 @@ import os
 import subprocess
 import sys
 
-from defaults import main_input, run
+from defaults import compare, last_json, main_input, run
 
 DEFAULT = ["ct_bunny_stanford:1600.5", "dicom_mr_head_t1_vsseg:120.5", "ct_chest_lidc2:100.5", "mr_brain_flair:90.5",
            "ct_head_headsq_quarter:1000.5", "sci_neghip:50.5"]
-
-
-def compare(exe, mesh, ref, voxel):
-    d = json.loads(run([exe, "compare", mesh, ref, "--voxel", f"{voxel:.9g}", "--json"]))
-    a, b = d["a_to_b"], d["b_to_a"]
-    return (0.5 * (a["mean_voxels"] + b["mean_voxels"]), max(a["p95_voxels"], b["p95_voxels"]), d["hausdorff_voxels"])
 
 
 def fastest(cmd, repeat, seconds):
@@ -47,10 +41,6 @@ def fastest(cmd, repeat, seconds):
         if best is None or seconds(r) < seconds(best):
             best = r
     return best
-
-
-def last_json(text):
-    return json.loads(text.strip().splitlines()[-1])
 
 
 def query_setup_seconds(build, grid, iso):
@@ -106,12 +96,12 @@ def main():
                 fe_rec = last_json(run([peer, "fe", src, f"{iso:g}", fe]))
 
             def record(method, d, path, triangles, seconds, against_grid, **extra):
-                mean, p95, worst = compare(exe, path, ref, voxel)
+                mean, p95, worst, _ = compare(exe, path, ref, voxel)
                 rec = {"dataset": name, "iso": iso, "method": method, "distance": d, "triangles": triangles, "mean": mean, "p95": p95,
                        "max": worst, "seconds": seconds, **extra}
                 grid_cell = "–"
                 if against_grid:
-                    rec["grid_mean"], rec["grid_p95"], rec["grid_max"] = compare(exe, path, own, voxel)
+                    rec["grid_mean"], rec["grid_p95"], rec["grid_max"], _ = compare(exe, path, own, voxel)
                     grid_cell = f"{rec['grid_mean']:.3f} / {rec['grid_p95']:.3f}"
                 tri_ratio = f"{triangles / fe_rec['triangles']:.3f}" if fe_rec else "–"
                 time_ratio = f"{seconds / fe_rec['seconds']:.2f}" if fe_rec else "–"

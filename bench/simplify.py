@@ -23,7 +23,7 @@ import json
 import os
 import sys
 
-from defaults import distance, main_input, run
+from defaults import distance, last_json, main_input, run
 
 DEFAULT = ["ct_bunny_stanford:500,1600", "ct_chest_lidc2:100", "mr_brain_flair:90"]
 ADAPTISO = "adaptiso"
@@ -41,10 +41,6 @@ def best_cli(cmd, repeat):
         if best is None or total < best[0]:
             best = (total, s)
     return best[1]
-
-
-def last_json(text):
-    return json.loads(text.strip().splitlines()[-1])
 
 
 def main():

@@ -103,101 +103,91 @@ void print_surface(double iso, bool in_range, double min, double max, std::size_
                              path);
 }
 
-// Extracts every iso-value with one Extractor (so consecutive values sweep incrementally), writes
-// the meshes and returns the per-value statistics.
-nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
-                           const OutputFlags& out) {
-  const TetGrid& grid = prepared->grid;
-  Extractor ex(prepared);
+// Writes one surface per iso-value, whichever way `extract` makes it, and returns the per-value
+// statistics. `extract(iso, record)` calls `record(mesh, stats, how, seconds)` once: `stats` holds at
+// least iso, in_range, triangles and vertices; `how` says where the triangles came from.
+template <class Extract>
+nlohmann::json write_all(const PreparedGrid& prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
+                         const OutputFlags& out, Extract extract) {
+  const GridSource& source = prepared.grid.source;
   nlohmann::json results = nlohmann::json::array();
   for (std::size_t i = 0; i < isos.size(); ++i) {
-    ExtractStats st = ex.extract(isos[i]);
-    const Mesh& mesh = ex.mesh();
-    const std::string path = mesh_out.path(i);
-    auto t0 = Clock::now();
-    const auto [simplified, how] = mesh_out.write(mesh, path, grid.source.spacing);
-    const double t_write = seconds_since(t0);
-    nlohmann::json r = nlohmann::json::parse(to_json(st));
-    r["write_seconds"] = t_write;
-    r["output"] = path;
-    results.push_back(std::move(r));
-    if (!simplified.is_null()) results.back()["simplify"] = simplified;
-    if (!out.json && !out.quiet)
-      print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
-                    fmt::format("from {} active tetrahedra", st.active) + how, st.sweep_seconds + st.march_seconds, path);
+    extract(isos[i], [&](const Mesh& mesh, nlohmann::json stats, const std::string& how, double seconds) {
+      const std::string path = mesh_out.path(i);
+      const auto t0 = Clock::now();
+      const auto [simplified, simplified_how] = mesh_out.write(mesh, path, source.spacing);
+      stats["write_seconds"] = seconds_since(t0);
+      stats["output"] = path;
+      if (!simplified.is_null()) stats["simplify"] = simplified;
+      if (!out.json && !out.quiet)
+        print_surface(stats["iso"].get<double>(), stats["in_range"].get<bool>(), source.min, source.max,
+                      stats["triangles"].get<std::size_t>(), stats["vertices"].get<std::size_t>(), how + simplified_how, seconds, path);
+      results.push_back(std::move(stats));
+    });
   }
   return results;
+}
+
+// Every iso-value with one Extractor (so consecutive values sweep incrementally).
+nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
+                           const OutputFlags& out) {
+  Extractor ex(prepared);
+  return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
+    const ExtractStats st = ex.extract(iso);
+    record(ex.mesh(), nlohmann::json::parse(to_json(st)), fmt::format("from {} active tetrahedra", st.active),
+           st.sweep_seconds + st.march_seconds);
+  });
 }
 
 // Every iso-value from the bisection hierarchy at a coarser error (query-time error).
 nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
                          double max_error, double max_displacement, const OutputFlags& out) {
   const HierarchyQuery query(prepared);
-  const TetGrid& grid = prepared->grid;
-  nlohmann::json results = nlohmann::json::array();
-  for (std::size_t i = 0; i < isos.size(); ++i) {
+  return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
     HierarchyQueryStats st;
-    const Mesh mesh = query.extract(isos[i], max_error, max_displacement, &st);
-    const std::string path = mesh_out.path(i);
-    auto t0 = Clock::now();
-    const auto [simplified, how] = mesh_out.write(mesh, path, grid.source.spacing);
-    results.push_back({{"iso", st.iso},
-                       {"in_range", st.in_range},
-                       {"triangles", st.triangles},
-                       {"vertices", st.vertices},
-                       {"max_error", st.max_error},
-                       {"error_bound", st.error_bound},
-                       {"marched_tetrahedra", st.tetrahedra},
-                       {"visited_tetrahedra", st.visited},
-                       {"seconds", st.walk_seconds + st.march_seconds},
-                       {"walk_seconds", st.walk_seconds},
-                       {"march_seconds", st.march_seconds},
-                       {"write_seconds", seconds_since(t0)},
-                       {"output", path}});
-    if (!simplified.is_null()) results.back()["simplify"] = simplified;
-    if (!out.json && !out.quiet)
-      print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
-                    fmt::format("at error {:.4g} (guaranteed {:.4g})", st.max_error, st.error_bound) + how,
-                    st.walk_seconds + st.march_seconds, path);
-  }
-  return results;
+    const Mesh mesh = query.extract(iso, max_error, max_displacement, &st);
+    const double seconds = st.walk_seconds + st.march_seconds;
+    record(mesh,
+           {{"iso", st.iso},
+            {"in_range", st.in_range},
+            {"triangles", st.triangles},
+            {"vertices", st.vertices},
+            {"max_error", st.max_error},
+            {"error_bound", st.error_bound},
+            {"marched_tetrahedra", st.tetrahedra},
+            {"visited_tetrahedra", st.visited},
+            {"seconds", seconds},
+            {"walk_seconds", st.walk_seconds},
+            {"march_seconds", st.march_seconds}},
+           fmt::format("at error {:.4g} (guaranteed {:.4g})", st.max_error, st.error_bound), seconds);
+  });
 }
 
 // Every iso-value within a distance of the grid's own surface (surface-adaptive extraction).
 nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
                             double distance, const OutputFlags& out) {
   const HierarchyQuery query(prepared);
-  const TetGrid& grid = prepared->grid;
-  nlohmann::json results = nlohmann::json::array();
-  for (std::size_t i = 0; i < isos.size(); ++i) {
+  return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
     DistanceQueryStats st;
-    const Mesh mesh = query.extract_within(isos[i], distance, &st);
-    const std::string path = mesh_out.path(i);
-    auto t0 = Clock::now();
-    const auto [simplified, how] = mesh_out.write(mesh, path, grid.source.spacing);
+    const Mesh mesh = query.extract_within(iso, distance, &st);
     const double seconds = st.refine_seconds + st.walk_seconds + st.march_seconds;
-    results.push_back({{"iso", st.iso},
-                       {"in_range", st.in_range},
-                       {"triangles", st.triangles},
-                       {"vertices", st.vertices},
-                       {"distance_voxels", st.distance},
-                       {"marched_tetrahedra", st.tetrahedra},
-                       {"tested_tetrahedra", st.tested},
-                       {"split_diamonds", st.refined},
-                       {"closure_diamonds", st.closure},
-                       {"visited_tetrahedra", st.visited},
-                       {"seconds", seconds},
-                       {"refine_seconds", st.refine_seconds},
-                       {"walk_seconds", st.walk_seconds},
-                       {"march_seconds", st.march_seconds},
-                       {"write_seconds", seconds_since(t0)},
-                       {"output", path}});
-    if (!simplified.is_null()) results.back()["simplify"] = simplified;
-    if (!out.json && !out.quiet)
-      print_surface(st.iso, st.in_range, grid.source.min, grid.source.max, st.triangles, st.vertices,
-                    fmt::format("within about {:g} voxels of the grid's surface", st.distance) + how, seconds, path);
-  }
-  return results;
+    record(mesh,
+           {{"iso", st.iso},
+            {"in_range", st.in_range},
+            {"triangles", st.triangles},
+            {"vertices", st.vertices},
+            {"distance_voxels", st.distance},
+            {"marched_tetrahedra", st.tetrahedra},
+            {"tested_tetrahedra", st.tested},
+            {"split_diamonds", st.refined},
+            {"closure_diamonds", st.closure},
+            {"visited_tetrahedra", st.visited},
+            {"seconds", seconds},
+            {"refine_seconds", st.refine_seconds},
+            {"walk_seconds", st.walk_seconds},
+            {"march_seconds", st.march_seconds}},
+           fmt::format("within about {:g} voxels of the grid's surface", st.distance), seconds);
+  });
 }
 
 }  // namespace

@@ -1,17 +1,36 @@
 // adaptiso prepare / adaptiso export: build, save and convert the tetrahedral grid (§2.2–2.3).
 #include <fmt/format.h>
+#include <tbb/global_control.h>
 
 #include <filesystem>
 #include <iostream>
+#include <optional>
 
+#include "adaptiso/atomic_file.hpp"
+#include "adaptiso/bisection_bricks.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/point_cloud.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/prepare_to_file.hpp"
 #include "cli_common.hpp"
+#include "distributed.hpp"
 #include "options.hpp"
 
 namespace adaptiso::cli {
+namespace {
+
+// Under mpirun the bricks default to 64 voxels a side: a few per rank on a 512³ scan, small enough
+// to balance, large enough that the seams stay a small part (bisection_bricks.hpp).
+constexpr std::int64_t kDefaultRankBrickSide = 64;
+
+// A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, handed to
+// rank 0; it writes nothing.
+void prepare_rank_bricks(Ranks& ranks, const Volume& v, const PrepareOptions& options, std::int64_t brick_side) {
+  DistributedStats ignored;
+  distributed_errors(ranks, v, value_range(v), brick_side, options.max_displacement > 0, {}, ignored);
+}
+
+}  // namespace
 
 void add_prepare(CLI::App& app) {
   auto* cmd = app.add_subcommand(
@@ -24,12 +43,44 @@ void add_prepare(CLI::App& app) {
   pf->add(cmd);
   out->add(cmd);
   cmd->add_option("-o,--output", *output, "Grid file (.adg)")->required();
+  auto brick_side = std::make_shared<std::int64_t>(0);
+  cmd->add_option("--brick-side", *brick_side,
+                  "Bisection grid: compute the error hierarchy in bricks of this many voxels a side (a power of two >= 2; the same "
+                  "grid, byte for byte). Under mpirun the bricks are shared out over the ranks (default 64 there)")
+      ->check(CLI::PositiveNumber);
+  auto threads = std::make_shared<int>(0);
+  cmd->add_option("--threads", *threads, "Threads this process uses (default: every core)")->check(CLI::PositiveNumber);
   cmd->callback([=] {
-    const PrepareOptions options = pf->options(in->path);  // a typo fails before the volume is read
+    PrepareOptions options = pf->options(in->path);  // a typo fails before the volume is read
     refuse_same_file(in->path, *output, "-o");
+    std::optional<tbb::global_control> limit;
+    if (*threads > 0) limit.emplace(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(*threads));
+    Ranks& ranks = Ranks::world();
+    const bool bricked = *brick_side > 0 || ranks.distributed();
+    if (bricked && options.grid != GridKind::bisection)
+      throw InputError(ranks.distributed() ? "only the bisection grid is prepared over MPI ranks (drop --grid delaunay or mpirun)"
+                                           : "--brick-side applies to the bisection grid only");
+    const std::int64_t side = *brick_side > 0 ? *brick_side : kDefaultRankBrickSide;
+    if (bricked) brick_grid({2, 2, 2}, side);      // a bad side fails before the volume is read
+    if (ranks.root()) check_output_path(*output);  // and an output that cannot be written (rank 0 writes it)
     auto t_all = Clock::now();
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
+    if (!ranks.root()) return prepare_rank_bricks(ranks, v, options, side);
+    DistributedStats dist;
+    if (ranks.distributed())
+      options.error_hierarchy = [&](const Volume& vol, const ValueRange& range, bool displacement, const Progress& progress) {
+        return distributed_errors(ranks, vol, range, side, displacement, progress, dist);
+      };
+    else if (bricked)
+      options.error_hierarchy = [&](const Volume& vol, const ValueRange& range, bool displacement, const Progress& progress) {
+        std::uint64_t exchanged = 0;
+        BisectionErrors e = bisection_errors_bricked(vol.dims, range, side, region_source(vol), displacement, progress, &exchanged);
+        dist.brick_side = brick_grid(vol.dims, side).side;
+        dist.bricks = brick_grid(vol.dims, side).size();
+        dist.bytes_exchanged = exchanged;
+        return e;
+      };
     TerminalProgress tp(!out->quiet && !out->json);
     // Written as it is made: the voxels go before the index, the grid's positions and gradients
     // once they are on disk (the peak within the file plus 2.5 volumes).
@@ -40,6 +91,10 @@ void add_prepare(CLI::App& app) {
     j["seconds"]["total"] = seconds_since(t_all);
     j["output"] = *output;
     j["bytes"] = std::filesystem::file_size(*output);
+    if (bricked) {
+      if (!dist.peak_bytes_per_rank.empty()) dist.peak_bytes_per_rank[0] = peak_resident_bytes();
+      j["bricks"] = dist.to_json(ranks.size());
+    }
     if (out->json) return print_json(j);
     if (out->quiet) return;
     std::string stages;

@@ -9,6 +9,7 @@
 #include "adaptiso/error.hpp"
 #include "adaptiso/version.hpp"
 #include "cli_common.hpp"
+#include "ranks.hpp"
 
 namespace {
 // One line whatever the message quotes: a file name or argument with a newline or escape
@@ -29,7 +30,24 @@ std::string one_line(std::string_view s) {
 }
 }  // namespace
 
-int main(int argc, char** argv) {
+// The first word that is no option: the command.
+std::string_view command_of(int argc, char** argv) {
+  for (int i = 1; i < argc; ++i)
+    if (argv[i][0] != '-') return argv[i];
+  return {};
+}
+
+// Prints a failure. Under mpirun a failure every rank meets alike (a usage or input error: every
+// rank reads the same options and volume) is told once, by rank 0; others name their rank.
+void tell(const std::string& message, bool same_on_every_rank) {
+  const adaptiso::cli::Ranks* ranks = adaptiso::cli::Ranks::started();
+  if (!ranks || ranks->root())
+    std::cerr << "adaptiso: " << message << "\n";
+  else if (!same_on_every_rank)
+    std::cerr << "adaptiso (rank " << ranks->rank() << "): " << message << "\n";
+}
+
+int run(int argc, char** argv) {
   CLI::App app{"adaptiso: adaptive iso-surface generation from 3D scalar volumes (Lürig & Ertl)"};
   app.set_version_flag("--version", std::string("adaptiso ") + ADAPTISO_VERSION);
   app.require_subcommand(1);
@@ -44,6 +62,11 @@ int main(int argc, char** argv) {
   adaptiso::cli::add_view(app);
   adaptiso::cli::add_compare(app);
   try {
+    // Under mpirun: MPI starts here (or a build without it refuses); only prepare is shared out.
+    const adaptiso::cli::Ranks& ranks = adaptiso::cli::Ranks::world();
+    if (ranks.distributed() && command_of(argc, argv) != "prepare")
+      throw adaptiso::InputError(
+          fmt::format("only 'adaptiso prepare' runs over MPI ranks; run '{}' without mpirun", command_of(argc, argv)));
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);
@@ -52,24 +75,31 @@ int main(int argc, char** argv) {
   } catch (const CLI::CallForVersion& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
-    std::cerr << "adaptiso: " << one_line(e.what()) << " (see adaptiso --help)\n";
+    tell(one_line(e.what()) + " (see adaptiso --help)", true);
     return 2;
   } catch (const adaptiso::OptionError& e) {
-    std::cerr << "adaptiso: " << adaptiso::cli::flag_for(e.option()) << ": " << one_line(e.detail()) << "\n";
+    tell(adaptiso::cli::flag_for(e.option()) + ": " + one_line(e.detail()), true);
     return 2;
   } catch (const adaptiso::InputError& e) {
-    std::cerr << "adaptiso: " << one_line(e.what()) << "\n";
+    tell(one_line(e.what()), true);
     return 2;
   } catch (const std::filesystem::filesystem_error& e) {
     // The system refused a path the user gave (too long, a loop of links): their input, exit 2.
-    std::cerr << "adaptiso: " << one_line(e.path1().string()) << ": " << e.code().message() << "\n";
+    tell(one_line(e.path1().string()) + ": " + e.code().message(), true);
     return 2;
   } catch (const std::bad_alloc&) {
-    std::cerr << "adaptiso: out of memory\n";
+    tell("out of memory", false);
     return 1;
   } catch (const std::exception& e) {
-    std::cerr << "adaptiso: internal error: " << one_line(e.what()) << "\n";
+    tell("internal error: " + one_line(e.what()), false);
     return 1;
   }
   return 0;
+}
+
+int main(int argc, char** argv) {
+  const int code = run(argc, argv);
+  // A failure on one rank stops the others (they may wait for it in a collective).
+  if (code != 0) adaptiso::cli::Ranks::abort_if_distributed(code);
+  return code;
 }

@@ -21,11 +21,13 @@
 // cannot be prepared (flat, too many vertices for 32-bit indices, more memory than the machine has).
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "adaptiso/bisection.hpp"
 #include "adaptiso/prepared_grid.hpp"
 #include "adaptiso/progress.hpp"
 #include "adaptiso/reduce.hpp"
@@ -67,6 +69,10 @@ struct PrepareOptions {
   // on request for the bisection grid, whose bound is a guarantee (a violation throws logic_error).
   bool verify = false;
   std::string source_name;  // informational: the source's file name (folders are dropped)
+  // Bisection grid: computes its error hierarchy (bisection.hpp) in place of bisection_errors on
+  // this process, e.g. brick by brick or over MPI ranks (bisection_bricks.hpp); it must return the
+  // same bytes. Unset: bisection_errors.
+  std::function<BisectionErrors(const Volume&, const ValueRange&, bool displacement, const Progress&)> error_hierarchy;
 };
 
 // The default bound for a volume with this value range, in the unit `relative` implies: a fraction

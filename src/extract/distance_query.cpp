@@ -347,9 +347,10 @@ public:
     // Across the box's far faces: split when the grid splits it, unless nothing beneath matters.
     if (q_.lat.in_box(m) ? !q_.numbers.used(q_.lat.index(m)) : !placement(classify(m, q_.lat.k), q_.lat).forced) return;
     if (!q_.lining.may_cut(q_.lat, m, q_.iso)) return;
-    const auto [a, b] = halves(t, o, m, i, j);
+    const auto split = halves(t, o, m, i, j);  // no structured binding: clang 14 cannot capture one
     both(
-        depth, [&] { tetrahedron(a.tet, a.order, depth + 1); }, [&] { tetrahedron(b.tet, b.order, depth + 1); });
+        depth, [&] { tetrahedron(split[0].tet, split[0].order, depth + 1); },
+        [&] { tetrahedron(split[1].tet, split[1].order, depth + 1); });
   }
 
 private:

@@ -183,7 +183,10 @@ std::string encode_mesh_compact(const Mesh& m, std::span<const std::uint32_t> or
   const std::size_t V = m.vertex_count(), T = m.triangle_count();
   if (!order.empty() && order.size() != T) throw std::invalid_argument("encode_mesh_compact: the order does not list every triangle");
   std::unique_ptr<Scratch> scratch = scratch_pool().take();
-  auto& [remap, indices, ordered, packed, vbuf, ibuf] = *scratch;
+  // Named references, not a structured binding: clang 14 cannot capture one in the lambdas below.
+  auto &remap = scratch->remap, &indices = scratch->indices, &ordered = scratch->ordered;
+  auto& packed = scratch->packed;
+  auto &vbuf = scratch->vbuf, &ibuf = scratch->ibuf;
   // Vertices in first-use order: the codecs compress neighbours' differences.
   detail::resize_big(remap, V);  // ~0u (set by the remap): a vertex no triangle uses
   // The triangles as one index array (no element to take the address of when there is none).

@@ -103,7 +103,10 @@ TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const Prepa
   BisectionOptions b;
   b.max_error = absolute_max_error(o, range);
   b.max_displacement = o.max_displacement;
-  const BisectionErrors errors = clock.run("error_hierarchy", [&] { return bisection_errors(v, range, b.max_displacement > 0, progress); });
+  const bool displacement = b.max_displacement > 0;
+  const BisectionErrors errors = clock.run("error_hierarchy", [&] {
+    return o.error_hierarchy ? o.error_hierarchy(v, range, displacement, progress) : bisection_errors(v, range, displacement, progress);
+  });
   BisectionGrid grid = clock.run("select", [&] { return bisection_select(v, range, errors, b, progress); });
   p.stats.max_error = b.max_error;
   p.stats.error_bound = grid.error_bound;

@@ -23,10 +23,14 @@
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "adaptiso/view_server.hpp"
+#include "server_fixture.hpp"
 #include "view/http.hpp"
 #include "view/request.hpp"
 
 using namespace adaptiso;
+using testutil::RawConnection;
+using testutil::Running;
+using testutil::seconds_since;
 
 namespace {
 
@@ -40,73 +44,10 @@ std::shared_ptr<const PreparedGrid> small_grid() {
   return grid;
 }
 
-ViewOptions options() {
-  ViewOptions o;
-  o.port = 0;
-  o.web_dir = ADAPTISO_WEB_DIR;
-  return o;
-}
-
-struct Running {
-  ViewServer server;
-  std::thread thread;
-  int port = 0;
-  explicit Running(ViewOptions o) : server(std::move(o)) {
-    port = server.bind();
-    thread = std::thread([this] { server.listen(); });
-    httplib::Client c("127.0.0.1", port);
-    for (int i = 0; i < 200 && !c.Get("/api/info"); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  ~Running() {
-    server.stop();
-    thread.join();
-  }
-  httplib::Client client() const {
-    httplib::Client c("127.0.0.1", port);
-    c.set_read_timeout(30, 0);
-    return c;
-  }
-};
-
-// A raw loopback connection; reads time out after 3 s.
-struct Raw {
-  int fd = -1;
-  explicit Raw(int port) {
-    fd = socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_port = htons(static_cast<std::uint16_t>(port));
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    if (connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) fd = -1;
-    timeval tv{3, 0};
-    setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
-  }
-  ~Raw() {
-    if (fd >= 0) close(fd);
-  }
-  bool send_text(const std::string& s) const {
-    return fd >= 0 && ::send(fd, s.data(), s.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(s.size());
-  }
-  // Everything until the server closes the connection (or 3 s of silence).
-  std::string read_all() const {
-    std::string got;
-    char buf[65536];
-    for (;;) {
-      const ssize_t n = recv(fd, buf, sizeof buf, 0);
-      if (n <= 0) return got;
-      got.append(buf, static_cast<std::size_t>(n));
-    }
-  }
-};
-
 std::size_t count_of(const std::string& text, const std::string& what) {
   std::size_t n = 0;
   for (auto at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
   return n;
-}
-
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 }  // namespace
@@ -130,7 +71,7 @@ TEST(Http, OriginsAreJudgedBySameOriginTheAllowedListAndFetchSite) {
 }
 
 TEST(Http, ForeignOriginsAreRefusedUnlessAllowed) {
-  Running run(options());
+  Running run(testutil::server_options());
   auto c = run.client();
   const std::string self = fmt::format("http://127.0.0.1:{}", run.port);
   auto evil = c.Get("/api/info", {{"Origin", "http://evil.example"}, {"Sec-Fetch-Site", "cross-site"}});
@@ -151,7 +92,7 @@ TEST(Http, ForeignOriginsAreRefusedUnlessAllowed) {
   ASSERT_TRUE(page);
   EXPECT_EQ(page->status, 200);
 
-  ViewOptions o = options();
+  ViewOptions o = testutil::server_options();
   o.allowed_origins = {"http://app.example:3000"};
   Running allowing(o);
   auto a = allowing.client();
@@ -168,9 +109,9 @@ TEST(Http, ForeignOriginsAreRefusedUnlessAllowed) {
 TEST(Http, PipelinedRequestsAreAnsweredInTurn) {
   // httplib 0.11 dropped every request after the first that arrived in the same packet, and the
   // connection idled for the keep-alive timeout (5 s).
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(small_grid());
-  Raw c(run.port);
+  RawConnection c(run.port);
   auto get = [](const std::string& path, const std::string& more) {
     return "GET " + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\n" + more + "\r\n";
   };
@@ -184,10 +125,10 @@ TEST(Http, PipelinedRequestsAreAnsweredInTurn) {
 }
 
 TEST(Http, OtherMethodsAre405WithOrWithoutABody) {
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(small_grid());
   {
-    Raw c(run.port);  // POST without a body was answered 400 (httplib wanted its length)
+    RawConnection c(run.port);  // POST without a body was answered 400 (httplib wanted its length)
     ASSERT_TRUE(c.send_text("POST /api/surface?iso=700 HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"));
     const std::string a = c.read_all();
     EXPECT_EQ(a.substr(0, 12), "HTTP/1.1 405") << a;
@@ -195,7 +136,7 @@ TEST(Http, OtherMethodsAre405WithOrWithoutABody) {
   }
   {
     // A small body is skipped: the next request on the connection is answered.
-    Raw c(run.port);
+    RawConnection c(run.port);
     ASSERT_TRUE(
         c.send_text("PUT /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 5\r\n\r\nhello"
                     "GET /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"));
@@ -205,7 +146,7 @@ TEST(Http, OtherMethodsAre405WithOrWithoutABody) {
   }
   {
     // A chunked body cannot be skipped unread: answered, then the connection closes.
-    Raw c(run.port);
+    RawConnection c(run.port);
     ASSERT_TRUE(c.send_text("POST /api/info HTTP/1.1\r\nHost: 127.0.0.1\r\nTransfer-Encoding: chunked\r\n\r\n5\r\nhello\r\n0\r\n\r\n"));
     const auto t0 = std::chrono::steady_clock::now();
     const std::string a = c.read_all();
@@ -250,7 +191,7 @@ TEST(Http, ARequestThatCannotFitIs503WithRetryAfterNeverALasting500) {
   // A budget of one byte: one request at a time. While a full-resolution reference is being
   // extracted, another page's surface cannot fit: 503 with Retry-After; once it is done the
   // surface is served (issue 41: "500 out of memory" to every new client, 30 s after the load).
-  ViewOptions o = options();
+  ViewOptions o = testutil::server_options();
   o.memory_budget = 1;
   Running run(o);
   run.server.set_volume(std::make_shared<Volume>(make_synthetic("sphere", 160, ScalarType::i16)));
@@ -312,7 +253,7 @@ TEST(Http, EveryRouteTheServerRegistersIsSpecifiedInDocsApi) {
   EXPECT_EQ(sections, registered);
   for (const auto& n : named) EXPECT_TRUE(registered.count(n)) << n << " is in docs/API.md but not served";
   // And they are served: none is the unknown route's 404.
-  Running run(options());
+  Running run(testutil::server_options());
   auto c = run.client();
   for (const auto& r : routes) {
     auto a = c.Get(r);

@@ -25,9 +25,13 @@
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "adaptiso/view_server.hpp"
+#include "server_fixture.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
+using testutil::RawConnection;
+using testutil::Running;
+using testutil::seconds_since;
 
 namespace {
 
@@ -46,28 +50,6 @@ Fixture sphere_grid() {
   return f;
 }
 
-// A server on a free port in a background thread, stopped at scope exit.
-struct Running {
-  ViewServer server;
-  std::thread thread;
-  int port = 0;
-  explicit Running(ViewOptions o) : server(std::move(o)) {
-    port = server.bind();
-    thread = std::thread([this] { server.listen(); });
-    httplib::Client c("127.0.0.1", port);
-    for (int i = 0; i < 200 && !c.Get("/api/info"); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  ~Running() {
-    server.stop();
-    thread.join();
-  }
-  httplib::Client client() const {
-    httplib::Client c("127.0.0.1", port);
-    c.set_read_timeout(30, 0);
-    return c;
-  }
-};
-
 // /api/info once every level of detail is built (they are built in the background), or after 10 s.
 // The levels are built once a request asks for one (error= or budget=).
 nlohmann::json info_with_levels_built(httplib::Client& c) {
@@ -79,13 +61,6 @@ nlohmann::json info_with_levels_built(httplib::Client& c) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   return info;
-}
-
-ViewOptions options() {
-  ViewOptions o;
-  o.port = 0;
-  o.web_dir = ADAPTISO_WEB_DIR;
-  return o;
 }
 
 std::uint32_t triangles_in(const std::string& body) {
@@ -151,7 +126,7 @@ TEST(ViewServer, EncodesTheDocumentedLayout) {
 
 TEST(ViewServer, AnswersLikeTheLibraryAndRefusesBadRequests) {
   Fixture f = sphere_grid();
-  Running run(options());
+  Running run(testutil::server_options());
   auto c = run.client();
   // Before the grid is there: info says preparing, surfaces are 503.
   auto info = c.Get("/api/info");
@@ -234,7 +209,7 @@ TEST(ViewServer, AnswersLikeTheLibraryAndRefusesBadRequests) {
 
 TEST(ViewServer, ManyConcurrentClientsGetTheirOwnCorrectSurfaces) {
   Fixture f = sphere_grid();
-  ViewOptions o = options();
+  ViewOptions o = testutil::server_options();
   o.max_clients = 4;  // fewer states than clients: eviction must not break anything
   Running run(o);
   run.server.set_grid(f.grid);
@@ -261,43 +236,18 @@ TEST(ViewServer, ManyConcurrentClientsGetTheirOwnCorrectSurfaces) {
 }
 
 TEST(ViewServer, RefusesAMissingPageFolder) {
-  ViewOptions o = options();
+  ViewOptions o = testutil::server_options();
   o.web_dir = "/nonexistent/web";
   EXPECT_THROW(ViewServer s(o), InputError);
 }
 
-namespace {
-
-// A raw loopback connection (for requests httplib's client would not send).
-struct RawConnection {
-  int fd = -1;
-  explicit RawConnection(int port) {
-    fd = socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_port = htons(static_cast<std::uint16_t>(port));
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    if (connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) fd = -1;
-  }
-  ~RawConnection() {
-    if (fd >= 0) close(fd);
-  }
-  bool send_text(const std::string& s) const {
-    return fd >= 0 && ::send(fd, s.data(), s.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(s.size());
-  }
-};
-
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
-}  // namespace
+namespace {}  // namespace
 
 TEST(ViewServer, SlowClientsDoNotFreezeTheOthers) {
   // Twelve clients sending their headers a line every 300 ms hold their connections for up to 12 s
   // (until this request is answered); with a fixed pool of 8 workers /api/info waited behind
   // them (10–17 s). The bound leaves room for a loaded machine and still catches the wait.
-  Running run(options());
+  Running run(testutil::server_options());
   std::atomic<bool> done{false};
   std::vector<std::thread> slow;
   for (int i = 0; i < 12; ++i)
@@ -325,7 +275,7 @@ TEST(ViewServer, KeptAliveRequestsAreNotDelayed) {
   // Without TCP_NODELAY the 2nd to 5th request on a kept-alive connection waited ~40 ms each
   // (Nagle's algorithm against delayed acknowledgements); 20 of them took over 0.8 s.
   Fixture f = sphere_grid();
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(f.grid);
   RawConnection c(run.port);
   auto request = [&](const std::string& path) {  // one request, its whole answer read
@@ -355,7 +305,7 @@ TEST(ViewServer, KeptAliveRequestsAreNotDelayed) {
 
 TEST(ViewServer, AnswersOnlyToTheNamesItListensOn) {
   // DNS rebinding: a page from another origin reaching 127.0.0.1 under its own name.
-  Running run(options());
+  Running run(testutil::server_options());
   for (const char* host : {"evil.example", "attacker.example:8080", "localhost.evil.example"}) {
     RawConnection c(run.port);
     ASSERT_TRUE(c.send_text(std::string("GET /api/info HTTP/1.1\r\nHost: ") + host + "\r\nConnection: close\r\n\r\n"));
@@ -376,7 +326,7 @@ TEST(ViewServer, InfoGivesTheSourceFileNameOnly) {
   Fixture f = sphere_grid();
   auto grid = std::make_shared<PreparedGrid>(*f.grid);
   grid->grid.source.file = "/home/someone/private/scans/patient-42.nrrd";  // as older grid files stored it
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(grid);
   auto r = run.client().Get("/api/info");
   ASSERT_TRUE(r);
@@ -385,7 +335,7 @@ TEST(ViewServer, InfoGivesTheSourceFileNameOnly) {
 }
 
 TEST(ViewServer, ServesOnlyWhatThePageLoads) {
-  Running run(options());
+  Running run(testutil::server_options());
   auto c = run.client();
   for (const char* ok : {"/", "/index.html", "/viewer.js", "/style.css", "/node_modules/three/build/three.module.js",
                          "/node_modules/three/build/three.core.js", "/node_modules/three/examples/jsm/controls/OrbitControls.js"}) {
@@ -402,7 +352,7 @@ TEST(ViewServer, ServesOnlyWhatThePageLoads) {
 }
 
 TEST(ViewServer, OtherMethodsAre405) {
-  Running run(options());
+  Running run(testutil::server_options());
   auto c = run.client();
   auto o = c.Options("/api/info");
   ASSERT_TRUE(o);
@@ -417,7 +367,7 @@ TEST(ViewServer, CoarserLevelsWhileDraggingWithTheirGuaranteedError) {
   // surface is the one preparing at that level's bound gives, and the answer names its bound.
   const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 40, ScalarType::f32));
   const auto grid = bisection_grid_of(*volume, 0.002);
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(grid);
   auto c = run.client();
   const nlohmann::json info = info_with_levels_built(c);
@@ -476,7 +426,7 @@ TEST(ViewServer, AfterADragTheSurfaceAtRestIsTheFreshMarchsWhateverTheFollowerWa
   // and its export are those of a fresh extraction at the released iso-value.
   const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 48, ScalarType::f32));
   const auto grid = bisection_grid_of(*volume, 0.002);
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(grid);
   auto c = run.client();
   ASSERT_GT(info_with_levels_built(c)["levels"].size(), 1u);  // so the drag has a coarse level
@@ -503,7 +453,7 @@ TEST(ViewServer, AfterADragTheSurfaceAtRestIsTheFreshMarchsWhateverTheFollowerWa
 
 TEST(ViewServer, ExportDownloadsTheSurfaceSimplified) {
   const auto grid = bisection_grid_of(make_synthetic("sphere", 40, ScalarType::i16), 0.01);
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(grid);
   auto c = run.client();
   auto full = c.Get("/api/export?iso=700&format=ply");
@@ -524,7 +474,7 @@ TEST(ViewServer, ExportDownloadsTheSurfaceSimplified) {
 TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
   const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 40, ScalarType::f32));
   const auto grid = bisection_grid_of(*volume, 0.002);
-  Running run(options());
+  Running run(testutil::server_options());
   run.server.set_grid(grid);
   auto c = run.client();
   const nlohmann::json info = nlohmann::json::parse(c.Get("/api/info")->body);

@@ -1,0 +1,156 @@
+// prepare over MPI ranks (distributed.hpp). A rank's bricks travel as one flat message: per brick
+// its number and its arrays, each as a length and its elements (the ranks run one build on one
+// kind of machine, so the bytes are the machine's own).
+#include "distributed.hpp"
+
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cstring>
+#include <span>
+
+#include "adaptiso/bisection_bricks.hpp"
+#include "adaptiso/error.hpp"
+
+namespace adaptiso::cli {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+class Writer {
+public:
+  template <class T>
+  void put(const T& x) {
+    const auto* p = reinterpret_cast<const std::byte*>(&x);
+    bytes_.insert(bytes_.end(), p, p + sizeof(T));
+  }
+  template <class T>
+  void put(const std::vector<T>& v) {
+    put(static_cast<std::uint64_t>(v.size()));
+    const auto* p = reinterpret_cast<const std::byte*>(v.data());
+    bytes_.insert(bytes_.end(), p, p + v.size() * sizeof(T));
+  }
+  std::vector<std::byte> take() { return std::move(bytes_); }
+
+private:
+  std::vector<std::byte> bytes_;
+};
+
+class Reader {
+public:
+  explicit Reader(std::span<const std::byte> bytes) : bytes_(bytes) {}
+  template <class T>
+  void get(T& x) {
+    need(sizeof(T));
+    std::memcpy(&x, bytes_.data() + at_, sizeof(T));
+    at_ += sizeof(T);
+  }
+  template <class T>
+  void get(std::vector<T>& v) {
+    std::uint64_t n = 0;
+    get(n);
+    if (n > (bytes_.size() - at_) / sizeof(T)) throw InputError("a rank's brick results are truncated");
+    v.resize(n);
+    std::memcpy(v.data(), bytes_.data() + at_, n * sizeof(T));
+    at_ += n * sizeof(T);
+  }
+  bool done() const { return at_ == bytes_.size(); }
+
+private:
+  void need(std::size_t n) const {
+    if (bytes_.size() - at_ < n) throw InputError("a rank's brick results are truncated");
+  }
+  std::span<const std::byte> bytes_;
+  std::size_t at_ = 0;
+};
+
+template <class IO, class B>
+void each_array(IO& io, B& b) {
+  io(b.code), io(b.displacement_code), io(b.seam_voxel), io(b.seam_lo), io(b.seam_hi), io(b.seam_delta), io(b.seam_g), io(b.seam_gradient),
+      io(b.coarse_voxel), io(b.coarse_value), io(b.coarse_gradient);
+}
+
+std::vector<std::byte> pack(const std::vector<BrickErrors>& bricks, std::uint64_t peak) {
+  Writer w;
+  w.put(peak);
+  w.put(static_cast<std::uint64_t>(bricks.size()));
+  for (const BrickErrors& b : bricks) {
+    w.put(b.brick);
+    auto put = [&](const auto& v) { w.put(v); };
+    each_array(put, b);
+  }
+  return w.take();
+}
+
+std::vector<BrickErrors> unpack(std::span<const std::byte> bytes, std::uint64_t& peak) {
+  Reader r(bytes);
+  r.get(peak);
+  std::uint64_t n = 0;
+  r.get(n);
+  std::vector<BrickErrors> bricks;
+  for (std::uint64_t i = 0; i < n; ++i) {
+    BrickErrors& b = bricks.emplace_back();
+    r.get(b.brick);
+    auto get = [&](auto& v) { r.get(v); };
+    each_array(get, b);
+  }
+  if (!r.done()) throw InputError("a rank's brick results have trailing bytes");
+  return bricks;
+}
+
+// This rank's bricks (n ≡ rank mod size), in parallel on its threads.
+std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, const Volume& v, const ValueRange& range,
+                                   bool displacement) {
+  std::vector<std::int64_t> mine;
+  for (std::int64_t n = ranks.rank(); n < bricks.size(); n += ranks.size()) mine.push_back(n);
+  std::vector<BrickErrors> out(mine.size());
+  const RegionSource source = region_source(v);
+  tbb::parallel_for(std::size_t{0}, mine.size(), [&](std::size_t i) {
+    out[i] = bisection_brick_errors(bricks, mine[i], source(bricks.reads(mine[i], displacement)), range, displacement);
+  });
+  return out;
+}
+
+}  // namespace
+
+nlohmann::json DistributedStats::to_json(int ranks) const {
+  return {{"ranks", ranks},
+          {"brick_side", brick_side},
+          {"bricks", bricks},
+          {"bricks_per_rank", bricks_per_rank},
+          {"bytes_exchanged", bytes_exchanged},
+          {"peak_bytes_per_rank", peak_bytes_per_rank},
+          {"seconds", {{"rank0_bricks", brick_seconds}, {"combine", combine_seconds}}}};
+}
+
+BisectionErrors distributed_errors(Ranks& ranks, const Volume& v, const ValueRange& range, std::int64_t brick_side, bool displacement,
+                                   const Progress& progress, DistributedStats& stats) {
+  const BrickGrid bricks = brick_grid(v.dims, brick_side);
+  stats.brick_side = bricks.side;
+  stats.bricks = bricks.size();
+  const auto t0 = Clock::now();
+  report(progress, "error hierarchy (bricks)", 0);
+  std::vector<BrickErrors> results = my_bricks(ranks, bricks, v, range, displacement);
+  stats.brick_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  const std::uint64_t sent_before = ranks.bytes_exchanged();
+  auto all = ranks.gather(ranks.root() ? std::vector<std::byte>{} : pack(results, peak_resident_bytes()));
+  stats.bytes_exchanged = ranks.bytes_exchanged() - sent_before;
+  if (!ranks.root()) return {};
+  stats.bricks_per_rank.assign(static_cast<std::size_t>(ranks.size()), 0);
+  stats.peak_bytes_per_rank.assign(static_cast<std::size_t>(ranks.size()), 0);
+  stats.bricks_per_rank[0] = static_cast<std::int64_t>(results.size());
+  for (int r = 1; r < ranks.size(); ++r) {
+    std::uint64_t peak = 0;
+    std::vector<BrickErrors> theirs = unpack(all[static_cast<std::size_t>(r)], peak);
+    std::vector<std::byte>().swap(all[static_cast<std::size_t>(r)]);
+    stats.bricks_per_rank[static_cast<std::size_t>(r)] = static_cast<std::int64_t>(theirs.size());
+    stats.peak_bytes_per_rank[static_cast<std::size_t>(r)] = peak;
+    for (auto& b : theirs) results.push_back(std::move(b));
+  }
+  const auto t1 = Clock::now();
+  BisectionErrors errors = bisection_combine_bricks(bricks, std::move(results), range, displacement, progress);
+  stats.combine_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
+  return errors;
+}
+
+}  // namespace adaptiso::cli

@@ -1,0 +1,115 @@
+// MPI ranks or one process (ranks.hpp). Payloads above 2 GiB per rank are refused rather than
+// split: the brick results a rank hands up are its share of one byte per voxel plus the seams.
+#include "ranks.hpp"
+
+#include <fmt/format.h>
+#include <sys/resource.h>
+
+#include <cstdlib>
+#include <limits>
+#include <string>
+
+#include "adaptiso/error.hpp"
+
+#ifdef ADAPTISO_HAVE_MPI
+#include <mpi.h>
+#endif
+
+namespace adaptiso::cli {
+
+int launched_processes() {
+  for (const char* name : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS"}) {
+    const char* v = std::getenv(name);
+    if (v && *v) {
+      const long n = std::strtol(v, nullptr, 10);
+      if (n > 0 && n < std::numeric_limits<int>::max()) return static_cast<int>(n);
+    }
+  }
+  return 1;
+}
+
+Ranks& Ranks::world() {
+  static Ranks ranks;
+  return ranks;
+}
+
+Ranks::Ranks() {
+  const int launched = launched_processes();
+#ifdef ADAPTISO_HAVE_MPI
+  if (launched > 1) {
+    int provided = 0;
+    MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
+    MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
+    MPI_Comm_size(MPI_COMM_WORLD, &size_);
+    mpi_ = true;
+  }
+#else
+  if (launched > 1)
+    throw InputError(
+        fmt::format("started by mpirun with {} processes, but this adaptiso was built without MPI (each would do the whole "
+                    "job alone): run it without mpirun, or rebuild with libopenmpi-dev installed",
+                    launched));
+#endif
+  started_ = this;
+}
+
+Ranks::~Ranks() {
+#ifdef ADAPTISO_HAVE_MPI
+  if (mpi_) MPI_Finalize();
+#endif
+}
+
+void Ranks::abort_if_distributed(int code) {
+#ifdef ADAPTISO_HAVE_MPI
+  if (started_ && started_->mpi_ && started_->size_ > 1) MPI_Abort(MPI_COMM_WORLD, code);
+#endif
+  (void)code;
+}
+
+std::vector<std::vector<std::byte>> Ranks::gather(const std::vector<std::byte>& mine) {
+  std::vector<std::vector<std::byte>> all;
+  if (!distributed()) {
+    all.push_back(mine);
+    return all;
+  }
+#ifdef ADAPTISO_HAVE_MPI
+  if (mine.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))
+    throw InputError(
+        fmt::format("rank {} would send {} bytes at once (at most 2 GiB): use more ranks or smaller bricks", rank_, mine.size()));
+  const int n = static_cast<int>(mine.size());
+  std::vector<int> sizes(root() ? static_cast<std::size_t>(size_) : 0);
+  MPI_Gather(&n, 1, MPI_INT, sizes.data(), 1, MPI_INT, 0, MPI_COMM_WORLD);
+  if (!root()) {
+    MPI_Send(mine.data(), n, MPI_BYTE, 0, 1, MPI_COMM_WORLD);
+    exchanged_ += mine.size();
+    return all;
+  }
+  all.resize(static_cast<std::size_t>(size_));
+  all[0] = mine;
+  for (int r = 1; r < size_; ++r) {
+    auto& got = all[static_cast<std::size_t>(r)];
+    got.resize(static_cast<std::size_t>(sizes[static_cast<std::size_t>(r)]));
+    MPI_Recv(got.data(), sizes[static_cast<std::size_t>(r)], MPI_BYTE, r, 1, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+    exchanged_ += got.size();
+  }
+#endif
+  return all;
+}
+
+std::uint64_t Ranks::broadcast(std::uint64_t x) {
+#ifdef ADAPTISO_HAVE_MPI
+  if (distributed()) {
+    MPI_Bcast(&x, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+    exchanged_ += sizeof x;
+  }
+#endif
+  return x;
+}
+
+std::uint64_t peak_resident_bytes() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<std::uint64_t>(u.ru_maxrss) * 1024;
+}
+
+}  // namespace adaptiso::cli

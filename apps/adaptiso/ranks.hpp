@@ -1,0 +1,53 @@
+// The processes one command runs on: MPI ranks when adaptiso was built with MPI (ADAPTISO_HAVE_MPI)
+// and started by mpirun, one process otherwise. Only the command line speaks MPI; the library
+// stays free of it and offers the steps the ranks share out (bisection_bricks.hpp).
+//
+// A failure on any rank stops every rank (MPI_Abort after the message), so no rank waits forever in
+// a collective and no output reaches its final name (outputs are renamed into place at the end).
+// A build without MPI started by mpirun with several processes refuses to run (exit 2): each process
+// would do the whole job alone and write the same files.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace adaptiso::cli {
+
+// The size of the job mpirun (OpenMPI, MPICH, PMIx launchers) started this process in; 1 when it
+// was not started by one.
+int launched_processes();
+
+class Ranks {
+public:
+  // The ranks of this job; MPI is initialised on first use when launched by mpirun.
+  static Ranks& world();
+  int rank() const { return rank_; }
+  int size() const { return size_; }
+  bool root() const { return rank_ == 0; }
+  bool distributed() const { return size_ > 1; }
+
+  // Every rank's bytes at rank 0, in rank order (empty elsewhere). Collective.
+  std::vector<std::vector<std::byte>> gather(const std::vector<std::byte>& mine);
+  // Rank 0's value of x on every rank. Collective.
+  std::uint64_t broadcast(std::uint64_t x);
+  // Bytes this rank sent to or received from others so far.
+  std::uint64_t bytes_exchanged() const { return exchanged_; }
+  // Stops every rank with this exit code (after this rank's message) when the ranks were started
+  // and there are several; returns otherwise.
+  static void abort_if_distributed(int code);
+  // The ranks once started (nullptr before, or when starting them failed).
+  static const Ranks* started() { return started_; }
+  ~Ranks();
+
+private:
+  Ranks();
+  static inline Ranks* started_ = nullptr;
+  int rank_ = 0, size_ = 1;
+  bool mpi_ = false;
+  std::uint64_t exchanged_ = 0;
+};
+
+// Peak resident memory of this process so far (bytes; getrusage).
+std::uint64_t peak_resident_bytes();
+
+}  // namespace adaptiso::cli

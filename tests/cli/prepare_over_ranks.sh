@@ -1,0 +1,88 @@
+#!/usr/bin/env bash
+# `mpirun -np N adaptiso prepare` writes the file one process writes, byte for byte, for N = 2, 3, 4
+# (oversubscribed) and bricks down to 2 voxels a side, so several bricks per rank; --brick-side in
+# one process does too. Volumes of odd and anisotropic sizes, a noisy one and an analytic one, with
+# and without the displacement criterion. A rank killed mid-run leaves no grid file; a command
+# other than prepare under mpirun is refused (issue 38).
+# Usage: prepare_over_ranks.sh ADAPTISO MPIEXEC
+set -euo pipefail
+CLI=$1
+MPIEXEC=$2
+W=$(mktemp -d)
+trap 'rm -rf "$W"' EXIT
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
+# Shared memory only: no network interface is needed on a CI runner.
+export OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none
+ranks() { "$MPIEXEC" -np "$1" "${@:2}"; }
+
+"$CLI" generate marschner-lobb --size 33 --quiet -o "$W/ml.nrrd"
+# 37×20×13 uint8 noise (a fixed generator: the same bytes on every machine).
+/usr/bin/env python3 -c "
+import sys
+x = 12345
+out = bytearray()
+for _ in range(37 * 20 * 13):
+    x = (1103515245 * x + 12345) % 2**31
+    out.append(x >> 23)
+open(sys.argv[1], 'wb').write(out)" "$W/noise.raw"
+RAW=(--dims 37,20,13 --type uint8 --spacing 1,0.7,2.5)
+
+check() {  # NAME INPUT [prepare options...]
+  local name=$1 input=$2
+  shift 2
+  "$CLI" prepare "$input" "$@" --quiet -o "$W/$name-one.adg"
+  for side in 2 8; do
+    "$CLI" prepare "$input" "$@" --brick-side $side --quiet -o "$W/$name-b$side.adg"
+    cmp "$W/$name-one.adg" "$W/$name-b$side.adg" || { echo "FAIL: $name, bricks of $side in one process differ"; exit 1; }
+  done
+  for np in 2 3 4; do
+    for side in 2 4 16; do
+      ranks $np "$CLI" prepare "$input" "$@" --brick-side $side --threads 1 --quiet -o "$W/$name-np$np-b$side.adg"
+      cmp "$W/$name-one.adg" "$W/$name-np$np-b$side.adg" || { echo "FAIL: $name, $np ranks, bricks of $side differ"; exit 1; }
+    done
+  done
+  echo "ok: $name (one process = bricks of 2, 8 = 2, 3, 4 ranks with bricks of 2, 4, 16)"
+}
+check ml "$W/ml.nrrd"
+check ml-displacement "$W/ml.nrrd" --max-displacement 0.5
+check noise "$W/noise.raw" "${RAW[@]}"
+check noise-displacement "$W/noise.raw" "${RAW[@]}" --max-displacement 1 --max-error 0.1 --relative
+
+# --json tells what the ranks did.
+ranks 2 "$CLI" prepare "$W/ml.nrrd" --brick-side 8 --json -o "$W/j.adg" >"$W/j.json"
+/usr/bin/env python3 -c "
+import json, sys
+b = json.load(open(sys.argv[1]))['bricks']
+assert b['ranks'] == 2 and b['bricks'] == 64 and sum(b['bricks_per_rank']) == 64 and min(b['bricks_per_rank']) > 0, b
+assert b['bytes_exchanged'] > 0 and all(p > 0 for p in b['peak_bytes_per_rank']), b
+print('ok: --json', {k: b[k] for k in ('ranks', 'bricks', 'bricks_per_rank', 'bytes_exchanged')})" "$W/j.json"
+
+# Only prepare is shared out; the others refuse with one line and exit 2.
+set +e
+ranks 2 "$CLI" info "$W/ml.nrrd" >"$W/info.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: info under mpirun exited $code"; cat "$W/info.out"; exit 1; }
+grep -q "only 'adaptiso prepare' runs over MPI ranks" "$W/info.out" || { echo "FAIL: no clear refusal"; cat "$W/info.out"; exit 1; }
+echo "ok: other commands refused under mpirun"
+
+# A rank killed mid-run: mpirun fails and no grid file appears under its name.
+"$CLI" generate sphere --size 160 --quiet -o "$W/big.nrrd"
+"$MPIEXEC" -np 2 "$CLI" prepare "$W/big.nrrd" --brick-side 16 --threads 1 --quiet -o "$W/killed.adg" >"$W/killed.out" 2>&1 &
+mpi=$!
+victim=""
+for _ in $(seq 1 200); do
+  victim=$(pgrep -P "$mpi" -x adaptiso | tail -1 || true)
+  [ -n "$victim" ] && break
+  sleep 0.05
+done
+[ -n "$victim" ] || { echo "FAIL: no rank process found"; exit 1; }
+sleep 0.3
+kill -9 "$victim" 2>/dev/null || true
+set +e
+wait $mpi
+code=$?
+set -e
+[ $code -ne 0 ] || { echo "FAIL: mpirun exited 0 after a rank was killed"; exit 1; }
+[ ! -e "$W/killed.adg" ] || { echo "FAIL: a grid file was left after a rank was killed"; exit 1; }
+echo "ok: a killed rank leaves no output (mpirun exit $code)"
