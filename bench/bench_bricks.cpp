@@ -1,6 +1,6 @@
 // bench_bricks — times bisection_errors against bisection_errors_bricked on one volume: wall time and the peak
 // resident memory added during the step (RSS sampled every 2 ms), bytes handed across faces.
-//   bricks_bench FILE whole|bricked SIDE THREADS DISPLACEMENT(0|1)
+//   bench_bricks FILE whole|bricked|both SIDE THREADS DISPLACEMENT(0|1)   (both: bricked, then checked)
 #include <tbb/global_control.h>
 #include <unistd.h>
 
@@ -8,6 +8,8 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <map>
+#include <mutex>
 #include <string>
 #include <thread>
 
@@ -44,13 +46,26 @@ int main(int argc, char** argv) {
   });
   const auto t0 = std::chrono::steady_clock::now();
   std::uint64_t bytes = 0;
-  BisectionErrors e = mode == "whole" ? bisection_errors(v, range, displacement)
-                                      : bisection_errors_bricked(v.dims, range, side, region_source(v), displacement, {}, &bytes);
+  // When each stage reported last (seconds from the start): the bricks, then the combine step.
+  std::mutex stages_mutex;
+  std::map<std::string, double> stages;
+  const Progress progress = [&](std::string_view stage, double) {
+    const std::lock_guard lock(stages_mutex);
+    stages[std::string(stage)] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  };
+  BisectionErrors e = mode == "whole" ? bisection_errors(v, range, displacement, progress)
+                                      : bisection_errors_bricked(v.dims, range, side, region_source(v), displacement, progress, &bytes);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   stop = true;
   sampler.join();
+  for (const auto& [stage, at] : stages) std::printf("%s: done at %.3f s\n", stage.c_str(), at);
   std::uint64_t sum = 0;
   for (auto c : e.code) sum += c;
+  if (mode == "both") {  // and the whole volume's, byte for byte
+    const BisectionErrors whole = bisection_errors(v, range, displacement);
+    std::printf("bytes equal to bisection_errors: %s\n",
+                whole.code == e.code && whole.displacement_code == e.displacement_code ? "yes" : "NO");
+  }
   std::printf(
       "{\"mode\":\"%s\",\"side\":%ld,\"threads\":%d,\"displacement\":%d,\"seconds\":%.3f,\"peak_extra_mb\":%.1f,\"bytes_exchanged\":%llu,"
       "\"voxels\":%lld,\"code_sum\":%llu}\n",

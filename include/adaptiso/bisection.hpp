@@ -23,6 +23,8 @@
 // (tet_grid.hpp) name the vertices and edges of a face two bricks share alike, but nothing here
 // makes their triangulations of that face agree: a brick's far faces are lined with its finest
 // tetrahedra, its near faces follow its own selection.
+// (bisection_bricks.hpp computes one volume's error hierarchy brick by brick, on the whole
+// volume's lattice: that is one hierarchy, the same as bisection_errors'.)
 //
 // The error guarantee (max norm, data units): every voxel is reproduced within max_error by the
 // linear interpolant of the tetrahedron that holds it (each tetrahedron holding it, on shared

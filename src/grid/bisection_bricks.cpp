@@ -52,6 +52,7 @@ void copy_box(const std::uint8_t* src, const Dims& dims, const VoxelBox& from, s
 struct Records {
   std::vector<std::int64_t> voxel;
   std::vector<double> lo, hi, g, delta, gradient;
+  void reserve(std::size_t n) { voxel.reserve(n), lo.reserve(n), hi.reserve(n), g.reserve(n), delta.reserve(n), gradient.reserve(n); }
   void add(std::int64_t v, double l, double h, double gg, double d, double gr) {
     voxel.push_back(v), lo.push_back(l), hi.push_back(h), g.push_back(gg), delta.push_back(d), gradient.push_back(gr);
   }
@@ -296,6 +297,12 @@ BisectionErrors bisection_combine_bricks(const BrickGrid& bricks, std::vector<Br
   const Dims cn{lat.X[0] / B + 1, lat.X[1] / B + 1, lat.X[2] / B + 1};
   const auto coarse_index = [&](const Coord& c) { return static_cast<std::size_t>(c[0] / B + cn[0] * (c[1] / B + cn[1] * (c[2] / B))); };
   coarse_value.assign(static_cast<std::size_t>(cn[0] * cn[1] * cn[2]), 0.0);
+  std::size_t seam_count = 0;
+  for (const auto& r : results) seam_count += r.seam_voxel.size();
+  std::size_t coarse_count = 0;  // the coarse scales' diamonds: fewer than 8 per coarse point
+  for (std::int64_t step = B; step < lat.S; step *= 2)
+    coarse_count += 8 * static_cast<std::size_t>((lat.X[0] / step + 1) * (lat.X[1] / step + 1) * (lat.X[2] / step + 1));
+  rec.reserve(seam_count + coarse_count);
   coarse_gradient.assign(coarse_value.size(), kInf);
   for (auto& r : results) {
     const std::size_t m = r.seam_voxel.size();

@@ -215,16 +215,24 @@ struct Window {
 struct Seams {
   std::int32_t B = 0;
   Coord X{};
-  // A seam diamond: within its scale h of a brick face plane inside the box (that depends on voxels
-  // across it), a cube centre of scale B/2 (what the coarse levels start from), or any coarser.
+  // A seam diamond: within its scale h of a brick face plane inside the box, a cube centre of
+  // scale B/2 (what the coarse levels start from), or any coarser. Why that set, per axis a and
+  // plane P (a multiple of B, 2h | B): a coordinate is an even multiple of h (0 or ≥ 2h from P) or
+  // an odd one (h or ≥ 3h from P). Of the children, a cube centre's and a face centre's move one
+  // coordinate by h, an edge midpoint's (scale h/2) every coordinate by h/2: from a diamond ≥ 2h
+  // (even) or ≥ 3h (odd) from every plane they land ≥ 2h, ≥ 3h, or ≥ 3h/2 = 3·(h/2) from it, so
+  // no seam diamond descends from one that is none, and all its voxels lie in one brick. Near a
+  // plane the dependency is real: a cube centre h from P reads the complete bound of its face
+  // child on P, whose tetrahedra lie on both sides. A seam diamond's children that are none are ≥
+  // 2h (or 3h/2) from every plane and on its side of each, so they lie in the brick owning it.
   bool seam(const Diamond& d) const {
     if (d.h >= B || (2 * d.h == B && d.kind == DiamondKind::cube)) return true;
-    for (int a = 0; a < 3; ++a) {
-      const std::int32_t below = d.c[a] & (B - 1), plane = d.c[a] - below;  // the plane at or below
-      if (below <= d.h && plane > 0 && plane < X[a]) return true;
-      if (B - below <= d.h && plane + B < X[a]) return true;
-    }
-    return false;
+    return near(0, d.c[0], d.h) || near(1, d.c[1], d.h) || near(2, d.c[2], d.h);
+  }
+  // A coordinate x along axis a within h of a seam plane.
+  bool near(int a, std::int32_t x, std::int32_t h) const {
+    const std::int32_t below = x & (B - 1), plane = x - below;  // the plane at or below
+    return (below <= h && plane > 0 && plane < X[a]) || (B - below <= h && plane + B < X[a]);
   }
   // Per seam diamond centred in the brick's owned voxels, in the order of their finding: its global
   // voxel, the union of its children's bounds the brick computes (the others are seam diamonds or
@@ -531,10 +539,20 @@ private:
     Seams::Out& out = *seams_->out;
     for (DiamondKind kind : {DiamondKind::edge, DiamondKind::face, DiamondKind::cube})
       for (int axis = 0; axis < (kind == DiamondKind::cube ? 1 : 3); ++axis) {
+        // Every centre of the sublattice has scale h: seam diamonds are the cube centres of
+        // scale B/2 and those with a coordinate near a plane, so rows along x far from planes
+        // need only their near columns.
         const Sublattice sub(w_.lo, seams_->owned_hi, kind, axis, h);
+        const bool every = 2 * h == seams_->B && kind == DiamondKind::cube;
+        std::vector<std::int64_t> columns, near_columns;
+        for (std::int64_t i = 0; i < sub.n[0]; ++i) {
+          columns.push_back(i);
+          if (seams_->near(0, sub.at(i, 0, 0)[0], h)) near_columns.push_back(i);
+        }
         for (std::int64_t k = 0; k < sub.n[2]; ++k)
-          for (std::int64_t j = 0; j < sub.n[1]; ++j)
-            for (std::int64_t i = 0; i < sub.n[0]; ++i) {
+          for (std::int64_t j = 0; j < sub.n[1]; ++j) {
+            const Coord row = sub.at(0, j, k);
+            for (std::int64_t i : every || seams_->near(1, row[1], h) || seams_->near(2, row[2], h) ? columns : near_columns) {
               const Diamond d = classify(sub.at(i, j, k), lat_.k);
               if (!d.valid || !skip(d)) continue;
               Bound own{0, 0, kInf};  // δ and gradient: none where the bound is not evaluated
@@ -558,6 +576,7 @@ private:
                 out.gradient.push_back(own.g);
               }
             }
+          }
       }
   }
 
