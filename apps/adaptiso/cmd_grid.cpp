@@ -3,6 +3,7 @@
 #include <tbb/global_control.h>
 
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <optional>
 
@@ -29,6 +30,24 @@ constexpr std::int64_t kDefaultRankBrickSide = 128;
 void prepare_rank_bricks(Ranks& ranks, const Volume& v, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
   distributed_errors(ranks, v, value_range(v), brick_side, options.max_displacement > 0, {}, ignored);
+}
+
+// The error hierarchy in bricks of `side`: over the ranks under mpirun, else on this process. The
+// returned function fills `stats`, which must outlive it.
+std::function<BisectionErrors(const Volume&, const ValueRange&, bool, const Progress&)> bricked_errors(Ranks& ranks, std::int64_t side,
+                                                                                                       DistributedStats& stats) {
+  if (ranks.distributed())
+    return [&ranks, side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+      return distributed_errors(ranks, v, range, side, displacement, progress, stats);
+    };
+  return [side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+    const BrickGrid bricks = brick_grid(v.dims, side);
+    stats.brick_side = bricks.side;
+    stats.bricks = bricks.size();
+    stats.bricks_per_rank = {bricks.size()};
+    stats.peak_bytes_per_rank = {0};  // filled in at the end
+    return bisection_errors_bricked(v.dims, range, side, region_source(v), displacement, progress, &stats.bytes_exchanged);
+  };
 }
 
 }  // namespace
@@ -69,19 +88,7 @@ void add_prepare(CLI::App& app) {
     const double t_load = seconds_since(t_all);
     if (!ranks.root()) return prepare_rank_bricks(ranks, v, options, side);
     DistributedStats dist;
-    if (ranks.distributed())
-      options.error_hierarchy = [&](const Volume& vol, const ValueRange& range, bool displacement, const Progress& progress) {
-        return distributed_errors(ranks, vol, range, side, displacement, progress, dist);
-      };
-    else if (bricked)
-      options.error_hierarchy = [&](const Volume& vol, const ValueRange& range, bool displacement, const Progress& progress) {
-        std::uint64_t exchanged = 0;
-        BisectionErrors e = bisection_errors_bricked(vol.dims, range, side, region_source(vol), displacement, progress, &exchanged);
-        dist.brick_side = brick_grid(vol.dims, side).side;
-        dist.bricks = brick_grid(vol.dims, side).size();
-        dist.bytes_exchanged = exchanged;
-        return e;
-      };
+    if (bricked) options.error_hierarchy = bricked_errors(ranks, side, dist);
     TerminalProgress tp(!out->quiet && !out->json);
     // Written as it is made: the voxels go before the index, the grid's positions and gradients
     // once they are on disk (the peak within the file plus 2.5 volumes).

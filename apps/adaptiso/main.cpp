@@ -2,9 +2,11 @@
 // calls the library, maps exceptions to exit codes (2: bad input or usage, 1: internal failure).
 #include <fmt/format.h>
 
+#include <chrono>
 #include <filesystem>
 #include <iostream>
 #include <string_view>
+#include <thread>
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/version.hpp"
@@ -39,8 +41,11 @@ std::string_view command_of(int argc, char** argv) {
 
 // Prints a failure. Under mpirun a failure every rank meets alike (a usage or input error: every
 // rank reads the same options and volume) is told once, by rank 0; others name their rank.
+bool told_by_rank_0 = false;  // this rank left the message of its failure to rank 0
+
 void tell(const std::string& message, bool same_on_every_rank) {
   const adaptiso::cli::Ranks* ranks = adaptiso::cli::Ranks::started();
+  told_by_rank_0 = ranks && !ranks->root() && same_on_every_rank;
   if (!ranks || ranks->root())
     std::cerr << "adaptiso: " << message << "\n";
   else if (!same_on_every_rank)
@@ -99,7 +104,9 @@ int run(int argc, char** argv) {
 
 int main(int argc, char** argv) {
   const int code = run(argc, argv);
-  // A failure on one rank stops the others (they may wait for it in a collective).
+  // A failure on one rank stops the others (they may wait for it in a collective). One that rank
+  // 0 meets too gives it time to say so first: the first rank to abort ends every other one.
+  if (code != 0 && told_by_rank_0) std::this_thread::sleep_for(std::chrono::seconds(3));
   if (code != 0) adaptiso::cli::Ranks::abort_if_distributed(code);
   return code;
 }

@@ -66,6 +66,17 @@ set -e
 grep -q "only 'adaptiso prepare' runs over MPI ranks" "$W/info.out" || { echo "FAIL: no clear refusal"; cat "$W/info.out"; exit 1; }
 echo "ok: other commands refused under mpirun"
 
+# An input error every rank meets is told once, by rank 0 (the first rank to abort ends the others:
+# a message left to rank 0 was once lost when rank 1 aborted first), with exit 2.
+head -c 100 /dev/zero >"$W/flat.raw"
+set +e
+ranks 2 "$CLI" prepare "$W/flat.raw" --dims 10,10,1 --type uint8 --quiet -o "$W/flat.adg" >"$W/flat.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: a flat volume under mpirun exited $code"; cat "$W/flat.out"; exit 1; }
+[ "$(grep -c 'is flat' "$W/flat.out")" -eq 1 ] || { echo "FAIL: the flat volume's message is not told once"; cat "$W/flat.out"; exit 1; }
+echo "ok: an input error under mpirun is told once, exit 2"
+
 # A rank killed mid-run: mpirun fails and no grid file appears under its name.
 "$CLI" generate sphere --size 160 --quiet -o "$W/big.nrrd"
 "$MPIEXEC" -np 2 "$CLI" prepare "$W/big.nrrd" --brick-side 16 --threads 1 --quiet -o "$W/killed.adg" >"$W/killed.out" 2>&1 &
