@@ -209,9 +209,10 @@ BrickErrors bisection_brick_errors(const BrickGrid& bricks, std::int64_t brick, 
   Seams::Out seam_out;
   Seams seams{static_cast<std::int32_t>(bricks.side), lat.X, to_coord(owns.hi), &seam_out};
   const auto B = bricks.side;
+  const Progress silent;  // named: the hierarchy keeps a reference (a temporary here died before run(), ASan)
   visit_values(region, [&]<class T>(std::span<const T> values) {
     auto run = [&]<bool kDisplacement>() {
-      ErrorHierarchy<T, kDisplacement, true> hierarchy(lat, w, values.data(), hc.codes, code, disp, Progress{}, &seams);
+      ErrorHierarchy<T, kDisplacement, true> hierarchy(lat, w, values.data(), hc.codes, code, disp, silent, &seams);
       hierarchy.run();
       // The coarse points: the owned voxels at multiples of B.
       for (std::int64_t z = (owns.lo[2] + B - 1) / B * B; z <= owns.hi[2]; z += B)

@@ -288,6 +288,10 @@ std::array<std::uint8_t, 2> saturated_codes(const Diamond& d, const Bound& b, st
 template <class T, bool kDisplacement, bool kBricked = false>
 class ErrorHierarchy {
 public:
+  // It keeps references to the lattice, the displacement and the progress: no temporaries (a
+  // Progress{} passed here once died before run() read it).
+  ErrorHierarchy(const Lattice&, const Window&, const T*, const ErrorCodes&, std::vector<std::uint8_t>&, const Displacement&, Progress&&,
+                 const Seams* = nullptr) = delete;
   ErrorHierarchy(const Lattice& lat, const Window& w, const T* values, const ErrorCodes& codes, std::vector<std::uint8_t>& code,
                  const Displacement& disp, const Progress& progress, const Seams* seams = nullptr)
       : lat_(lat),
