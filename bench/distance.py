@@ -7,6 +7,8 @@ run. For each volume and iso-value, on the bisection grid `prepare` makes by def
 - flying edges: VTK's vtkFlyingEdges3D (SMP, `peer_bench fe`), the reference for time and triangles;
 - flying edges + meshoptimizer at D: that surface simplified with the same distance as target
   (`bench_simplify MESH D·voxel 0`), its time added to flying edges';
+- adaptiso --distance D/2 --simplify D/2 [--checked]: the query at half the distance, its surface
+  simplified by the other half (meshoptimizer's estimate, or checked: simplify.hpp);
 - adaptiso mc --simplify D: full-resolution marching cubes and our chunked simplification;
 - OpenVDB volumeToMesh at adaptivity 0.25 and 0.5 (`peer_bench vdb`).
 
@@ -119,6 +121,14 @@ def main():
                 s = fastest([exe, "extract", grid, "--iso", f"{iso:g}", "--distance", f"{d:g}", "-o", mesh, "--json", "--quiet"], a.repeat,
                             lambda r: r["surfaces"][0]["seconds"])["surfaces"][0]
                 record("adaptiso --distance", d, mesh, s["triangles"], s["seconds"], True)
+                # Tandem: half the distance to the query, half to a simplification of its surface,
+                # meshoptimizer's estimate alone and checked (simplify.hpp).
+                for checked in ([], ["--checked"]):
+                    t = fastest([exe, "extract", grid, "--iso", f"{iso:g}", "--distance", f"{d / 2:g}", "--simplify", f"{d / 2:g}", *checked,
+                                 "-o", mesh, "--json", "--quiet"], a.repeat,
+                                lambda r: r["surfaces"][0]["seconds"] + r["surfaces"][0]["simplify"]["seconds"])["surfaces"][0]
+                    record("adaptiso --distance D/2 --simplify D/2" + (" --checked" if checked else ""), d, mesh,
+                           t["simplify"]["triangles_after"], t["seconds"] + t["simplify"]["seconds"], True)
                 if fe_rec:
                     one = last_json(run([simplify, fe, repr(d * voxel), "0", mesh]))
                     record("flying edges + meshoptimizer", d, mesh, one["triangles_after"], fe_rec["seconds"] + one["seconds"], False)

@@ -32,11 +32,16 @@ struct MeshOutputFlags {
   std::string output;
   double simplify = 0;  // voxels of the smallest spacing; 0: off
   bool measure = false;
+  bool checked = false;
   void add(CLI::App* app) {
-    app->add_option("--simplify", simplify,
-                    "Simplify each mesh so that it moves about this far (voxels of the smallest spacing; meshoptimizer's error "
-                    "estimate, borders locked, kept vertices unmoved)")
-        ->check(finite_number() & CLI::NonNegativeNumber);
+    auto* s = app->add_option("--simplify", simplify,
+                              "Simplify each mesh so that it moves about this far (voxels of the smallest spacing; meshoptimizer's error "
+                              "estimate, borders locked, kept vertices unmoved)")
+                  ->check(finite_number() & CLI::NonNegativeNumber);
+    app->add_flag("--checked", checked,
+                  "With --simplify: check each region's result both ways (vertices and triangle centres within the distance) and "
+                  "simplify smaller regions where it fails; slower, more triangles on noisy surfaces")
+        ->needs(s);
     app->add_flag("--measure", measure, "With --simplify: measure the distance between the simplified and the extracted surface");
     app->add_option("--iso", isos, "Iso-value(s), comma-separated; data units, or fractions of the range with --relative")
         ->required()
@@ -70,13 +75,18 @@ struct MeshOutputFlags {
     }
     const double voxel = std::min({spacing[0], spacing[1], spacing[2]});
     SimplifyStats st;
-    const Mesh simplified = simplify_mesh(mesh, simplify * voxel, &st);
+    SimplifyOptions how;
+    how.checked = checked;
+    const Mesh simplified = simplify_mesh(mesh, simplify * voxel, &st, how);
     write_mesh(simplified, path);
     nlohmann::json j = {{"distance_voxels", simplify},
+                        {"checked", checked},
                         {"triangles_before", st.triangles_before},
                         {"triangles_after", st.triangles_after},
                         {"error_estimate_voxels", st.error / voxel},
                         {"chunks", st.chunks},
+                        {"chunks_retried", st.chunks_retried},
+                        {"chunks_kept", st.chunks_kept},
                         {"seconds", st.seconds}};
     std::string line = fmt::format("; simplified to {} triangles in {:.3f} s", st.triangles_after, st.seconds);
     if (measure && simplified.triangle_count() > 0) {

@@ -5,10 +5,6 @@
 //   Graphics Forum, 1998 (distances from dense samples of one surface to the other).
 #include "adaptiso/surface_distance.hpp"
 
-#include <CGAL/AABB_traits.h>
-#include <CGAL/AABB_tree.h>
-#include <CGAL/AABB_triangle_primitive.h>
-#include <CGAL/Simple_cartesian.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -16,22 +12,21 @@
 #include <random>
 
 #include "adaptiso/error.hpp"
+#include "mesh/triangle_tree.hpp"
 
 namespace adaptiso {
 namespace {
 
-using K = CGAL::Simple_cartesian<double>;
-using Triangle = K::Triangle_3;
-using Primitive = CGAL::AABB_triangle_primitive<K, std::vector<Triangle>::const_iterator>;
-using Tree = CGAL::AABB_tree<CGAL::AABB_traits<K, Primitive>>;
-
-K::Point_3 point(const std::array<float, 3>& p) { return {p[0], p[1], p[2]}; }
+using K = detail::TreeKernel;
+using Triangle = detail::TreeTriangle;
+using Tree = detail::TriangleTree;
+using detail::tree_point;
 
 std::vector<Triangle> triangles(const Mesh& m) {
   std::vector<Triangle> t;
   t.reserve(m.triangle_count());
   for (const auto& q : m.triangles) {
-    Triangle tri(point(m.positions[q[0]]), point(m.positions[q[1]]), point(m.positions[q[2]]));
+    Triangle tri(tree_point(m.positions[q[0]]), tree_point(m.positions[q[1]]), tree_point(m.positions[q[2]]));
     if (!tri.is_degenerate()) t.push_back(tri);
   }
   return t;
@@ -55,7 +50,7 @@ std::vector<K::Point_3> samples(const Mesh& from, const std::vector<Triangle>& t
     pts.emplace_back(a.x() * (1 - r1) + r1 * ((1 - r2) * b.x() + r2 * c.x()), a.y() * (1 - r1) + r1 * ((1 - r2) * b.y() + r2 * c.y()),
                      a.z() * (1 - r1) + r1 * ((1 - r2) * b.z() + r2 * c.z()));
   }
-  for (const auto& p : from.positions) pts.push_back(point(p));
+  for (const auto& p : from.positions) pts.push_back(tree_point(p));
   return pts;
 }
 

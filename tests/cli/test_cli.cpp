@@ -403,6 +403,16 @@ TEST(ExtractCli, SimplifyReportsTrianglesTimesAndTheMeasuredDistance) {
     EXPECT_EQ(read_ply(t / "s.ply").triangle_count(), s["triangles_after"].get<std::size_t>()) << cmd;
   }
   EXPECT_EQ(testutil::run_cli(fmt::format("mc {} --iso 700 --simplify -1 -o {}", t / "s.nrrd", t / "x.ply")).code, 2);
+  // Checked: fewer triangles removed, reported as such; --checked alone is refused.
+  auto r = testutil::run_cli(fmt::format("mc {} --iso 700 --simplify 0.5 --checked --json -o {}", t / "s.nrrd", t / "c.ply"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto c = nlohmann::json::parse(r.out)["surfaces"][0]["simplify"];
+  EXPECT_TRUE(c["checked"].get<bool>());
+  EXPECT_LT(c["triangles_after"].get<std::size_t>(), c["triangles_before"].get<std::size_t>());
+  EXPECT_TRUE(c.contains("chunks_retried") && c.contains("chunks_kept"));
+  const auto bare = testutil::run_cli(fmt::format("mc {} --iso 700 --checked -o {}", t / "s.nrrd", t / "x.ply"));
+  EXPECT_EQ(bare.code, 2);
+  EXPECT_NE(bare.err.find("--checked requires --simplify"), std::string::npos) << bare.err;
 }
 
 TEST(ExtractCli, RunExtractSeveralIsoValuesAndBadInput) {
