@@ -40,6 +40,7 @@
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/prepare_to_file.hpp"
 #include "adaptiso/reduce.hpp"
+#include "adaptiso/simplify.hpp"
 #include "adaptiso/version.hpp"
 #include "adaptiso/volume_io.hpp"
 
@@ -756,6 +757,37 @@ statistics (Grid.stats). ValueError on a bad option, OSError when the path canno
       py::arg("path"), py::arg("vertices"), py::arg("faces"), py::arg("normals") = py::none(),
       "write_mesh(path, vertices, faces, normals=None)\n\nWrites a mesh by its extension: .ply, .obj, .stl or .glb, in the "
       "coordinates given. ValueError for another extension, OSError when it cannot be written.");
+
+  // The engine of adaptiso.simplify (python/adaptiso/__init__.py wraps it into a Mesh).
+  m.def(
+      "_simplify",
+      [](const py::object& vertices, const py::object& faces, const py::object& normals, double distance, bool checked) {
+        Mesh mesh;
+        mesh.positions = numpy_to_rows<float, 3>(vertices, "vertices");
+        mesh.triangles = numpy_to_rows<std::uint32_t, 3>(faces, "faces");
+        if (!normals.is_none()) mesh.normals = numpy_to_rows<float, 3>(normals, "normals");
+        if (!mesh.normals.empty() && mesh.normals.size() != mesh.positions.size())
+          throw py::value_error("normals: must have one row per vertex");
+        for (const auto& t : mesh.triangles)
+          for (auto i : t)
+            if (i >= mesh.positions.size()) throw py::value_error("faces: an index is out of range");
+        if (!(distance >= 0) || !std::isfinite(distance)) throw py::value_error("distance: must be a finite number >= 0");
+        SimplifyStats st;
+        Mesh out;
+        {
+          py::gil_scoped_release release;
+          SimplifyOptions how;
+          how.checked = checked;
+          out = simplify_mesh(mesh, distance, &st, how);
+        }
+        py::dict stats;
+        stats["triangles_before"] = st.triangles_before, stats["triangles_after"] = st.triangles_after;
+        stats["distance"] = distance, stats["checked"] = checked, stats["seconds"] = st.seconds;
+        stats["chunks"] = st.chunks, stats["chunks_retried"] = st.chunks_retried, stats["chunks_kept"] = st.chunks_kept;
+        py::object n = out.normals.empty() ? py::none() : py::object(rows_to_numpy(std::move(out.normals)));
+        return py::make_tuple(rows_to_numpy(std::move(out.positions)), rows_to_numpy(std::move(out.triangles)), n, stats);
+      },
+      py::arg("vertices"), py::arg("faces"), py::arg("normals"), py::arg("distance"), py::arg("checked"));
 
   // The engine of adaptiso.marching_cubes (python/adaptiso/__init__.py checks the arguments as
   // scikit-image does first). array: [a0, a1, a2] (the last axis fastest in memory after the copy

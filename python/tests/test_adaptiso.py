@@ -128,6 +128,28 @@ def test_surface_within_a_distance_has_the_full_surfaces_vertices():
         grid.extract(15.0, distance=1.0, max_error=0.1)
 
 
+def test_simplify_keeps_vertices_and_the_distance_checked():
+    v = adaptiso.Volume(sphere_distance((40, 40, 40), (19.5, 19.5, 19.5)))
+    grid = adaptiso.prepare(v, max_error=0.005, relative=True)
+    full = grid.extract(12.0)
+    for checked in (False, True):
+        s = adaptiso.simplify(full, 0.5, checked=checked)
+        assert isinstance(s, adaptiso.Mesh) and s.axes == full.axes
+        assert 0 < s.faces.shape[0] < full.faces.shape[0] / 2
+        assert s.stats["checked"] is checked and s.stats["triangles_after"] == s.faces.shape[0]
+        # Kept vertices are the full surface's, unmoved, with their normals.
+        assert set(map(tuple, s.vertices.tolist())) <= set(map(tuple, full.vertices.tolist()))
+        assert s.normals.shape == s.vertices.shape
+        radius = np.linalg.norm(s.vertices[s.faces].mean(axis=1) - [19.5, 19.5, 19.5], axis=1)
+        assert np.all(np.abs(radius - 12.0) < 0.5 + 0.3)
+    # A plain tuple works; bad input is a ValueError.
+    assert adaptiso.simplify((full.vertices, full.faces), 0).faces.shape == full.faces.shape
+    with pytest.raises(ValueError):
+        adaptiso.simplify(full, -1)
+    with pytest.raises(ValueError):
+        adaptiso.simplify((full.vertices, full.faces + full.vertices.shape[0]), 0.5)
+
+
 def test_cell_floor_gives_fewer_tetrahedra_at_a_measured_error():
     rng = np.random.default_rng(3)
     a = sphere_distance() + rng.uniform(0, 5, size=sphere_distance().shape).astype(np.float32)
