@@ -81,7 +81,7 @@ void add_prepare(CLI::App& app) {
       throw InputError(ranks.distributed() ? "only the bisection grid is prepared over MPI ranks (drop --grid delaunay or mpirun)"
                                            : "--brick-side applies to the bisection grid only");
     const std::int64_t side = *brick_side > 0 ? *brick_side : kDefaultRankBrickSide;
-    if (bricked) brick_grid({2, 2, 2}, side);      // a bad side fails before the volume is read
+    if (bricked) check_brick_side(side);           // a bad side fails before the volume is read
     if (ranks.root()) check_output_path(*output);  // and an output that cannot be written (rank 0 writes it)
     auto t_all = Clock::now();
     Volume v = in->load();

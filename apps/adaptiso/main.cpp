@@ -30,7 +30,6 @@ std::string one_line(std::string_view s) {
   }
   return r;
 }
-}  // namespace
 
 // The first word that is no option: the command.
 std::string_view command_of(int argc, char** argv) {
@@ -39,10 +38,11 @@ std::string_view command_of(int argc, char** argv) {
   return {};
 }
 
+// This rank left the message of its failure to rank 0 (see tell).
+bool told_by_rank_0 = false;
+
 // Prints a failure. Under mpirun a failure every rank meets alike (a usage or input error: every
 // rank reads the same options and volume) is told once, by rank 0; others name their rank.
-bool told_by_rank_0 = false;  // this rank left the message of its failure to rank 0
-
 void tell(const std::string& message, bool same_on_every_rank) {
   const adaptiso::cli::Ranks* ranks = adaptiso::cli::Ranks::started();
   told_by_rank_0 = ranks && !ranks->root() && same_on_every_rank;
@@ -51,6 +51,7 @@ void tell(const std::string& message, bool same_on_every_rank) {
   else if (!same_on_every_rank)
     std::cerr << "adaptiso (rank " << ranks->rank() << "): " << message << "\n";
 }
+}  // namespace
 
 int run(int argc, char** argv) {
   CLI::App app{"adaptiso: adaptive iso-surface generation from 3D scalar volumes (Lürig & Ertl)"};

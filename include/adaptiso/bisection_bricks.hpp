@@ -63,6 +63,8 @@ struct BrickGrid {
   VoxelBox reads(std::int64_t n, bool displacement) const;  // what its brick step reads
 };
 BrickGrid brick_grid(const Dims& dims, std::int64_t brick_side);
+// The brick side's check alone (brick_grid makes it too): before a volume is read.
+void check_brick_side(std::int64_t brick_side);
 
 // What one brick hands up: its own codes, and flat arrays for the combine step.
 struct BrickErrors {

@@ -169,9 +169,13 @@ VoxelBox BrickGrid::reads(std::int64_t n, bool displacement) const {
   return box;
 }
 
-BrickGrid brick_grid(const Dims& dims, std::int64_t brick_side) {
+void check_brick_side(std::int64_t brick_side) {
   if (brick_side < 2 || !std::has_single_bit(static_cast<std::uint64_t>(brick_side)))
     throw OptionError("brick_side", fmt::format("{} is not a power of two of at least 2", brick_side));
+}
+
+BrickGrid brick_grid(const Dims& dims, std::int64_t brick_side) {
+  check_brick_side(brick_side);
   const detail::Lattice lat = detail::make_lattice(dims);
   BrickGrid g;
   g.dims = dims;

@@ -249,8 +249,12 @@ TEST(Extractor, CancelledAtAnyMomentTheNextExtractionStillMatchesAFreshMarch) {
       was_cancelled = true;
     }
     if (raiser.joinable()) raiser.join();
-    if (step % 5 == 0) ASSERT_TRUE(was_cancelled) << step;
-    if (step % 5 == 1) ASSERT_FALSE(was_cancelled) << step;
+    if (step % 5 == 0) {
+      ASSERT_TRUE(was_cancelled) << step;
+    }
+    if (step % 5 == 1) {
+      ASSERT_FALSE(was_cancelled) << step;
+    }
     if (was_cancelled) {
       ++cancelled;
       ex.extract(iso);

@@ -236,7 +236,9 @@ TEST(Simplify, OpenSurfaceKeepsItsBorderOnTheBox) {
   for (const auto& p : m.positions) {
     bool on_box = false;
     for (int a = 0; a < 3; ++a) on_box |= p[a] == 0.0f || p[a] == float(v.dims[a] - 1);
-    if (on_box) EXPECT_TRUE(kept.count(p)) << "a border vertex moved";
+    if (on_box) {
+      EXPECT_TRUE(kept.count(p)) << "a border vertex moved";
+    }
   }
 }
 
