@@ -34,6 +34,13 @@ std::optional<double> parse_optional(const QueryParams& params, const char* name
   return x;
 }
 
+bool parse_flag(const QueryParams& params, const char* name) {
+  const std::string* s = param(params, name);
+  if (!s || *s == "0" || *s == "false") return false;
+  if (*s == "1" || *s == "true") return true;
+  throw BadRequest(fmt::format("{} must be 0, 1, true or false, not '{}'", name, s->substr(0, 40)));
+}
+
 bool compact_format(const QueryParams& params) {
   const std::string* f = param(params, "format");
   if (!f) return false;

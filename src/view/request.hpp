@@ -23,6 +23,8 @@ double parse_iso(const QueryParams& params);
 std::optional<double> parse_optional(const QueryParams& params, const char* name);
 // format=plain (the default) or format=compact (mesh_codec.hpp) for /api/surface.
 bool compact_format(const QueryParams& params);
+// A yes/no parameter: absent, 0 or false is no; 1 or true is yes; anything else a bad request.
+bool parse_flag(const QueryParams& params, const char* name);
 // format=glb (the default) or format=ply for /api/export.
 std::string export_format(const QueryParams& params);
 // client=: 1-64 letters, digits, '-' or '_'; "default" when absent.

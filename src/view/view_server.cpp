@@ -54,6 +54,7 @@ using detail::BadRequest;
 using detail::client_id;
 using detail::compact_format;
 using detail::export_format;
+using detail::parse_flag;
 using detail::parse_iso;
 using detail::parse_optional;
 using detail::Sessions;
@@ -441,12 +442,15 @@ Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distan
   return mesh;
 }
 
-// The surface at rest (iso, error or distance), simplified to simplify= voxels, as a .glb or .ply file.
+// The surface at rest (iso, error or distance), simplified to simplify= voxels (checked=1: each
+// region's result checked, simplify.hpp), as a .glb or .ply file.
 void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& res) {
   const double iso = parse_iso(req.params);
   const std::string id = client_id(req.params);
   const auto error = parse_optional(req.params, "error");
   const double distance = parse_optional(req.params, "simplify").value_or(0);
+  SimplifyOptions how;
+  how.checked = parse_flag(req.params, "checked");
   const auto within = parse_optional(req.params, "distance");
   const std::string format = export_format(req.params);
   const Served s = served_now();
@@ -463,12 +467,13 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   const auto room = sessions.reserve(kExportBytesPerTriangle * mesh.triangle_count());
   const Vec3& sp = s.grid->grid.source.spacing;  // the same on every level
   SimplifyStats st;
-  const Mesh simplified = simplify_mesh(mesh, distance * std::min({sp[0], sp[1], sp[2]}), &st);
+  const Mesh simplified = simplify_mesh(mesh, distance * std::min({sp[0], sp[1], sp[2]}), &st, how);
   const std::string name = fmt::format("adaptiso-{:.6g}.{}", iso, format);
   res.set_header("Content-Disposition", fmt::format("attachment; filename=\"{}\"", name));
   res.set_header("X-Triangles", std::to_string(st.triangles_after));
   res.set_header("X-Triangles-Before", std::to_string(st.triangles_before));
   res.set_header("X-Simplify-Seconds", seconds_text(st.seconds));
+  res.set_header("X-Simplify-Checked", how.checked ? "1" : "0");
   res.set_header("X-Error-Bound", fmt::format("{:.17g}", error_bound));
   res.set_content(mesh_file_bytes(simplified, name), format == "glb" ? "model/gltf-binary" : "application/octet-stream");
 }

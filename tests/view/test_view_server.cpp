@@ -467,7 +467,13 @@ TEST(ViewServer, ExportDownloadsTheSurfaceSimplified) {
   EXPECT_EQ(simplified->body.substr(0, 4), "glTF");
   EXPECT_LT(std::stoul(simplified->get_header_value("X-Triangles")), ex.mesh().triangle_count());
   EXPECT_EQ(simplified->get_header_value("X-Triangles-Before"), std::to_string(ex.mesh().triangle_count()));
-  for (const char* bad : {"simplify=-1", "format=stl", "simplify=x"})
+  EXPECT_EQ(simplified->get_header_value("X-Simplify-Checked"), "0");
+  auto checked = c.Get("/api/export?iso=700&simplify=0.5&checked=1&format=ply");
+  ASSERT_EQ(checked->status, 200) << checked->body;
+  EXPECT_EQ(checked->get_header_value("X-Simplify-Checked"), "1");
+  EXPECT_LT(std::stoul(checked->get_header_value("X-Triangles")), ex.mesh().triangle_count());
+  EXPECT_GE(std::stoul(checked->get_header_value("X-Triangles")), std::stoul(simplified->get_header_value("X-Triangles")));
+  for (const char* bad : {"simplify=-1", "format=stl", "simplify=x", "checked=yes"})
     EXPECT_EQ(c.Get(std::string("/api/export?iso=700&") + bad)->status, 400) << bad;
 }
 
