@@ -86,6 +86,7 @@ struct PartTree {
                                detail::tree_point(m.positions[indices[t + 2]]));
       if (!tri.is_degenerate()) triangles.push_back(tri);
     }
+    if (triangles.empty()) return;  // within() is false for every point
     tree.insert(triangles.begin(), triangles.end());
     tree.accelerate_distance_queries();
   }

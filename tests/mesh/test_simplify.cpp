@@ -263,3 +263,14 @@ TEST(Simplify, ZeroDistanceIsTheMeshAndBadDistancesAreRefused) {
   EXPECT_THROW(simplify_mesh(m, -1), OptionError);
   EXPECT_THROW(simplify_mesh(m, std::nan("")), OptionError);
 }
+
+TEST(Simplify, CheckedSurvivesTrianglesWithoutArea) {
+  // Triangles with no area give the check's trees nothing to hold: no crash, no point passes.
+  Mesh m;
+  m.positions = {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}, {3, 0, 0}};
+  m.triangles = {{0, 1, 2}, {1, 2, 3}, {0, 2, 3}};
+  SimplifyOptions how;
+  how.checked = true;
+  const Mesh s = simplify_mesh(m, 1.0, nullptr, how);
+  EXPECT_LE(s.triangle_count(), m.triangle_count());
+}
