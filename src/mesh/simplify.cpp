@@ -15,9 +15,9 @@
 // the same for any number of threads.
 //
 // Checked (simplify.hpp): each part's result is measured against the part by point-to-triangle
-// distances (CGAL AABB trees, as surface_distance.cpp measures) and simplified again at half the
-// target when it fails; the check depends on the part alone, so the output still does not depend
-// on the thread count.
+// distances (CGAL AABB trees, as surface_distance.cpp measures); a part that fails is cut in two
+// and each half simplified again. The check and the cuts depend on the part alone, so the output
+// still does not depend on the thread count.
 #include "adaptiso/simplify.hpp"
 
 #include <fmt/format.h>
