@@ -281,6 +281,20 @@ std::vector<std::array<T, K>> numpy_to_rows(const py::handle& input, const char*
   return rows;
 }
 
+// A mesh from Python's arrays (write_mesh, simplify), checked: ValueError for a wrong shape, normals
+// that are not one per vertex, or a face index out of range.
+Mesh mesh_from_numpy(const py::object& vertices, const py::object& faces, const py::object& normals) {
+  Mesh mesh;
+  mesh.positions = numpy_to_rows<float, 3>(vertices, "vertices");
+  mesh.triangles = numpy_to_rows<std::uint32_t, 3>(faces, "faces");
+  if (!normals.is_none()) mesh.normals = numpy_to_rows<float, 3>(normals, "normals");
+  if (!mesh.normals.empty() && mesh.normals.size() != mesh.positions.size()) throw py::value_error("normals: must have one row per vertex");
+  for (const auto& t : mesh.triangles)
+    for (auto i : t)
+      if (i >= mesh.positions.size()) throw py::value_error("faces: an index is out of range");
+  return mesh;
+}
+
 py::object json_object(const std::string& text) { return py::module_::import("json").attr("loads")(text); }
 
 // The Python face of a prepared grid.
@@ -743,15 +757,7 @@ statistics (Grid.stats). ValueError on a bad option, OSError when the path canno
         if (!is_mesh_file_name(p))
           throw py::value_error(p + ": unknown mesh type '" + std::filesystem::path(p).extension().string() +
                                 "' (use .ply, .obj, .stl or .glb)");
-        Mesh mesh;
-        mesh.positions = numpy_to_rows<float, 3>(vertices, "vertices");
-        mesh.triangles = numpy_to_rows<std::uint32_t, 3>(faces, "faces");
-        if (!normals.is_none()) mesh.normals = numpy_to_rows<float, 3>(normals, "normals");
-        if (!mesh.normals.empty() && mesh.normals.size() != mesh.positions.size())
-          throw py::value_error("normals: must have one row per vertex");
-        for (const auto& t : mesh.triangles)
-          for (auto i : t)
-            if (i >= mesh.positions.size()) throw py::value_error("faces: an index is out of range");
+        const Mesh mesh = mesh_from_numpy(vertices, faces, normals);
         file_call([&] { write_mesh(mesh, p); });
       },
       py::arg("path"), py::arg("vertices"), py::arg("faces"), py::arg("normals") = py::none(),
@@ -762,15 +768,7 @@ statistics (Grid.stats). ValueError on a bad option, OSError when the path canno
   m.def(
       "_simplify",
       [](const py::object& vertices, const py::object& faces, const py::object& normals, double distance, bool checked) {
-        Mesh mesh;
-        mesh.positions = numpy_to_rows<float, 3>(vertices, "vertices");
-        mesh.triangles = numpy_to_rows<std::uint32_t, 3>(faces, "faces");
-        if (!normals.is_none()) mesh.normals = numpy_to_rows<float, 3>(normals, "normals");
-        if (!mesh.normals.empty() && mesh.normals.size() != mesh.positions.size())
-          throw py::value_error("normals: must have one row per vertex");
-        for (const auto& t : mesh.triangles)
-          for (auto i : t)
-            if (i >= mesh.positions.size()) throw py::value_error("faces: an index is out of range");
+        const Mesh mesh = mesh_from_numpy(vertices, faces, normals);
         if (!(distance >= 0) || !std::isfinite(distance)) throw py::value_error("distance: must be a finite number >= 0");
         SimplifyStats st;
         Mesh out;
