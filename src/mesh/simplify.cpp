@@ -36,6 +36,30 @@
 namespace adaptiso {
 namespace {
 
+// Reorders ids[begin, end) around their median by centroid (`centroid(id, axis)`: the sum of a
+// triangle's corners) along the longest side of their centroids' box, and returns the median's
+// place. Ties broken by the id, so the split is the same however nth_element proceeds.
+template <class Centroid>
+std::size_t median_split(std::vector<std::uint32_t>& ids, std::size_t begin, std::size_t end, const Centroid& centroid) {
+  float lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = centroid(ids[begin], a);
+  for (std::size_t i = begin; i < end; ++i)
+    for (int a = 0; a < 3; ++a) {
+      const float c = centroid(ids[i], a);
+      lo[a] = std::min(lo[a], c), hi[a] = std::max(hi[a], c);
+    }
+  int axis = 0;
+  for (int a = 1; a < 3; ++a)
+    if (hi[a] - lo[a] > hi[axis] - lo[axis]) axis = a;
+  const std::size_t mid = begin + (end - begin) / 2;
+  std::nth_element(ids.begin() + static_cast<std::ptrdiff_t>(begin), ids.begin() + static_cast<std::ptrdiff_t>(mid),
+                   ids.begin() + static_cast<std::ptrdiff_t>(end), [&](std::uint32_t a, std::uint32_t b) {
+                     const float ca = centroid(a, axis), cb = centroid(b, axis);
+                     return ca < cb || (ca == cb && a < b);
+                   });
+  return mid;
+}
+
 // Triangle indices, split recursively at the median centroid along the longest side of their
 // bounding box, until every part holds at most `most` triangles; parts in a fixed order.
 void split_chunks(const Mesh& m, std::vector<std::uint32_t>& tris, std::size_t begin, std::size_t end, std::size_t most,
@@ -44,27 +68,10 @@ void split_chunks(const Mesh& m, std::vector<std::uint32_t>& tris, std::size_t b
     parts.emplace_back(begin, end);
     return;
   }
-  auto centroid = [&](std::uint32_t t, int a) {
+  const std::size_t mid = median_split(tris, begin, end, [&](std::uint32_t t, int a) {
     const auto& tri = m.triangles[t];
     return m.positions[tri[0]][a] + m.positions[tri[1]][a] + m.positions[tri[2]][a];
-  };
-  float lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = centroid(tris[begin], a);
-  for (std::size_t i = begin; i < end; ++i)
-    for (int a = 0; a < 3; ++a) {
-      const float c = centroid(tris[i], a);
-      lo[a] = std::min(lo[a], c), hi[a] = std::max(hi[a], c);
-    }
-  int axis = 0;
-  for (int a = 1; a < 3; ++a)
-    if (hi[a] - lo[a] > hi[axis] - lo[axis]) axis = a;
-  const std::size_t mid = begin + (end - begin) / 2;
-  // Ties broken by the triangle index, so the split is the same however nth_element proceeds.
-  std::nth_element(tris.begin() + static_cast<std::ptrdiff_t>(begin), tris.begin() + static_cast<std::ptrdiff_t>(mid),
-                   tris.begin() + static_cast<std::ptrdiff_t>(end), [&](std::uint32_t a, std::uint32_t b) {
-                     const float ca = centroid(a, axis), cb = centroid(b, axis);
-                     return ca < cb || (ca == cb && a < b);
-                   });
+  });
   split_chunks(m, tris, begin, mid, most, parts);
   split_chunks(m, tris, mid, end, most, parts);
 }
@@ -177,27 +184,15 @@ ChunkResult simplify_raw(const Mesh& m, std::vector<std::uint32_t> in, double di
   return r;
 }
 
-// Triangles (3 global vertex numbers each) cut in two at the median centroid along the longest
-// side of their centroids' box, ties broken by position in the list: the same for any thread count.
+// Triangles (3 global vertex numbers each) cut in two as split_chunks cuts, each half in list order:
+// the same for any thread count.
 std::pair<std::vector<std::uint32_t>, std::vector<std::uint32_t>> halves(const Mesh& m, const std::vector<std::uint32_t>& in) {
-  const std::size_t n = in.size() / 3;
-  std::vector<std::array<float, 3>> centroid(n);
-  float lo[3] = {1e30f, 1e30f, 1e30f}, hi[3] = {-1e30f, -1e30f, -1e30f};
-  for (std::size_t t = 0; t < n; ++t)
-    for (std::size_t a = 0; a < 3; ++a) {
-      centroid[t][a] = m.positions[in[3 * t]][a] + m.positions[in[3 * t + 1]][a] + m.positions[in[3 * t + 2]][a];
-      lo[a] = std::min(lo[a], centroid[t][a]), hi[a] = std::max(hi[a], centroid[t][a]);
-    }
-  std::size_t axis = 0;
-  for (std::size_t a = 1; a < 3; ++a)
-    if (hi[a] - lo[a] > hi[axis] - lo[axis]) axis = a;
-  std::vector<std::uint32_t> order(n);
+  std::vector<std::uint32_t> order(in.size() / 3);
   std::iota(order.begin(), order.end(), 0u);
-  const auto mid = order.begin() + static_cast<std::ptrdiff_t>(n / 2);
-  std::nth_element(order.begin(), mid, order.end(), [&](std::uint32_t a, std::uint32_t b) {
-    return centroid[a][axis] < centroid[b][axis] || (centroid[a][axis] == centroid[b][axis] && a < b);
-  });
-  std::sort(order.begin(), mid), std::sort(mid, order.end());  // each half in list order
+  const auto mid = order.begin() + static_cast<std::ptrdiff_t>(median_split(order, 0, order.size(), [&](std::uint32_t t, int a) {
+                     return m.positions[in[3 * t]][a] + m.positions[in[3 * t + 1]][a] + m.positions[in[3 * t + 2]][a];
+                   }));
+  std::sort(order.begin(), mid), std::sort(mid, order.end());
   std::pair<std::vector<std::uint32_t>, std::vector<std::uint32_t>> r;
   for (auto it = order.begin(); it != order.end(); ++it)
     (it < mid ? r.first : r.second).insert((it < mid ? r.first : r.second).end(), in.begin() + 3 * *it, in.begin() + 3 * *it + 3);
