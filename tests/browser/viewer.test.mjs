@@ -240,6 +240,28 @@ try {
   if ((await near.locator('#stats').getAttribute('data-distance')) !== '1') fail('#stats does not say the distance of the surface shown');
   console.log(`distance: ${drags.length} dragged surfaces within 2 voxels (${drags.at(-1).triangles} triangles), at rest within 1 voxel (${rest.at(-1).triangles} triangles)`);
   await near.close();
+  // An intricate surface while dragging: with a target of 300 triangles (the sphere has 1,188
+  // within 2 voxels) the dragged surfaces go coarser than ?drag-distance, each stating the
+  // distance it was asked at and being the server's surface at that distance.
+  const lean = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
+  lean.on('pageerror', (e) => errors.push(e.message));
+  await lean.goto(`${url}?distance=1&drag-triangles=300`);
+  await lean.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
+  const leanBefore = await lean.evaluate(() => window.adaptisoSurfaces.length);
+  await lean.evaluate(async () => {
+    const s = document.getElementById('iso');
+    for (let v = 400; v <= 700; v += 10) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
+    s.dispatchEvent(new Event('change'));
+  });
+  await lean.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), leanBefore, { timeout: 30000 });
+  const leanDrags = (await lean.evaluate((n) => window.adaptisoSurfaces.slice(n), leanBefore)).filter((r) => r.coarse);
+  if (!leanDrags.some((r) => r.distance > 2) || leanDrags.some((r) => !(r.distance >= 2 && r.distance <= 64)))
+    fail(`dragged surfaces with a 300-triangle target did not go coarser than 2 voxels (within [2, 64]): ${JSON.stringify(leanDrags.map((r) => r.distance))}`);
+  const leanLast = leanDrags.at(-1);
+  if (leanLast.triangles !== await apiTriangles(leanLast.iso, leanLast.distance))
+    fail(`the last dragged surface has ${leanLast.triangles} triangles, the API ${await apiTriangles(leanLast.iso, leanLast.distance)} at distance ${leanLast.distance}`);
+  console.log(`drag target: distances ${leanDrags.map((r) => r.distance).join(' ')}, last ${leanLast.triangles} triangles`);
+  await lean.close();
   // Level of detail (?levels=1, the error levels on a bisection grid too): with a small triangle
   // budget, dragging shows coarser surfaces with their (larger) guaranteed error; releasing the
   // slider settles on the prepared surface and error.
