@@ -23,7 +23,7 @@ void VolumeInput::add(CLI::App* app) {
   g->add_option("--header-bytes", header_bytes, "Raw: bytes to skip at the start of the file");
 }
 
-Volume VolumeInput::load() const {
+ReadOptions VolumeInput::read_options() const {
   ReadOptions o;
   if (!dims.empty() || !type.empty()) {
     if (dims.empty() || type.empty()) throw InputError(fmt::format("{}: raw input needs both --dims and --type", path));
@@ -45,8 +45,10 @@ Volume VolumeInput::load() const {
     r.header_bytes = header_bytes;
     o.raw = r;
   }
-  return read_volume(path, o);
+  return o;
 }
+
+Volume VolumeInput::load() const { return read_volume(path, read_options()); }
 
 void OutputFlags::add(CLI::App* app) {
   app->add_flag("--json", json, "Print the statistics as one JSON object on stdout");

@@ -27,7 +27,8 @@ struct VolumeInput {
   std::string dims, type, endian = "little", spacing;
   std::uint64_t header_bytes = 0;
   void add(CLI::App* app);
-  Volume load() const;  // throws InputError
+  ReadOptions read_options() const;  // throws InputError for bad --dims/--type/--spacing
+  Volume load() const;               // throws InputError
 };
 
 struct OutputFlags {

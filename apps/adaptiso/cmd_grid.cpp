@@ -13,6 +13,7 @@
 #include "adaptiso/point_cloud.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/prepare_to_file.hpp"
+#include "adaptiso/volume_regions.hpp"
 #include "cli_common.hpp"
 #include "distributed.hpp"
 #include "options.hpp"
@@ -25,11 +26,19 @@ namespace {
 // bunny, 2 ranks: error hierarchy 12.2 s at 64, 6.3 s at 128, 5.2 s one process on one thread).
 constexpr std::int64_t kDefaultRankBrickSide = 128;
 
-// A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, handed to
-// rank 0; it writes nothing.
-void prepare_rank_bricks(Ranks& ranks, const Volume& v, const PrepareOptions& options, std::int64_t brick_side) {
+// A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, read
+// straight from the file where it can be (else the whole volume is read), handed to rank 0; it
+// writes nothing.
+void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
-  distributed_errors(ranks, v, value_range(v), brick_side, options.max_displacement > 0, {}, ignored);
+  const bool displacement = options.max_displacement > 0;
+  if (const auto regions = open_regions(in.path, in.read_options())) {
+    const RegionSource source = [&](const VoxelBox& box) { return regions->read(box); };
+    distributed_errors(ranks, regions->header.dims, source, {}, brick_side, displacement, {}, ignored);
+    return;
+  }
+  const Volume v = in.load();
+  distributed_errors(ranks, v.dims, region_source(v), {}, brick_side, displacement, {}, ignored);
 }
 
 // The error hierarchy in bricks of `side`: over the ranks under mpirun, else on this process. The
@@ -38,7 +47,7 @@ std::function<BisectionErrors(const Volume&, const ValueRange&, bool, const Prog
                                                                                                        DistributedStats& stats) {
   if (ranks.distributed())
     return [&ranks, side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
-      return distributed_errors(ranks, v, range, side, displacement, progress, stats);
+      return distributed_errors(ranks, v.dims, region_source(v), range, side, displacement, progress, stats);
     };
   return [side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
     const BrickGrid bricks = brick_grid(v.dims, side);
@@ -84,10 +93,11 @@ void add_prepare(CLI::App& app) {
     if (bricked) check_brick_side(side);           // a bad side fails before the volume is read
     if (ranks.root()) check_output_path(*output);  // and an output that cannot be written (rank 0 writes it)
     auto t_all = Clock::now();
+    if (!ranks.root()) return prepare_rank_bricks(ranks, *in, options, side);
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
-    if (!ranks.root()) return prepare_rank_bricks(ranks, v, options, side);
     DistributedStats dist;
+    if (ranks.distributed()) dist.ranks_read = open_regions(in->path, in->read_options()) ? "regions" : "whole volume";
     if (bricked) options.error_hierarchy = bricked_errors(ranks, side, dist);
     TerminalProgress tp(!out->quiet && !out->json);
     // Written as it is made: the voxels go before the index, the grid's positions and gradients

@@ -5,6 +5,7 @@
 
 #include <tbb/parallel_for.h>
 
+#include <bit>
 #include <chrono>
 #include <cstring>
 #include <span>
@@ -99,12 +100,11 @@ std::vector<BrickErrors> unpack(std::span<const std::byte> bytes, std::uint64_t&
 }
 
 // This rank's bricks (n ≡ rank mod size), in parallel on its threads.
-std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, const Volume& v, const ValueRange& range,
+std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, const RegionSource& source, const ValueRange& range,
                                    bool displacement) {
   std::vector<std::int64_t> mine;
   for (std::int64_t n = ranks.rank(); n < bricks.size(); n += ranks.size()) mine.push_back(n);
   std::vector<BrickErrors> out(mine.size());
-  const RegionSource source = region_source(v);
   tbb::parallel_for(std::size_t{0}, mine.size(), [&](std::size_t i) {
     out[i] = bisection_brick_errors(bricks, mine[i], source(bricks.reads(mine[i], displacement)), range, displacement);
   });
@@ -115,6 +115,7 @@ std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, 
 
 nlohmann::json DistributedStats::to_json(int ranks) const {
   return {{"ranks", ranks},
+          {"ranks_read", ranks_read},
           {"brick_side", brick_side},
           {"bricks", bricks},
           {"bricks_per_rank", bricks_per_rank},
@@ -123,14 +124,18 @@ nlohmann::json DistributedStats::to_json(int ranks) const {
           {"seconds", {{"rank0_bricks", brick_seconds}, {"combine", combine_seconds}}}};
 }
 
-BisectionErrors distributed_errors(Ranks& ranks, const Volume& v, const ValueRange& range, std::int64_t brick_side, bool displacement,
-                                   const Progress& progress, DistributedStats& stats) {
-  const BrickGrid bricks = brick_grid(v.dims, brick_side);
+BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionSource& source, ValueRange range, std::int64_t brick_side,
+                                   bool displacement, const Progress& progress, DistributedStats& stats) {
+  // Rank 0's range on every rank, bit for bit (the codes are relative to it); only rank 0 reads
+  // the whole volume.
+  range.min = std::bit_cast<double>(ranks.broadcast(std::bit_cast<std::uint64_t>(range.min)));
+  range.max = std::bit_cast<double>(ranks.broadcast(std::bit_cast<std::uint64_t>(range.max)));
+  const BrickGrid bricks = brick_grid(dims, brick_side);
   stats.brick_side = bricks.side;
   stats.bricks = bricks.size();
   const auto t0 = Clock::now();
   report(progress, "error hierarchy (bricks)", 0);
-  std::vector<BrickErrors> results = my_bricks(ranks, bricks, v, range, displacement);
+  std::vector<BrickErrors> results = my_bricks(ranks, bricks, source, range, displacement);
   stats.brick_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   const std::uint64_t sent_before = ranks.bytes_exchanged();
   auto all = ranks.gather(ranks.root() ? std::vector<std::byte>{} : pack(results, peak_resident_bytes()));

@@ -2,14 +2,17 @@
 // brick (bisection_bricks.hpp), brick n to rank n mod size, the results handed to rank 0, which
 // combines them and makes the grid exactly as one process would (the same file, byte for byte).
 //
-// First step of issue 38: every rank still reads the whole volume (region reads straight from the
-// file are the next step), and only the error hierarchy is distributed; selection, gradients and
-// the index run on rank 0.
+// Issue 38, first steps: rank 0 reads the whole volume; the other ranks read only their bricks
+// straight from the file where its format allows (volume_regions.hpp: raw samples, raw NRRD), the
+// whole volume otherwise. Only the error hierarchy is distributed; selection, gradients and the
+// index run on rank 0.
 #pragma once
 #include <cstdint>
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "adaptiso/bisection.hpp"
+#include "adaptiso/bisection_bricks.hpp"
 #include "adaptiso/progress.hpp"
 #include "adaptiso/volume.hpp"
 #include "ranks.hpp"
@@ -18,6 +21,7 @@ namespace adaptiso::cli {
 
 // What the distribution did, for --json.
 struct DistributedStats {
+  std::string ranks_read;  // what the ranks other than 0 read: "regions" (their bricks) or "whole volume"
   std::int64_t brick_side = 0, bricks = 0;
   std::vector<std::int64_t> bricks_per_rank;
   std::vector<std::uint64_t> peak_bytes_per_rank;  // at the time each rank handed up its bricks (rank 0: filled in at the end)
@@ -27,10 +31,11 @@ struct DistributedStats {
   nlohmann::json to_json(int ranks) const;
 };
 
-// The error hierarchy of `v` over the ranks: each computes its bricks; rank 0 receives the others'
-// and returns the combined hierarchy, the others return an empty one. Collective: every rank calls
-// it with the same volume, range, side and criterion.
-BisectionErrors distributed_errors(Ranks& ranks, const Volume& v, const ValueRange& range, std::int64_t brick_side, bool displacement,
-                                   const Progress& progress, DistributedStats& stats);
+// The error hierarchy of a volume of `dims` over the ranks: each computes its bricks, reading them
+// from `source`; rank 0 receives the others' and returns the combined hierarchy, the others return
+// an empty one. The value range is rank 0's (the others' is not looked at). Collective: every rank
+// calls it with the same dimensions, side and criterion.
+BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionSource& source, ValueRange range, std::int64_t brick_side,
+                                   bool displacement, const Progress& progress, DistributedStats& stats);
 
 }  // namespace adaptiso::cli

@@ -45,12 +45,6 @@
 
 namespace adaptiso {
 
-// A box of voxels [lo, hi] per axis (inclusive), in index space.
-struct VoxelBox {
-  Dims lo{0, 0, 0}, hi{0, 0, 0};
-  Dims dims() const { return {hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1}; }
-};
-
 // The bricks of a volume.
 struct BrickGrid {
   Dims dims{0, 0, 0};     // the volume's

@@ -167,6 +167,12 @@ inline Vec3 grid_to_world(const Vec3& origin, const std::array<double, 9>& d, co
           origin[2] + d[6] * g[0] + d[7] * g[1] + d[8] * g[2]};
 }
 
+// A box of voxels [lo, hi] per axis (inclusive), in index space.
+struct VoxelBox {
+  Dims lo{0, 0, 0}, hi{0, 0, 0};
+  Dims dims() const { return {hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1}; }
+};
+
 struct ValueRange {
   double min = 0, max = 0;
 };

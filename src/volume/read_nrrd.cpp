@@ -14,6 +14,7 @@
 
 #include "adaptiso/volume_io.hpp"
 #include "io_util.hpp"
+#include "layout.hpp"
 #include "util/big_array.hpp"
 
 namespace adaptiso {
@@ -202,12 +203,10 @@ std::vector<unsigned char> encoded_bytes(const std::string& file, std::uint64_t 
 }
 
 // Decodes one file's share of the volume (`out` bytes) in the header's encoding.
-void decode_file(const NrrdIoState* nio, std::vector<unsigned char> enc, unsigned char* out, std::size_t count, ScalarType type,
+void decode_file(const NrrdEncoding* e, long skip, std::vector<unsigned char> enc, unsigned char* out, std::size_t count, ScalarType type,
                  const std::string& file) {
   const std::size_t es = scalar_size(type);
   const std::size_t want = count * es;
-  const long skip = nio->byteSkip;
-  const NrrdEncoding* e = nio->encoding;
   if (e == nrrdEncodingRaw) {
     // byte skip -1: the data are the file's last bytes.
     std::size_t from = skip < 0 ? (enc.size() >= want ? enc.size() - want : enc.size() + 1) : static_cast<std::size_t>(skip);
@@ -269,7 +268,9 @@ std::uint64_t decodable_bytes(const NrrdEncoding* e, std::uint64_t on_disk, std:
 
 }  // namespace
 
-Volume read_nrrd(const std::string& path) {
+namespace detail {
+
+NrrdLayout nrrd_layout(const std::string& path) {
   const std::uint64_t size = detail::file_size_or_throw(path);
   NrrdHeader header = read_header(path, size);
   std::lock_guard lock(teem_mutex);
@@ -282,49 +283,43 @@ Volume read_nrrd(const std::string& path) {
   if (!t)
     throw InputError(fmt::format("{}: NRRD type '{}' is not supported (use 8/16/32-bit integers, float or double)", path,
                                  airEnumStr(nrrdType, h.n->type)));
-  const ScalarType type = *t;
+  NrrdLayout out;
+  Volume& v = out.header;
+  v.type = *t;
   unsigned first = 0;
   if (h.n->dim == 4 && h.n->axis[0].size == 1)
     first = 1;  // a 1-component axis in front
   else if (h.n->dim != 2 && h.n->dim != 3)
     throw InputError(fmt::format("{}: NRRD has {} axes; adaptiso reads 2D slices and 3D scalar volumes", path, h.n->dim));
-  Dims dims{1, 1, 1};
-  for (unsigned a = first; a < h.n->dim; ++a) dims[a - first] = static_cast<std::int64_t>(h.n->axis[a].size);
-  const std::size_t es = scalar_size(type);
-  const std::uint64_t expected = checked_volume_bytes(dims, es, path);
+  v.dims = {1, 1, 1};
+  for (unsigned a = first; a < h.n->dim; ++a) v.dims[a - first] = static_cast<std::int64_t>(h.n->axis[a].size);
+  const std::size_t es = scalar_size(v.type);
+  out.bytes = checked_volume_bytes(v.dims, es, path);
 
-  const bool attached = header.files.empty();
-  const std::vector<std::string> files = attached ? std::vector<std::string>{path} : header.files;
-  if (expected % (files.size() * es) != 0)
-    throw InputError(fmt::format("{}: {} data files do not divide the volume evenly", path, files.size()));
-  const std::size_t per_file = expected / files.size();
+  out.attached = header.files.empty();
+  out.files = out.attached ? std::vector<std::string>{path} : header.files;
+  out.data_offset = out.attached ? header.data_offset : 0;
+  if (out.bytes % (out.files.size() * es) != 0)
+    throw InputError(fmt::format("{}: {} data files do not divide the volume evenly", path, out.files.size()));
   std::uint64_t bound = 0, on_disk = 0;
-  for (const auto& f : files) {
+  for (const auto& f : out.files) {
     std::uint64_t s = detail::file_size_or_throw(f);
-    if (attached) s -= std::min(s, header.data_offset);
+    if (out.attached) s -= std::min(s, header.data_offset);
     on_disk += s;
     bound += decodable_bytes(h.nio->encoding, s, es);
   }
-  if (expected > bound)
-    throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the data file(s) hold only {} bytes{}", path, dims[0], dims[1],
-                                 dims[2], scalar_name(type), expected, on_disk, h.nio->encoding->isCompression ? " compressed" : ""));
-
-  Volume v;
-  v.dims = dims;
-  v.type = type;
-  {
-    std::vector<unsigned char> bytes;
-    detail::resize_big(bytes, expected);
-    v.bytes = std::move(bytes);
-  }
-  for (std::size_t i = 0; i < files.size(); ++i)
-    decode_file(h.nio, encoded_bytes(files[i], attached ? header.data_offset : 0, h.nio->lineSkip, path), v.bytes.data() + i * per_file,
-                per_file / es, type, files[i]);
+  if (out.bytes > bound)
+    throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the data file(s) hold only {} bytes{}", path, v.dims[0],
+                                 v.dims[1], v.dims[2], scalar_name(v.type), out.bytes, on_disk,
+                                 h.nio->encoding->isCompression ? " compressed" : ""));
+  out.encoding = h.nio->encoding;
+  out.byte_skip = h.nio->byteSkip;
+  out.line_skip = h.nio->lineSkip;
   const bool text = h.nio->encoding == nrrdEncodingAscii;
   if (!text && es > 1 && h.nio->endian == airEndianUnknown)
     throw InputError(fmt::format("{}: NRRD header lacks 'endian' for {}-byte values", path, es));
-  const bool big = h.nio->endian == airEndianBig;
-  if (!text && es > 1 && big == detail::host_is_little_endian()) detail::byteswap(v.bytes.data(), es, per_file / es * files.size());
+  out.swap = !text && es > 1 && (h.nio->endian == airEndianBig) == detail::host_is_little_endian();
+  out.raw = h.nio->encoding == nrrdEncodingRaw;
 
   // Geometry: "space directions" (world vectors) when present, else per-axis "spacings".
   const unsigned nax = h.n->dim - first;
@@ -353,6 +348,24 @@ Volume read_nrrd(const std::string& path) {
   for (int a = 0; a < 3; ++a)
     if (!(v.spacing[a] > 0) || !std::isfinite(v.spacing[a]))
       throw InputError(fmt::format("{}: spacing along axis {} is not a positive number", path, a));
+  return out;
+}
+
+}  // namespace detail
+
+Volume read_nrrd(const std::string& path) {
+  detail::NrrdLayout layout = detail::nrrd_layout(path);
+  Volume v = std::move(layout.header);
+  {
+    std::vector<unsigned char> bytes;
+    detail::resize_big(bytes, layout.bytes);
+    v.bytes = std::move(bytes);
+  }
+  const std::size_t es = scalar_size(v.type), per_file = layout.bytes / layout.files.size();
+  for (std::size_t i = 0; i < layout.files.size(); ++i)
+    decode_file(layout.encoding, layout.byte_skip, encoded_bytes(layout.files[i], layout.data_offset, layout.line_skip, path),
+                v.bytes.data() + i * per_file, per_file / es, v.type, layout.files[i]);
+  if (layout.swap) detail::byteswap(v.bytes.data(), es, layout.bytes / es);
   check_finite(v, path);
   return v;
 }

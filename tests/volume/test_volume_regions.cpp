@@ -1,0 +1,163 @@
+// Boxes read straight from files (volume_regions.hpp) against the whole volume read and cropped
+// voxel by voxel here, for every layout the region reader takes, and what it hands back.
+#include <gtest/gtest.h>
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <vector>
+
+#include "adaptiso/volume_io.hpp"
+#include "adaptiso/volume_regions.hpp"
+#include "test_util.hpp"
+
+using namespace adaptiso;
+using testutil::TempDir;
+
+namespace {
+
+std::string nrrd_type(ScalarType t) {
+  static const char* n[] = {"uchar", "signed char", "ushort", "short", "uint", "int", "float", "double"};
+  return n[static_cast<int>(t)];
+}
+
+// Every voxel of the box read from the file is the whole volume's, bit for bit.
+void expect_crop(const VolumeRegions& r, const Volume& whole, const VoxelBox& box) {
+  const Volume part = r.read(box);
+  ASSERT_EQ(part.dims, box.dims());
+  ASSERT_EQ(part.type, whole.type);
+  const std::size_t es = scalar_size(whole.type);
+  for (std::int64_t z = box.lo[2]; z <= box.hi[2]; ++z)
+    for (std::int64_t y = box.lo[1]; y <= box.hi[1]; ++y)
+      for (std::int64_t x = box.lo[0]; x <= box.hi[0]; ++x) {
+        const std::int64_t g = (z * whole.dims[1] + y) * whole.dims[0] + x;
+        const std::int64_t l = ((z - box.lo[2]) * part.dims[1] + (y - box.lo[1])) * part.dims[0] + (x - box.lo[0]);
+        ASSERT_EQ(0, std::memcmp(part.bytes.data() + l * es, whole.bytes.data() + g * es, es))
+            << "voxel " << x << "," << y << "," << z << " of box " << box.lo[0] << ".." << box.hi[0];
+      }
+}
+
+// Boxes of every shape: the whole volume, one voxel at either corner, whole rows, whole slabs,
+// an interior box, one column.
+std::vector<VoxelBox> boxes(const Dims& d) {
+  const Dims last{d[0] - 1, d[1] - 1, d[2] - 1};
+  return {{{0, 0, 0}, last},
+          {{0, 0, 0}, {0, 0, 0}},
+          {last, last},
+          {{0, 1, 1}, {last[0], last[1], last[2]}},
+          {{0, 0, last[2]}, {last[0], last[1], last[2]}},
+          {{1, 1, 1}, {last[0] - 1, last[1] - 1, last[2] - 1}},
+          {{2, 0, 0}, {2, last[1], last[2]}}};
+}
+
+}  // namespace
+
+TEST(VolumeRegions, RawFilesOfEveryTypeAndByteOrderWithAHeader) {
+  TempDir t("regions");
+  for (auto type : {ScalarType::u8, ScalarType::i16, ScalarType::u32, ScalarType::f32, ScalarType::f64})
+    for (bool big : {false, true}) {
+      const Dims dims{7, 5, 4};
+      Volume ref = testutil::pattern_volume(dims, type);
+      std::string data = testutil::bytes_of(ref);
+      if (big) data = testutil::swapped(data, scalar_size(type));
+      testutil::write_bytes(t / "v.raw", std::string(13, 'h') + data);
+      ReadOptions o;
+      o.raw = RawOptions{dims, type, big, {0.5, 1, 2}, 13};
+      const Volume whole = read_volume(t / "v.raw", o);
+      const auto r = open_regions(t / "v.raw", o);
+      ASSERT_TRUE(r.has_value());
+      EXPECT_EQ(r->header.dims, dims);
+      EXPECT_EQ(r->header.spacing, (Vec3{0.5, 1, 2}));
+      EXPECT_TRUE(r->header.bytes.empty());
+      for (const VoxelBox& b : boxes(dims)) expect_crop(*r, whole, b);
+    }
+}
+
+TEST(VolumeRegions, NrrdAttachedDetachedAndByteSkips) {
+  TempDir t("regions");
+  const Dims dims{9, 4, 6};
+  Volume ref = testutil::pattern_volume(dims, ScalarType::i16);
+  const std::string big = testutil::swapped(testutil::bytes_of(ref), 2);
+  const std::string head =
+      "NRRD0004\ntype: short\ndimension: 3\nsizes: 9 4 6\nspace: RAS\nspace directions: (0,0.5,0) (2,0,0) (0,0,1.5)\n"
+      "space origin: (10,-4,3)\nendian: big\nencoding: raw\n";
+  testutil::write_bytes(t / "a.nrrd", head + "\n" + big);
+  testutil::write_bytes(t / "d.raw", std::string(16, 'x') + big);
+  testutil::write_bytes(t / "d.nhdr", head + "byte skip: 16\ndata file: d.raw\n");
+  testutil::write_bytes(t / "e.raw", std::string(5, 'x') + big);
+  testutil::write_bytes(t / "e.nhdr", head + "byte skip: -1\ndata file: e.raw\n");
+  for (const char* name : {"a.nrrd", "d.nhdr", "e.nhdr"}) {
+    SCOPED_TRACE(name);
+    const Volume whole = read_volume(t / name);
+    const auto r = open_regions(t / name);
+    ASSERT_TRUE(r.has_value());
+    EXPECT_EQ(r->header.spacing, whole.spacing);
+    EXPECT_EQ(r->header.direction, whole.direction);
+    for (const VoxelBox& b : boxes(dims)) expect_crop(*r, whole, b);
+    // A box's origin is its first voxel's world position.
+    const Volume part = r->read({{1, 2, 3}, {4, 3, 5}});
+    const Vec3 expected{10 + 2.0 * 2, -4 + 0.5 * 1, 3 + 1.5 * 3};
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(part.origin[c], expected[c], 1e-12);
+  }
+}
+
+TEST(VolumeRegions, CompressedTextAndOtherFormatsAreReadWhole) {
+  TempDir t("regions");
+  Volume ref = testutil::pattern_volume({4, 4, 4}, ScalarType::u8);
+  write_nrrd(ref, t / "g.nrrd", true);
+  EXPECT_FALSE(open_regions(t / "g.nrrd").has_value());
+  testutil::write_bytes(t / "a.nhdr", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 1 1\nencoding: ascii\ndata file: a.txt\n");
+  testutil::write_bytes(t / "a.txt", "1 2\n");
+  EXPECT_FALSE(open_regions(t / "a.nhdr").has_value());
+  testutil::write_bytes(t / "l.nhdr", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 1 1\nencoding: raw\nline skip: 1\ndata file: l.raw\n");
+  testutil::write_bytes(t / "l.raw", "skip\nab");
+  EXPECT_FALSE(open_regions(t / "l.nhdr").has_value());
+  testutil::write_bytes(t / "v.vtk", "# vtk DataFile Version 3.0\n");
+  EXPECT_FALSE(open_regions(t / "v.vtk").has_value());
+}
+
+TEST(VolumeRegions, BadFilesAreRefusedAsTheReaderRefusesThem) {
+  TempDir t("regions");
+  testutil::write_bytes(t / "short.raw", std::string(99, '\0'));
+  ReadOptions o;
+  o.raw = RawOptions{{10, 10, 1}, ScalarType::u8};
+  EXPECT_THROW(open_regions(t / "short.raw", o), InputError);
+  testutil::write_bytes(t / "s.nrrd", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 4 4 4\nencoding: raw\n\n" + std::string(60, 'a'));
+  EXPECT_THROW(open_regions(t / "s.nrrd"), InputError);
+  EXPECT_THROW(open_regions(t / "missing.nrrd"), InputError);
+}
+
+TEST(VolumeRegions, AFileTruncatedAfterOpeningNamesTheRegion) {
+  TempDir t("regions");
+  Volume ref = testutil::pattern_volume({8, 8, 8}, ScalarType::u16);
+  write_nrrd(ref, t / "v.nrrd");
+  const auto r = open_regions(t / "v.nrrd");
+  ASSERT_TRUE(r.has_value());
+  std::filesystem::resize_file(t / "v.nrrd", std::filesystem::file_size(t / "v.nrrd") - 100);
+  EXPECT_NO_THROW(r->read({{0, 0, 0}, {7, 7, 3}}));
+  try {
+    r->read({{0, 0, 4}, {7, 7, 7}});
+    FAIL() << "a truncated region was read";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("[0..7]×[0..7]×[4..7]"), std::string::npos) << e.what();
+  }
+}
+
+TEST(VolumeRegions, BoxesOutsideTheVolumeAndNonFiniteSamples) {
+  TempDir t("regions");
+  Volume v = make_volume({4, 3, 2}, ScalarType::f32);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, double(i));
+  v.set(23, std::numeric_limits<double>::quiet_NaN());
+  testutil::write_bytes(t / "f.raw", testutil::bytes_of(v));
+  ReadOptions o;
+  o.raw = RawOptions{{4, 3, 2}, ScalarType::f32};
+  const auto r = open_regions(t / "f.raw", o);
+  ASSERT_TRUE(r.has_value());
+  EXPECT_THROW(r->read({{0, 0, 0}, {4, 2, 1}}), std::invalid_argument);
+  EXPECT_THROW(r->read({{-1, 0, 0}, {1, 1, 1}}), std::invalid_argument);
+  EXPECT_THROW(r->read({{2, 0, 0}, {1, 1, 1}}), std::invalid_argument);
+  EXPECT_NO_THROW(r->read({{0, 0, 0}, {3, 2, 0}}));  // the NaN is in the last voxel
+  EXPECT_THROW(r->read({{3, 2, 1}, {3, 2, 1}}), InputError);
+}
