@@ -260,12 +260,13 @@ function showError() {
 // has 1.18 M triangles and takes 0.94 s (within 16: 63 k; within 64: 15 k), at iso 1600.5 within
 // 2 voxels 110 k. Triangles fall about as 1/D on intricate or noisy surfaces and 1/D² on smooth
 // ones; a step of (n / target)^(2/3) settles on either without overshooting far. Never finer than
-// ?drag-distance, never coarser than 64 voxels (a shape, not a blob, on a 512-voxel scan).
+// ?drag-distance, never coarser than 64 voxels unless that is (a shape, not a blob, on a 512-voxel
+// scan).
 let dragDistanceNow = dragDistance;
 function nextDragDistance(d, triangles) {
   if (!(d > 0)) return dragDistance;
   const next = d * Math.pow(Math.max(triangles, 1) / dragTriangles, 2 / 3);
-  return Math.min(64, Math.max(dragDistance, Number(next.toPrecision(2))));
+  return Math.min(Math.max(64, dragDistance), Math.max(dragDistance, Number(next.toPrecision(2))));
 }
 
 // At most one surface request in flight; while it runs only the latest wanted request is kept, so
