@@ -114,14 +114,15 @@ std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, 
 }  // namespace
 
 nlohmann::json DistributedStats::to_json(int ranks) const {
-  return {{"ranks", ranks},
-          {"ranks_read", ranks_read},
-          {"brick_side", brick_side},
-          {"bricks", bricks},
-          {"bricks_per_rank", bricks_per_rank},
-          {"bytes_exchanged", bytes_exchanged},
-          {"peak_bytes_per_rank", peak_bytes_per_rank},
-          {"seconds", {{"rank0_bricks", brick_seconds}, {"combine", combine_seconds}}}};
+  nlohmann::json j = {{"ranks", ranks},
+                      {"brick_side", brick_side},
+                      {"bricks", bricks},
+                      {"bricks_per_rank", bricks_per_rank},
+                      {"bytes_exchanged", bytes_exchanged},
+                      {"peak_bytes_per_rank", peak_bytes_per_rank},
+                      {"seconds", {{"rank0_bricks", brick_seconds}, {"combine", combine_seconds}}}};
+  if (!ranks_read.empty()) j["ranks_read"] = ranks_read;  // only under mpirun
+  return j;
 }
 
 BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionSource& source, ValueRange range, std::int64_t brick_side,
