@@ -40,6 +40,11 @@ std::int64_t whole_number(double x, double lo, double hi, const std::string& wha
 // accepted, the range must name at most `slices` files, and the names are built by hand.
 std::vector<std::string> numbered_files(const std::string& pattern_and_range, std::int64_t slices, const std::string& what);
 
+// What read_volume reads a path as (without raw options): by folder, extension, then the first
+// bytes. Throws InputError for a path that does not exist.
+enum class VolumeFormat { dicom, archive, nrrd, nifti, metaimage, vti, legacy_vtk, raw_samples, unknown };
+VolumeFormat volume_format(const std::string& path);
+
 void byteswap(unsigned char* data, std::size_t element_size, std::size_t count);
 bool host_is_little_endian();
 

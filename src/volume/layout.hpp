@@ -28,6 +28,11 @@ struct NrrdLayout {
 // Throws InputError (one line naming the file) for everything read_nrrd refuses before the data.
 NrrdLayout nrrd_layout(const std::string& path);
 
+// Where raw-encoded data of `want` bytes start among the `available` bytes after the header (and
+// any line skip), for a byte skip (−1: the data are the last bytes). Throws InputError naming
+// `file` when they do not fit.
+std::uint64_t raw_data_start(std::uint64_t available, std::uint64_t want, long skip, const std::string& file);
+
 // Raw samples: the volume (no samples) and the first sample's offset. Throws read_raw's errors
 // (OptionError for a header past the end or a spacing that is not positive, InputError for a file
 // of another size than the options say).

@@ -208,11 +208,7 @@ void decode_file(const NrrdEncoding* e, long skip, std::vector<unsigned char> en
   const std::size_t es = scalar_size(type);
   const std::size_t want = count * es;
   if (e == nrrdEncodingRaw) {
-    // byte skip -1: the data are the file's last bytes.
-    std::size_t from = skip < 0 ? (enc.size() >= want ? enc.size() - want : enc.size() + 1) : static_cast<std::size_t>(skip);
-    if (from > enc.size() || enc.size() - from < want)
-      throw InputError(
-          fmt::format("{}: file is truncated: holds {} data bytes, needs {}", file, enc.size() - std::min(from, enc.size()), want));
+    const std::size_t from = detail::raw_data_start(enc.size(), want, skip, file);
     std::copy_n(enc.begin() + static_cast<long>(from), want, out);
     return;
   }
@@ -269,6 +265,15 @@ std::uint64_t decodable_bytes(const NrrdEncoding* e, std::uint64_t on_disk, std:
 }  // namespace
 
 namespace detail {
+
+std::uint64_t raw_data_start(std::uint64_t available, std::uint64_t want, long skip, const std::string& file) {
+  // byte skip -1: the data are the file's last bytes.
+  const std::uint64_t from = skip < 0 ? (available >= want ? available - want : available + 1) : static_cast<std::uint64_t>(skip);
+  if (from > available || available - from < want)
+    throw InputError(
+        fmt::format("{}: file is truncated: holds {} data bytes, needs {}", file, available - std::min(from, available), want));
+  return from;
+}
 
 NrrdLayout nrrd_layout(const std::string& path) {
   const std::uint64_t size = detail::file_size_or_throw(path);

@@ -11,40 +11,68 @@
 
 namespace adaptiso {
 
+namespace detail {
+
+VolumeFormat volume_format(const std::string& path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw InputError(fmt::format("{}: no such file or folder", path));
+  if (fs::is_directory(path, ec)) return VolumeFormat::dicom;
+  const std::string l = lower(path);
+  auto ends = [&](std::string_view s) { return l.ends_with(s); };
+  if (ends(".tar.gz") || ends(".tgz") || ends(".tar") || ends(".zip")) return VolumeFormat::archive;
+  if (ends(".nrrd") || ends(".nhdr")) return VolumeFormat::nrrd;
+  if (ends(".nii") || ends(".nii.gz") || ends(".hdr")) return VolumeFormat::nifti;
+  if (ends(".mha") || ends(".mhd")) return VolumeFormat::metaimage;
+  if (ends(".vti")) return VolumeFormat::vti;
+  if (ends(".vtk")) return VolumeFormat::legacy_vtk;
+  if (ends(".dcm")) return VolumeFormat::dicom;
+  if (ends(".raw") || ends(".img") || ends(".bin")) return VolumeFormat::raw_samples;
+  // Unknown extension: look at the first bytes.
+  std::uint64_t size = file_size_or_throw(path);
+  auto head = read_bytes(path, 0, std::min<std::uint64_t>(size, 352));
+  std::string h(head.begin(), head.end());
+  if (h.starts_with("NRRD000")) return VolumeFormat::nrrd;
+  if (h.starts_with("# vtk DataFile")) return VolumeFormat::legacy_vtk;
+  if (h.find("<VTKFile") != std::string::npos) return VolumeFormat::vti;
+  if (h.size() >= 348 && (h.compare(344, 4, std::string("n+1\0", 4)) == 0)) return VolumeFormat::nifti;
+  if (h.size() >= 8 && (h.compare(4, 4, std::string("n+2\0", 4)) == 0)) return VolumeFormat::nifti;
+  if (h.size() >= 132 && h.compare(128, 4, "DICM") == 0) return VolumeFormat::dicom;
+  if (h.find("ElementDataFile") != std::string::npos || h.starts_with("ObjectType") || h.starts_with("NDims"))
+    return VolumeFormat::metaimage;
+  return VolumeFormat::unknown;
+}
+
+}  // namespace detail
+
 namespace {
 
 Volume read_any(const std::string& path, const ReadOptions& options) {
-  namespace fs = std::filesystem;
   if (options.raw) return read_raw(path, *options.raw);
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(fmt::format("{}: no such file or folder", path));
-  if (fs::is_directory(path, ec)) return read_dicom_folder(path);
-  const std::string l = detail::lower(path);
-  auto ends = [&](std::string_view s) { return l.ends_with(s); };
-  if (ends(".tar.gz") || ends(".tgz") || ends(".tar") || ends(".zip"))
-    throw InputError(fmt::format("{}: is an archive; unpack it first (e.g. tar xzf {}) and pass the folder of DICOM files", path,
-                                 fs::path(path).filename().string()));
-  if (ends(".nrrd") || ends(".nhdr")) return read_nrrd(path);
-  if (ends(".nii") || ends(".nii.gz") || ends(".hdr")) return read_nifti(path);
-  if (ends(".mha") || ends(".mhd")) return read_metaimage(path);
-  if (ends(".vti")) return read_vti(path);
-  if (ends(".vtk")) return read_legacy_vtk(path);
-  if (ends(".dcm")) return read_dicom_folder(path);
-  if (ends(".raw") || ends(".img") || ends(".bin"))
-    throw OptionError(
-        "dims",
-        fmt::format("{} holds raw samples: give its dimensions and element type (and byte order, spacing, header size as needed)", path));
-  // Unknown extension: look at the first bytes.
-  std::uint64_t size = detail::file_size_or_throw(path);
-  auto head = detail::read_bytes(path, 0, std::min<std::uint64_t>(size, 352));
-  std::string h(head.begin(), head.end());
-  if (h.starts_with("NRRD000")) return read_nrrd(path);
-  if (h.starts_with("# vtk DataFile")) return read_legacy_vtk(path);
-  if (h.find("<VTKFile") != std::string::npos) return read_vti(path);
-  if (h.size() >= 348 && (h.compare(344, 4, std::string("n+1\0", 4)) == 0)) return read_nifti(path);
-  if (h.size() >= 8 && (h.compare(4, 4, std::string("n+2\0", 4)) == 0)) return read_nifti(path);
-  if (h.size() >= 132 && h.compare(128, 4, "DICM") == 0) return read_dicom_folder(path);
-  if (h.find("ElementDataFile") != std::string::npos || h.starts_with("ObjectType") || h.starts_with("NDims")) return read_metaimage(path);
+  using F = detail::VolumeFormat;
+  switch (detail::volume_format(path)) {
+    case F::dicom:
+      return read_dicom_folder(path);
+    case F::archive:
+      throw InputError(fmt::format("{}: is an archive; unpack it first (e.g. tar xzf {}) and pass the folder of DICOM files", path,
+                                   std::filesystem::path(path).filename().string()));
+    case F::nrrd:
+      return read_nrrd(path);
+    case F::nifti:
+      return read_nifti(path);
+    case F::metaimage:
+      return read_metaimage(path);
+    case F::vti:
+      return read_vti(path);
+    case F::legacy_vtk:
+      return read_legacy_vtk(path);
+    case F::raw_samples:
+      throw OptionError(
+          "dims",
+          fmt::format("{} holds raw samples: give its dimensions and element type (and byte order, spacing, header size as needed)", path));
+    case F::unknown:
+      break;
+  }
   throw InputError(
       fmt::format("{}: unknown volume format (expected .nrrd .nhdr .nii[.gz] .mha .mhd .vti .vtk, a DICOM folder, or raw samples with "
                   "their dimensions and type)",

@@ -7,7 +7,6 @@
 #include <fmt/format.h>
 #include <cerrno>
 #include <cstring>
-#include <filesystem>
 #include <stdexcept>
 
 #include "io_util.hpp"
@@ -31,18 +30,6 @@ bool read_at(int fd, unsigned char* out, std::size_t n, std::uint64_t at) {
   return true;
 }
 
-bool is_nrrd(const std::string& path) {
-  const std::string l = detail::lower(path);
-  if (l.ends_with(".nrrd") || l.ends_with(".nhdr")) return true;
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec) || l.ends_with(".nii") || l.ends_with(".nii.gz") || l.ends_with(".hdr") ||
-      l.ends_with(".mha") || l.ends_with(".mhd") || l.ends_with(".vti") || l.ends_with(".vtk") || l.ends_with(".dcm"))
-    return false;
-  const std::uint64_t size = detail::file_size_or_throw(path);
-  const auto head = detail::read_bytes(path, 0, std::min<std::uint64_t>(size, 8));
-  return std::string(head.begin(), head.end()).starts_with("NRRD000");
-}
-
 }  // namespace
 
 Volume VolumeRegions::read(const VoxelBox& box) const {
@@ -53,10 +40,7 @@ Volume VolumeRegions::read(const VoxelBox& box) const {
           fmt::format("VolumeRegions::read: the box {} is not inside the volume's {}×{}×{} voxels", box_text(box), d[0], d[1], d[2]));
   Volume r = make_volume(box.dims(), header.type);
   r.spacing = header.spacing, r.direction = header.direction;
-  for (int c = 0; c < 3; ++c) {
-    r.origin[c] = header.origin[c];
-    for (int a = 0; a < 3; ++a) r.origin[c] += header.direction[3 * c + a] * header.spacing[a] * static_cast<double>(box.lo[a]);
-  }
+  r.origin = header.voxel_to_world(double(box.lo[0]), double(box.lo[1]), double(box.lo[2]));
   const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw InputError(fmt::format("{}: cannot open to read the region {}: {}", file, box_text(box), std::strerror(errno)));
   const std::size_t es = scalar_size(header.type);
@@ -86,17 +70,11 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
     out.header = std::move(l.header);
     out.file = path, out.offset = l.offset, out.swap = l.swap;
   } else {
-    if (!is_nrrd(path)) return std::nullopt;
+    if (detail::volume_format(path) != detail::VolumeFormat::nrrd) return std::nullopt;
     detail::NrrdLayout l = detail::nrrd_layout(path);
     if (!l.raw || l.files.size() != 1 || l.line_skip != 0) return std::nullopt;
-    const std::uint64_t bytes = l.bytes;
-    const std::uint64_t size = detail::file_size_or_throw(l.files[0]);
-    const std::uint64_t start = l.data_offset;
-    // byte skip -1: the samples are the file's last bytes.
-    const std::uint64_t first = l.byte_skip < 0 ? (size >= bytes ? size - bytes : 0) : start + static_cast<std::uint64_t>(l.byte_skip);
-    if (first < start || first > size || size - first < bytes)
-      throw InputError(
-          fmt::format("{}: file is truncated: holds {} data bytes, needs {}", l.files[0], size - std::min(first, size), bytes));
+    const std::uint64_t size = detail::file_size_or_throw(l.files[0]), start = std::min(l.data_offset, size);
+    const std::uint64_t first = start + detail::raw_data_start(size - start, l.bytes, l.byte_skip, l.files[0]);
     out.header = std::move(l.header);
     out.file = l.files[0], out.offset = first, out.swap = l.swap;
   }
