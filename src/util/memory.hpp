@@ -19,11 +19,11 @@ std::uint64_t process_status_bytes(const std::string& field);
 // stage freed in the worker threads' arenas otherwise stays resident beside the next stage's.
 void release_free_heap();
 
-// Throws OptionError(option, "<what> needs about X GB, Y GB are available; <advice>") when `bytes`
-// exceed the available memory (InputError when no option can help: option empty).
 // "17 s", "3 min", "2.5 h".
 std::string duration_text(double seconds);
 
+// Throws OptionError(option, "<what> needs about X GB, Y GB are available; <advice>") when `bytes`
+// exceed the available memory (InputError when no option can help: option empty).
 void check_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice);
 
 }  // namespace adaptiso::detail
