@@ -8,6 +8,7 @@
 
 #include "adaptiso/volume_io.hpp"
 #include "io_util.hpp"
+#include "layout.hpp"
 
 namespace adaptiso {
 namespace {
@@ -28,7 +29,9 @@ bool is_true(const std::string& s) {
 
 }  // namespace
 
-Volume read_metaimage(const std::string& path) {
+namespace detail {
+
+MetaImageLayout metaimage_layout(const std::string& path) {
   namespace fs = std::filesystem;
   const std::uint64_t size = detail::file_size_or_throw(path);
   // The header is text; read at most its first MiB to find ElementDataFile.
@@ -97,27 +100,24 @@ Volume read_metaimage(const std::string& path) {
   fs::path dir = fs::path(path).parent_path();
   auto resolve = [&](const std::string& n) { return (fs::path(n).is_absolute() ? fs::path(n) : dir / n).string(); };
   std::string edf = get("ElementDataFile");
-  std::vector<std::string> files;
+  MetaImageLayout l;
   bool local = edf == "LOCAL" || edf == "Local" || edf == "local";
   if (local) {
-    files.push_back(path);
+    l.files.push_back(path);
   } else if (edf.rfind("LIST", 0) == 0) {
-    for (auto& f : list_files) files.push_back(resolve(f));
+    for (auto& f : list_files) l.files.push_back(resolve(f));
   } else if (edf.find('%') != std::string::npos) {
-    for (const auto& f : detail::numbered_files(edf, dims[ndims - 1], path + ": ElementDataFile")) files.push_back(resolve(f));
+    for (const auto& f : detail::numbered_files(edf, dims[ndims - 1], path + ": ElementDataFile")) l.files.push_back(resolve(f));
   } else {
-    files.push_back(resolve(edf));
+    l.files.push_back(resolve(edf));
   }
-  if (files.empty()) throw InputError(fmt::format("{}: ElementDataFile names no files", path));
-  if (bytes % files.size() != 0) throw InputError(fmt::format("{}: {} data files do not divide the volume evenly", path, files.size()));
-  const std::size_t per_file = bytes / files.size();
+  if (l.files.empty()) throw InputError(fmt::format("{}: ElementDataFile names no files", path));
+  if (bytes % l.files.size() != 0) throw InputError(fmt::format("{}: {} data files do not divide the volume evenly", path, l.files.size()));
+  const std::size_t per_file = bytes / l.files.size();
 
-  Volume v;
-  v.dims = dims;
-  v.type = *type;
-  // Check the sizes on disk before allocating.
+  // Check the sizes on disk before anything is allocated.
   std::uint64_t avail = 0;
-  for (const auto& f : files) {
+  for (const auto& f : l.files) {
     std::uint64_t s = detail::file_size_or_throw(f);
     if (f == path) s = s > data_offset ? s - data_offset : 0;
     avail += compressed ? detail::max_inflated_size(s) : s;
@@ -125,32 +125,29 @@ Volume read_metaimage(const std::string& path) {
   if (bytes > avail)
     throw InputError(fmt::format("{}: header says {}x{}x{} {} ({} bytes) but the data holds only {} bytes", path, dims[0], dims[1], dims[2],
                                  scalar_name(*type), bytes, avail));
-  v.bytes.resize(bytes);
-  for (std::size_t fi = 0; fi < files.size(); ++fi) {
-    const std::string& f = files[fi];
-    std::uint64_t fsize = detail::file_size_or_throw(f);
+  for (const auto& f : l.files) {
+    const std::uint64_t fsize = detail::file_size_or_throw(f);
     std::uint64_t start = f == path ? data_offset : 0;
-    unsigned char* dst = v.bytes.data() + fi * per_file;
     if (compressed) {
       std::uint64_t csize = fsize - std::min(fsize, start);
-      if (!get("CompressedDataSize").empty() && files.size() == 1) {
+      if (!get("CompressedDataSize").empty() && l.files.size() == 1) {
         auto c = parse_number_list(get("CompressedDataSize"), 1, path)[0];
         if (c > 0 && c <= static_cast<double>(csize)) csize = static_cast<std::uint64_t>(c);
       }
-      auto comp = detail::read_bytes(f, start, csize);
-      detail::inflate_exact(comp.data(), comp.size(), dst, per_file, f);
+      l.starts.push_back(start), l.stored.push_back(csize);
     } else {
       if (header_size > 0)
         start += static_cast<std::uint64_t>(header_size);
       else if (header_size == -1)
         start = fsize >= per_file ? fsize - per_file : 0;
-      auto raw = detail::read_bytes(f, start, per_file);
-      std::copy(raw.begin(), raw.end(), dst);
+      l.starts.push_back(start), l.stored.push_back(per_file);
     }
   }
-  if (msb == detail::host_is_little_endian())
-    detail::byteswap(v.bytes.data(), scalar_size(v.type), static_cast<std::size_t>(v.voxel_count()));
+  l.bytes = bytes, l.compressed = compressed, l.swap = msb == detail::host_is_little_endian();
 
+  Volume& v = l.header;
+  v.dims = dims;
+  v.type = *type;
   std::string sp = get("ElementSpacing").empty() ? get("ElementSize") : get("ElementSpacing");
   if (!sp.empty()) {
     auto s = parse_number_list(sp, -1, path + ": ElementSpacing");
@@ -175,6 +172,25 @@ Volume read_metaimage(const std::string& path) {
   for (int a = 0; a < 3; ++a)
     if (!(v.spacing[a] > 0) || !std::isfinite(v.spacing[a]))
       throw InputError(fmt::format("{}: ElementSpacing along axis {} is not a positive number", path, a));
+  return l;
+}
+
+}  // namespace detail
+
+Volume read_metaimage(const std::string& path) {
+  detail::MetaImageLayout l = detail::metaimage_layout(path);
+  Volume v = std::move(l.header);
+  v.bytes.resize(l.bytes);
+  const std::size_t per_file = l.bytes / l.files.size();
+  for (std::size_t fi = 0; fi < l.files.size(); ++fi) {
+    unsigned char* dst = v.bytes.data() + fi * per_file;
+    auto stored = detail::read_bytes(l.files[fi], l.starts[fi], l.stored[fi]);  // throws when the file is truncated
+    if (l.compressed)
+      detail::inflate_exact(stored.data(), stored.size(), dst, per_file, l.files[fi]);
+    else
+      std::copy(stored.begin(), stored.end(), dst);
+  }
+  if (l.swap) detail::byteswap(v.bytes.data(), scalar_size(v.type), static_cast<std::size_t>(v.voxel_count()));
   check_finite(v, path);
   return v;
 }

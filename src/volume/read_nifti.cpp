@@ -12,6 +12,7 @@
 
 #include "adaptiso/volume_io.hpp"
 #include "io_util.hpp"
+#include "layout.hpp"
 
 namespace adaptiso {
 namespace {
@@ -41,27 +42,12 @@ std::optional<ScalarType> from_nifti(int dt) {
 }
 // The image's bytes, from the .nii after vox_offset or from the .img, gzip'ed or not; the gzip
 // stream must be whole (its length and CRC trailer checked).
-std::vector<unsigned char> image_bytes(const nifti_image& nim, std::size_t bytes, const std::string& path, double vox_offset) {
-  const std::string img = nim.iname ? nim.iname : path;
-  const std::uint64_t on_disk = detail::file_size_or_throw(img);
-  if (nim.iname_offset < 0) throw InputError(fmt::format("{}: vox_offset is negative", path));
-  // nifticlib raises a .nii's offset to its header's size; past that it must have read the
-  // header's own value, or it converted it wrongly.
-  if (vox_offset > static_cast<double>(nim.iname_offset) + 1)
-    throw InputError(
-        fmt::format("{}: vox_offset {:.6g} cannot be read (the NIfTI library made it {})", path, vox_offset, nim.iname_offset));
-  const auto offset = static_cast<std::uint64_t>(nim.iname_offset);
-  if (!detail::lower(img).ends_with(".gz")) {
-    if (offset > on_disk) throw InputError(fmt::format("{}: vox_offset {} is past the end of the file ({} bytes)", path, offset, on_disk));
-    return detail::read_bytes(img, offset, bytes);  // throws when the file is truncated
-  }
-  if (offset > detail::max_inflated_size(on_disk) || bytes > detail::max_inflated_size(on_disk) - offset)
-    throw InputError(fmt::format("{}: header says {} bytes of data but the compressed file can hold at most {}", path, bytes,
-                                 detail::max_inflated_size(on_disk)));
-  const auto compressed = detail::read_bytes(img, 0, on_disk);
-  std::vector<unsigned char> all(offset + bytes);
-  detail::inflate_exact(compressed.data(), compressed.size(), all.data(), all.size(), img, /*allow_trailing=*/true);
-  all.erase(all.begin(), all.begin() + static_cast<long>(offset));  // the header: no second copy of the data
+std::vector<unsigned char> image_bytes(const detail::NiftiLayout& l) {
+  if (!l.gz) return detail::read_bytes(l.file, l.offset, l.bytes);  // throws when the file is truncated
+  const auto compressed = detail::read_bytes(l.file, 0, detail::file_size_or_throw(l.file));
+  std::vector<unsigned char> all(l.offset + l.bytes);
+  detail::inflate_exact(compressed.data(), compressed.size(), all.data(), all.size(), l.file, /*allow_trailing=*/true);
+  all.erase(all.begin(), all.begin() + static_cast<long>(l.offset));  // the header: no second copy of the data
   return all;
 }
 
@@ -140,7 +126,9 @@ struct NimFree {
 };
 }  // namespace
 
-Volume read_nifti(const std::string& path) {
+namespace detail {
+
+NiftiLayout nifti_layout(const std::string& path) {
   const double vox_offset = check_header(path, detail::file_size_or_throw(path));
   refuse_special_image_files(path);
   std::lock_guard lock(nifti_mutex);
@@ -154,27 +142,37 @@ Volume read_nifti(const std::string& path) {
     if (nim->dim[0] >= a && nim->dim[a] > 1)
       throw InputError(
           fmt::format("{}: NIfTI has {} dimensions with size > 1 beyond x,y,z; adaptiso reads 3D scalar volumes", path, nim->dim[0]));
-  Dims dims{nim->nx, nim->ny, nim->dim[0] >= 3 ? nim->nz : 1};
-  const std::size_t es = scalar_size(*type);
-  const std::size_t bytes = checked_volume_bytes(dims, es, path);
-  Volume v;
-  v.dims = dims;
+  NiftiLayout l;
+  Volume& v = l.header;
+  v.dims = {nim->nx, nim->ny, nim->dim[0] >= 3 ? nim->nz : 1};
   v.type = *type;
-  v.bytes = image_bytes(*nim, bytes, path, vox_offset);
-  // nifti_image_load would turn NaN/Inf into 0 silently; reading the bytes ourselves keeps them
-  // for check_finite to refuse, as for every other format.
-  if (es > 1 && nim->byteorder != nifti_short_order()) detail::byteswap(v.bytes.data(), es, bytes / es);
-  check_finite(v, path);
+  const std::size_t es = scalar_size(*type);
+  l.bytes = checked_volume_bytes(v.dims, es, path);
+
+  l.file = nim->iname ? nim->iname : path;
+  const std::uint64_t on_disk = detail::file_size_or_throw(l.file);
+  if (nim->iname_offset < 0) throw InputError(fmt::format("{}: vox_offset is negative", path));
+  // nifticlib raises a .nii's offset to its header's size; past that it must have read the
+  // header's own value, or it converted it wrongly.
+  if (vox_offset > static_cast<double>(nim->iname_offset) + 1)
+    throw InputError(
+        fmt::format("{}: vox_offset {:.6g} cannot be read (the NIfTI library made it {})", path, vox_offset, nim->iname_offset));
+  l.offset = static_cast<std::uint64_t>(nim->iname_offset);
+  l.gz = detail::lower(l.file).ends_with(".gz");
+  if (!l.gz && l.offset > on_disk)
+    throw InputError(fmt::format("{}: vox_offset {} is past the end of the file ({} bytes)", path, l.offset, on_disk));
+  if (l.gz && (l.offset > detail::max_inflated_size(on_disk) || l.bytes > detail::max_inflated_size(on_disk) - l.offset))
+    throw InputError(fmt::format("{}: header says {} bytes of data but the compressed file can hold at most {}", path, l.bytes,
+                                 detail::max_inflated_size(on_disk)));
+  // nifti_image_load would turn NaN/Inf into 0 silently; the bytes are read here instead and keep
+  // them for check_finite to refuse, as for every other format.
+  l.swap = es > 1 && nim->byteorder != nifti_short_order();
 
   const double slope = nim->scl_slope, inter = nim->scl_inter;
   if (std::isfinite(slope) && slope != 0 && (slope != 1 || inter != 0)) {
     if (!std::isfinite(inter)) throw InputError(fmt::format("{}: scl_inter is not finite", path));
-    bool wide = v.type == ScalarType::u32 || v.type == ScalarType::i32 || v.type == ScalarType::f64;
-    Volume s = make_volume(dims, wide ? ScalarType::f64 : ScalarType::f32);
-    for (std::int64_t i = 0; i < v.voxel_count(); ++i) s.set(i, v.at(i) * slope + inter);
-    s.bytes.swap(v.bytes);
-    v.type = s.type;
-    check_finite(v, path);
+    const bool wide = v.type == ScalarType::u32 || v.type == ScalarType::i32 || v.type == ScalarType::f64;
+    l.scaling = NiftiScaling{slope, inter, wide ? ScalarType::f64 : ScalarType::f32};
   }
 
   // Geometry: column a of the 3×3 part of the (s|q)form is spacing_a × direction_a.
@@ -191,6 +189,26 @@ Volume read_nifti(const std::string& path) {
     double p[3] = {nim->dx, nim->dy, nim->dz};
     for (int a = 0; a < 3; ++a) v.spacing[a] = std::isfinite(p[a]) && p[a] != 0 ? std::abs(p[a]) : 1.0;
   }
+  return l;
+}
+
+void apply_scaling(Volume& v, const NiftiScaling& s, const std::string& where) {
+  Volume out = make_volume(v.dims, s.type);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) out.set(i, v.at(i) * s.slope + s.inter);
+  v.bytes.swap(out.bytes);
+  v.type = s.type;
+  check_finite(v, where);
+}
+
+}  // namespace detail
+
+Volume read_nifti(const std::string& path) {
+  const detail::NiftiLayout l = detail::nifti_layout(path);
+  Volume v = l.header;
+  v.bytes = image_bytes(l);
+  if (l.swap) detail::byteswap(v.bytes.data(), scalar_size(v.type), l.bytes / scalar_size(v.type));
+  check_finite(v, path);
+  if (l.scaling) detail::apply_scaling(v, *l.scaling, path);
   return v;
 }
 

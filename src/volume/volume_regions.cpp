@@ -1,4 +1,5 @@
-// Boxes of voxels read straight from raw and raw-encoded NRRD files (volume_regions.hpp).
+// Boxes of voxels read straight from raw, raw-encoded NRRD, NIfTI and MetaImage files
+// (volume_regions.hpp).
 #include "adaptiso/volume_regions.hpp"
 
 #include <fcntl.h>
@@ -38,12 +39,13 @@ Volume VolumeRegions::read(const VoxelBox& box) const {
     if (box.lo[a] < 0 || box.hi[a] >= d[a] || box.lo[a] > box.hi[a])
       throw std::invalid_argument(
           fmt::format("VolumeRegions::read: the box {} is not inside the volume's {}×{}×{} voxels", box_text(box), d[0], d[1], d[2]));
-  Volume r = make_volume(box.dims(), header.type);
+  const ScalarType stored = scaling ? scaling->stored : header.type;
+  Volume r = make_volume(box.dims(), stored);
   r.spacing = header.spacing, r.direction = header.direction;
   r.origin = header.voxel_to_world(double(box.lo[0]), double(box.lo[1]), double(box.lo[2]));
   const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw InputError(fmt::format("{}: cannot open to read the region {}: {}", file, box_text(box), std::strerror(errno)));
-  const std::size_t es = scalar_size(header.type);
+  const std::size_t es = scalar_size(stored);
   const Dims n = box.dims();
   // Whole rows of x make each slab of the box one run of bytes.
   const bool whole_rows = box.lo[0] == 0 && n[0] == d[0];
@@ -59,7 +61,9 @@ Volume VolumeRegions::read(const VoxelBox& box) const {
   ::close(fd);
   if (!ok) throw InputError(fmt::format("{}: the region {} reaches past the end of the file (truncated?)", file, box_text(box)));
   if (swap) detail::byteswap(reinterpret_cast<unsigned char*>(r.bytes.data()), es, static_cast<std::size_t>(r.voxel_count()));
-  check_finite(r, fmt::format("{}, region {}", file, box_text(box)));
+  const std::string where = fmt::format("{}, region {}", file, box_text(box));
+  check_finite(r, where);
+  if (scaling) detail::apply_scaling(r, {scaling->slope, scaling->inter, header.type}, where);
   return r;
 }
 
@@ -69,8 +73,22 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
     detail::RawLayout l = detail::raw_layout(path, *options.raw);
     out.header = std::move(l.header);
     out.file = path, out.offset = l.offset, out.swap = l.swap;
+  } else if (const auto format = detail::volume_format(path); format == detail::VolumeFormat::nifti) {
+    detail::NiftiLayout l = detail::nifti_layout(path);
+    if (l.gz) return std::nullopt;
+    out.header = std::move(l.header);
+    out.file = l.file, out.offset = l.offset, out.swap = l.swap;
+    if (l.scaling) {
+      out.scaling = VolumeRegions::Scaling{out.header.type, l.scaling->slope, l.scaling->inter};
+      out.header.type = l.scaling->type;
+    }
+  } else if (format == detail::VolumeFormat::metaimage) {
+    detail::MetaImageLayout l = detail::metaimage_layout(path);
+    if (l.compressed || l.files.size() != 1) return std::nullopt;
+    out.header = std::move(l.header);
+    out.file = l.files[0], out.offset = l.starts[0], out.swap = l.swap;
   } else {
-    if (detail::volume_format(path) != detail::VolumeFormat::nrrd) return std::nullopt;
+    if (format != detail::VolumeFormat::nrrd) return std::nullopt;
     detail::NrrdLayout l = detail::nrrd_layout(path);
     if (!l.raw || l.files.size() != 1 || l.line_skip != 0) return std::nullopt;
     const std::uint64_t size = detail::file_size_or_throw(l.files[0]), start = std::min(l.data_offset, size);

@@ -48,7 +48,8 @@ check ml-displacement "$W/ml.nrrd" --max-displacement 0.5
 check noise "$W/noise.raw" "${RAW[@]}"
 check noise-displacement "$W/noise.raw" "${RAW[@]}" --max-displacement 1 --max-error 0.1 --relative
 # The ranks other than 0 read their bricks straight from the file (volume_regions.hpp): a detached
-# header, big-endian 16-bit samples after a byte skip; a gzip file is read whole instead.
+# header, big-endian 16-bit samples after a byte skip, a MetaImage with a header size, a scaled
+# NIfTI; a gzip file is read whole instead.
 /usr/bin/env python3 -c "
 import gzip, struct, sys
 w = sys.argv[1]
@@ -58,19 +59,32 @@ open(w + '/n16.raw', 'wb').write(b'skipped!' + data)
 head = 'NRRD0004\ntype: short\ndimension: 3\nsizes: 37 20 13\nspacings: 1 0.7 2.5\nendian: big\n'
 open(w + '/n16.nhdr', 'w').write(head + 'encoding: raw\nbyte skip: 8\ndata file: n16.raw\n')
 open(w + '/n16gz.raw.gz', 'wb').write(gzip.compress(data))
-open(w + '/n16gz.nhdr', 'w').write(head + 'encoding: gzip\ndata file: n16gz.raw.gz\n')" "$W"
+open(w + '/n16gz.nhdr', 'w').write(head + 'encoding: gzip\ndata file: n16gz.raw.gz\n')
+# MetaImage: the same big-endian samples after a 5-byte header of their own.
+open(w + '/m16.mha', 'wb').write(b'NDims = 3\nDimSize = 37 20 13\nElementType = MET_SHORT\nElementSpacing = 1 0.7 2.5\n'
+  b'ElementByteOrderMSB = True\nHeaderSize = 5\nElementDataFile = LOCAL\n' + b'12345' + data)
+# NIfTI-1 with scl_slope 0.25 and scl_inter 7 (the samples become float32), little-endian.
+h = bytearray(352)
+struct.pack_into('<i', h, 0, 348)
+struct.pack_into('<8h', h, 40, 3, 37, 20, 13, 1, 1, 1, 1)
+struct.pack_into('<hh', h, 70, 4, 16)  # DT_INT16, 16 bits
+struct.pack_into('<8f', h, 76, 1, 1, 0.7, 2.5, 1, 1, 1, 1)
+struct.pack_into('<fff', h, 108, 352, 0.25, 7)
+h[344:348] = b'n+1\0'
+open(w + '/s16.nii', 'wb').write(bytes(h) + b''.join(struct.pack('<h', 40 * b - 3000) for b in noise))" "$W"
 check n16 "$W/n16.nhdr"
-"$CLI" prepare "$W/n16gz.nhdr" --quiet -o "$W/n16gz-one.adg"
-for input in n16 n16gz; do
-  ranks 2 "$CLI" prepare "$W/$input.nhdr" --brick-side 4 --threads 1 --json -o "$W/$input-np2.adg" >"$W/$input.json"
-  cmp "$W/$input-one.adg" "$W/$input-np2.adg" || { echo "FAIL: $input over 2 ranks differs"; exit 1; }
+for input in n16gz.nhdr m16.mha s16.nii; do "$CLI" prepare "$W/$input" --quiet -o "$W/${input%.*}-one.adg"; done
+for input in n16.nhdr n16gz.nhdr m16.mha s16.nii; do
+  name=${input%.*}
+  ranks 2 "$CLI" prepare "$W/$input" --brick-side 4 --threads 1 --json -o "$W/$name-np2.adg" >"$W/$name.json"
+  cmp "$W/$name-one.adg" "$W/$name-np2.adg" || { echo "FAIL: $input over 2 ranks differs"; exit 1; }
 done
 /usr/bin/env python3 -c "
 import json, sys
 w = sys.argv[1]
-regions, whole = (json.load(open(f'{w}/{n}.json'))['bricks']['ranks_read'] for n in ('n16', 'n16gz'))
-assert (regions, whole) == ('regions', 'whole volume'), (regions, whole)
-print('ok: rank 1 read its bricks from the raw file, the gzip file whole')" "$W"
+read = {n: json.load(open(f'{w}/{n}.json'))['bricks']['ranks_read'] for n in ('n16', 'n16gz', 'm16', 's16')}
+assert read == {'n16': 'regions', 'n16gz': 'whole volume', 'm16': 'regions', 's16': 'regions'}, read
+print('ok: rank 1 read its bricks from the raw NRRD, MetaImage and scaled NIfTI files, the gzip file whole')" "$W"
 
 # --json tells what the ranks did.
 ranks 2 "$CLI" prepare "$W/ml.nrrd" --brick-side 8 --json -o "$W/j.adg" >"$W/j.json"

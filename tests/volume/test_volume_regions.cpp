@@ -11,17 +11,13 @@
 
 #include "adaptiso/volume_io.hpp"
 #include "adaptiso/volume_regions.hpp"
+#include "nifti_writer.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
 using testutil::TempDir;
 
 namespace {
-
-std::string nrrd_type(ScalarType t) {
-  static const char* n[] = {"uchar", "signed char", "ushort", "short", "uint", "int", "float", "double"};
-  return n[static_cast<int>(t)];
-}
 
 // Every voxel of the box read from the file is the whole volume's, bit for bit.
 void expect_crop(const VolumeRegions& r, const Volume& whole, const VoxelBox& box) {
@@ -101,6 +97,58 @@ TEST(VolumeRegions, NrrdAttachedDetachedAndByteSkips) {
     const Vec3 expected{10 + 2.0 * 2, -4 + 0.5 * 1, 3 + 1.5 * 3};
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(part.origin[c], expected[c], 1e-12);
   }
+}
+
+TEST(VolumeRegions, NiftiOneAndTwoScaledOrNot) {
+  // scl_slope and scl_inter make float samples (read_nifti's rule), voxel by voxel the same.
+  TempDir t("regions");
+  const Dims dims{7, 6, 5};
+  for (auto type : {ScalarType::u8, ScalarType::i16, ScalarType::f32})
+    for (int version : {1, 2})
+      for (const auto& [slope, inter] : {std::pair{0.0, 0.0}, std::pair{2.5, -3.25}}) {
+        SCOPED_TRACE(::testing::Message() << scalar_name(type) << " NIfTI-" << version << " slope " << slope);
+        testutil::write_nifti(t / "v.nii", testutil::pattern_volume(dims, type), version, slope, inter);
+        const Volume whole = read_volume(t / "v.nii");
+        const auto r = open_regions(t / "v.nii");
+        ASSERT_TRUE(r.has_value());
+        EXPECT_EQ(r->header.type, whole.type);
+        EXPECT_EQ(r->scaling.has_value(), slope != 0);
+        EXPECT_EQ(r->header.spacing, whole.spacing);
+        for (const VoxelBox& b : boxes(dims)) expect_crop(*r, whole, b);
+      }
+  testutil::write_nifti(t / "v.nii.gz", testutil::pattern_volume(dims, ScalarType::i16), 1, 0, 0);
+  EXPECT_FALSE(open_regions(t / "v.nii.gz").has_value());
+}
+
+TEST(VolumeRegions, MetaImageLocalDetachedHeaderSizesAndByteOrders) {
+  TempDir t("regions");
+  const Dims dims{5, 7, 3};
+  const Volume ref = testutil::pattern_volume(dims, ScalarType::u16);
+  const std::string little = testutil::bytes_of(ref), big = testutil::swapped(little, 2);
+  const std::string head =
+      "ObjectType = Image\nNDims = 3\nDimSize = 5 7 3\nElementType = MET_USHORT\nElementSpacing = 0.5 1 1.5\nOffset = 1 2 3\n";
+  testutil::write_bytes(t / "l.mha", head + "ElementByteOrderMSB = False\nElementDataFile = LOCAL\n" + little);
+  testutil::write_bytes(t / "b.mha", head + "ElementByteOrderMSB = True\nHeaderSize = 9\nElementDataFile = LOCAL\n" + "123456789" + big);
+  testutil::write_bytes(t / "d.raw", std::string(11, 'x') + little);
+  testutil::write_bytes(t / "d.mhd", head + "HeaderSize = -1\nElementDataFile = d.raw\n");
+  for (const char* name : {"l.mha", "b.mha", "d.mhd"}) {
+    SCOPED_TRACE(name);
+    const Volume whole = read_volume(t / name);
+    ASSERT_EQ(whole.bytes, ref.bytes);
+    const auto r = open_regions(t / name);
+    ASSERT_TRUE(r.has_value());
+    EXPECT_EQ(r->header.origin, whole.origin);
+    for (const VoxelBox& b : boxes(dims)) expect_crop(*r, whole, b);
+  }
+  // Compressed, or one file per slice: read whole.
+  testutil::write_bytes(t / "s0.raw", little.substr(0, little.size() / 3));
+  testutil::write_bytes(t / "s1.raw", little.substr(little.size() / 3, little.size() / 3));
+  testutil::write_bytes(t / "s2.raw", little.substr(2 * little.size() / 3));
+  testutil::write_bytes(t / "list.mhd", head + "ElementDataFile = LIST\ns0.raw\ns1.raw\ns2.raw\n");
+  EXPECT_EQ(read_volume(t / "list.mhd").bytes, ref.bytes);
+  EXPECT_FALSE(open_regions(t / "list.mhd").has_value());
+  testutil::write_bytes(t / "c.mha", head + "CompressedData = True\nElementDataFile = LOCAL\n" + "zz");
+  EXPECT_FALSE(open_regions(t / "c.mha").has_value());
 }
 
 TEST(VolumeRegions, CompressedTextAndOtherFormatsAreReadWhole) {
