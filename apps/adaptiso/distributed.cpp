@@ -99,15 +99,36 @@ std::vector<BrickErrors> unpack(std::span<const std::byte> bytes, std::uint64_t&
   return bricks;
 }
 
-// This rank's bricks (n ≡ rank mod size), in parallel on its threads.
-std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, const RegionSource& source, const ValueRange& range,
-                                   bool displacement) {
+// This rank's bricks (n ≡ rank mod size), in parallel on its threads. With `hold` (a compressed
+// stream read front to back), slab after slab of bricks: hold(z0, z1) is told the slices the next
+// slab reads before its bricks are read.
+std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, const RegionSource& source, const HoldSlices& hold,
+                                   const ValueRange& range, bool displacement) {
   std::vector<std::int64_t> mine;
   for (std::int64_t n = ranks.rank(); n < bricks.size(); n += ranks.size()) mine.push_back(n);
   std::vector<BrickErrors> out(mine.size());
-  tbb::parallel_for(std::size_t{0}, mine.size(), [&](std::size_t i) {
-    out[i] = bisection_brick_errors(bricks, mine[i], source(bricks.reads(mine[i], displacement)), range, displacement);
-  });
+  auto run = [&](std::size_t from, std::size_t to) {
+    tbb::parallel_for(from, to, [&](std::size_t i) {
+      out[i] = bisection_brick_errors(bricks, mine[i], source(bricks.reads(mine[i], displacement)), range, displacement);
+    });
+  };
+  if (!hold) {
+    run(0, mine.size());
+    return out;
+  }
+  // Bricks are numbered x fastest, z slowest: a slab's bricks are consecutive.
+  for (std::size_t from = 0; from < mine.size();) {
+    const std::int64_t slab = mine[from] / (bricks.count[0] * bricks.count[1]);
+    std::size_t to = from;
+    std::int64_t z0 = bricks.dims[2], z1 = -1;
+    for (; to < mine.size() && mine[to] / (bricks.count[0] * bricks.count[1]) == slab; ++to) {
+      const VoxelBox box = bricks.reads(mine[to], displacement);
+      z0 = std::min(z0, box.lo[2]), z1 = std::max(z1, box.hi[2]);
+    }
+    hold(z0, z1);
+    run(from, to);
+    from = to;
+  }
   return out;
 }
 
@@ -126,7 +147,7 @@ nlohmann::json DistributedStats::to_json(int ranks) const {
 }
 
 BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionSource& source, ValueRange range, std::int64_t brick_side,
-                                   bool displacement, const Progress& progress, DistributedStats& stats) {
+                                   bool displacement, const Progress& progress, DistributedStats& stats, const HoldSlices& hold) {
   // Rank 0's range on every rank, bit for bit (the codes are relative to it); only rank 0 reads
   // the whole volume.
   range.min = std::bit_cast<double>(ranks.broadcast(std::bit_cast<std::uint64_t>(range.min)));
@@ -136,7 +157,7 @@ BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionS
   stats.bricks = bricks.size();
   const auto t0 = Clock::now();
   report(progress, "error hierarchy (bricks)", 0);
-  std::vector<BrickErrors> results = my_bricks(ranks, bricks, source, range, displacement);
+  std::vector<BrickErrors> results = my_bricks(ranks, bricks, source, hold, range, displacement);
   stats.brick_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   const std::uint64_t sent_before = ranks.bytes_exchanged();
   auto all = ranks.gather(ranks.root() ? std::vector<std::byte>{} : pack(results, peak_resident_bytes()));

@@ -8,6 +8,7 @@
 // index run on rank 0.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <string>
 
@@ -31,11 +32,15 @@ struct DistributedStats {
   nlohmann::json to_json(int ranks) const;
 };
 
+// Told the slices [z0, z1] a slab of bricks is about to read (VolumeStream::hold).
+using HoldSlices = std::function<void(std::int64_t z0, std::int64_t z1)>;
+
 // The error hierarchy of a volume of `dims` over the ranks: each computes its bricks, reading them
-// from `source`; rank 0 receives the others' and returns the combined hierarchy, the others return
-// an empty one. The value range is rank 0's (the others' is not looked at). Collective: every rank
-// calls it with the same dimensions, side and criterion.
+// from `source` (with `hold`: slab after slab, front to back); rank 0 receives the others' and
+// returns the combined hierarchy, the others return an empty one. The value range is rank 0's (the
+// others' is not looked at). Collective: every rank calls it with the same dimensions, side and
+// criterion.
 BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionSource& source, ValueRange range, std::int64_t brick_side,
-                                   bool displacement, const Progress& progress, DistributedStats& stats);
+                                   bool displacement, const Progress& progress, DistributedStats& stats, const HoldSlices& hold = {});
 
 }  // namespace adaptiso::cli

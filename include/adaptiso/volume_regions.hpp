@@ -1,6 +1,7 @@
 // adaptiso/volume_regions.hpp — boxes of voxels read straight from a volume file, so that a brick
 // of a volume can be read without the rest (issue 38: the MPI ranks other than rank 0 read only
-// their bricks).
+// their bricks): by seeking in uncompressed files (VolumeRegions), slab by slab from a compressed
+// stream (VolumeStream).
 //
 // open_regions() looks at a file as read_volume() would and, when its samples lie in it as one
 // uncompressed run of bytes — raw samples (RawOptions), NRRD with raw encoding in one data file
@@ -17,6 +18,7 @@
 // or infinite, and std::invalid_argument for a box outside the volume.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 
@@ -41,5 +43,37 @@ struct VolumeRegions {
 };
 
 std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOptions& options = {});
+
+// Slabs of whole slices of a volume whose samples are one compressed stream — NRRD with gzip
+// encoding in one data file (any byte skip ≥ 0, no line skip), .nii.gz (or .hdr with .img.gz),
+// MetaImage with CompressedData in one file — inflated once, front to back, never whole.
+// hold(z0, z1) keeps slices z0..z1 inflated (dropping those before z0; a z0 before the slices held
+// inflates the stream again from its start); read(box) gives a box within the slices held exactly
+// as read_volume(path) holds it (the same bytes, scaling and origin as VolumeRegions::read), from
+// any thread between holds. Memory: the slices held, and zlib's state.
+//
+// Throws what read_volume throws for a file it cannot read; hold() throws InputError naming the
+// file and the slice when the stream is cut short or corrupt before it, std::invalid_argument for
+// slices outside the volume; read() std::invalid_argument for a box outside the slices held, and
+// InputError for a NaN or infinite float sample. Other files give nullopt (see open_regions).
+class VolumeStream {
+public:
+  VolumeStream(VolumeStream&&) noexcept;
+  VolumeStream& operator=(VolumeStream&&) noexcept;
+  ~VolumeStream();
+  const Volume& header() const;  // dims, type, spacing, origin, direction; no samples
+  void hold(std::int64_t z0, std::int64_t z1);
+  Volume read(const VoxelBox& box) const;
+  std::uint64_t inflations() const;  // how many times the stream was inflated from its start
+
+  struct State;
+
+private:
+  explicit VolumeStream(std::unique_ptr<State> s);
+  std::unique_ptr<State> s_;
+  friend std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptions& options);
+};
+
+std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptions& options = {});
 
 }  // namespace adaptiso

@@ -1,11 +1,12 @@
-// Boxes of voxels read straight from raw, raw-encoded NRRD, NIfTI and MetaImage files
-// (volume_regions.hpp).
+// Boxes of voxels read straight from raw, raw-encoded NRRD, NIfTI and MetaImage files, and slabs
+// inflated from compressed ones (volume_regions.hpp).
 #include "adaptiso/volume_regions.hpp"
 
 #include <fcntl.h>
 #include <unistd.h>
 
 #include <fmt/format.h>
+#include <zlib.h>
 #include <cerrno>
 #include <cstring>
 #include <stdexcept>
@@ -31,18 +32,37 @@ bool read_at(int fd, unsigned char* out, std::size_t n, std::uint64_t at) {
   return true;
 }
 
+void check_inside(const char* who, const VoxelBox& box, const Dims& d) {
+  for (int a = 0; a < 3; ++a)
+    if (box.lo[a] < 0 || box.hi[a] >= d[a] || box.lo[a] > box.hi[a])
+      throw std::invalid_argument(
+          fmt::format("{}: the box {} is not inside the volume's {}×{}×{} voxels", who, box_text(box), d[0], d[1], d[2]));
+}
+
+// A box's samples as stored (`stored` type), with the volume's geometry and the origin at the box's
+// first voxel.
+Volume stored_box(const Volume& header, const VoxelBox& box, const std::optional<VolumeRegions::Scaling>& scaling) {
+  Volume r = make_volume(box.dims(), scaling ? scaling->stored : header.type);
+  r.spacing = header.spacing, r.direction = header.direction;
+  r.origin = header.voxel_to_world(double(box.lo[0]), double(box.lo[1]), double(box.lo[2]));
+  return r;
+}
+
+// Stored samples as read_volume makes them: this machine's byte order, finite, scaled.
+void finish(Volume& r, bool swap, const std::optional<VolumeRegions::Scaling>& scaling, ScalarType type, const std::string& where) {
+  if (swap)
+    detail::byteswap(reinterpret_cast<unsigned char*>(r.bytes.data()), scalar_size(r.type), static_cast<std::size_t>(r.voxel_count()));
+  check_finite(r, where);
+  if (scaling) detail::apply_scaling(r, {scaling->slope, scaling->inter, type}, where);
+}
+
 }  // namespace
 
 Volume VolumeRegions::read(const VoxelBox& box) const {
   const Dims& d = header.dims;
-  for (int a = 0; a < 3; ++a)
-    if (box.lo[a] < 0 || box.hi[a] >= d[a] || box.lo[a] > box.hi[a])
-      throw std::invalid_argument(
-          fmt::format("VolumeRegions::read: the box {} is not inside the volume's {}×{}×{} voxels", box_text(box), d[0], d[1], d[2]));
-  const ScalarType stored = scaling ? scaling->stored : header.type;
-  Volume r = make_volume(box.dims(), stored);
-  r.spacing = header.spacing, r.direction = header.direction;
-  r.origin = header.voxel_to_world(double(box.lo[0]), double(box.lo[1]), double(box.lo[2]));
+  check_inside("VolumeRegions::read", box, d);
+  Volume r = stored_box(header, box, scaling);
+  const ScalarType stored = r.type;
   const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw InputError(fmt::format("{}: cannot open to read the region {}: {}", file, box_text(box), std::strerror(errno)));
   const std::size_t es = scalar_size(stored);
@@ -60,10 +80,7 @@ Volume VolumeRegions::read(const VoxelBox& box) const {
     }
   ::close(fd);
   if (!ok) throw InputError(fmt::format("{}: the region {} reaches past the end of the file (truncated?)", file, box_text(box)));
-  if (swap) detail::byteswap(reinterpret_cast<unsigned char*>(r.bytes.data()), es, static_cast<std::size_t>(r.voxel_count()));
-  const std::string where = fmt::format("{}, region {}", file, box_text(box));
-  check_finite(r, where);
-  if (scaling) detail::apply_scaling(r, {scaling->slope, scaling->inter, header.type}, where);
+  finish(r, swap, scaling, header.type, fmt::format("{}, region {}", file, box_text(box)));
   return r;
 }
 
@@ -98,6 +115,159 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
   }
   check_geometry(out.header.dims, out.header.spacing, out.header.origin, out.header.direction, path);
   return out;
+}
+
+// ---- slabs of a compressed stream ----
+
+struct VolumeStream::State {
+  Volume header;
+  std::string file;
+  std::uint64_t first = 0, end = 0;  // the compressed bytes in the file
+  std::uint64_t skip = 0;            // inflated bytes before the first sample
+  bool swap = false;
+  std::optional<VolumeRegions::Scaling> scaling;
+  std::size_t slice = 0;  // bytes of one stored slice
+
+  int fd = -1;
+  z_stream zs{};
+  bool open = false;             // zs initialised
+  bool broken = false;           // a hold failed part way: where the stream stands is unknown
+  std::uint64_t read_to = 0;     // the next compressed byte to feed
+  std::int64_t next = 0;         // the first slice not inflated yet
+  std::uint64_t skipped = 0;     // of `skip`
+  std::int64_t z0 = 0, z1 = -1;  // the slices held
+  std::vector<unsigned char> held, in;
+  std::uint64_t inflations = 0;
+
+  ~State() {
+    if (open) inflateEnd(&zs);
+    if (fd >= 0) ::close(fd);
+  }
+
+  void restart() {
+    if (open) inflateEnd(&zs);
+    zs = z_stream{};
+    open = inflateInit2(&zs, 15 + 32) == Z_OK;  // zlib or gzip, as read_volume's inflate
+    if (!open) throw std::runtime_error("zlib: inflateInit failed");
+    read_to = first, next = 0, skipped = 0, z0 = 0, z1 = -1, broken = false;
+    ++inflations;
+  }
+
+  // The next n inflated bytes into out (nullptr: dropped); `what` names them in errors.
+  void pull(unsigned char* out, std::size_t n, const std::string& what) {
+    unsigned char scratch[1 << 14];
+    while (n > 0) {
+      if (zs.avail_in == 0) {
+        const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(in.size(), end - read_to));
+        if (want == 0) throw InputError(fmt::format("{}: the compressed stream is cut short before {}", file, what));
+        ssize_t got = -1;
+        while (got < 0) {
+          got = ::pread(fd, in.data(), want, static_cast<off_t>(read_to));
+          if (got < 0 && errno != EINTR) throw InputError(fmt::format("{}: cannot read before {}: {}", file, what, std::strerror(errno)));
+        }
+        if (got == 0) throw InputError(fmt::format("{}: the file ends before {} (truncated?)", file, what));
+        read_to += static_cast<std::uint64_t>(got);
+        zs.next_in = in.data(), zs.avail_in = static_cast<uInt>(got);
+      }
+      const std::size_t step = std::min(n, out ? std::size_t{1} << 30 : sizeof scratch);
+      zs.next_out = out ? out : scratch, zs.avail_out = static_cast<uInt>(step);
+      const int rc = inflate(&zs, Z_NO_FLUSH);
+      const std::size_t got = step - zs.avail_out;
+      if (out) out += got;
+      n -= got;
+      if (rc == Z_STREAM_END && n > 0) throw InputError(fmt::format("{}: the compressed stream ends before {}", file, what));
+      if (rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR)
+        throw InputError(fmt::format("{}: compressed data is corrupt before {} ({})", file, what, zs.msg ? zs.msg : "corrupt data"));
+    }
+  }
+};
+
+VolumeStream::VolumeStream(std::unique_ptr<State> s) : s_(std::move(s)) {}
+VolumeStream::VolumeStream(VolumeStream&&) noexcept = default;
+VolumeStream& VolumeStream::operator=(VolumeStream&&) noexcept = default;
+VolumeStream::~VolumeStream() = default;
+const Volume& VolumeStream::header() const { return s_->header; }
+std::uint64_t VolumeStream::inflations() const { return s_->inflations; }
+
+void VolumeStream::hold(std::int64_t z0, std::int64_t z1) {
+  State& s = *s_;
+  if (z0 < 0 || z1 >= s.header.dims[2] || z0 > z1)
+    throw std::invalid_argument(fmt::format("VolumeStream::hold: slices {}..{} are not inside the volume's {}", z0, z1, s.header.dims[2]));
+  if (z0 >= s.z0 && z1 <= s.z1) return;
+  if (!s.open || s.broken || z0 < s.z0) s.restart();  // the slices before z0 are gone
+  // Keep the held slices from z0 on, inflate the rest up to z1.
+  std::vector<unsigned char> held(static_cast<std::size_t>(z1 - z0 + 1) * s.slice);
+  std::int64_t have = z0;
+  if (s.z1 >= z0) {
+    const std::int64_t from = std::max(z0, s.z0), to = std::min(z1, s.z1);
+    std::memcpy(held.data() + static_cast<std::size_t>(from - z0) * s.slice,
+                s.held.data() + static_cast<std::size_t>(from - s.z0) * s.slice, static_cast<std::size_t>(to - from + 1) * s.slice);
+    have = to + 1;
+  }
+  s.held.clear(), s.held.shrink_to_fit();
+  s.z0 = 0, s.z1 = -1, s.broken = true;
+  if (s.skipped < s.skip) s.pull(nullptr, s.skip - s.skipped, "the first sample"), s.skipped = s.skip;
+  for (; s.next < z0; ++s.next) s.pull(nullptr, s.slice, fmt::format("slice {}", s.next + 1));
+  for (; s.next <= z1; ++s.next) {
+    if (s.next < have) continue;
+    s.pull(held.data() + static_cast<std::size_t>(s.next - z0) * s.slice, s.slice, fmt::format("the end of slice {}", s.next));
+  }
+  s.held = std::move(held), s.z0 = z0, s.z1 = z1, s.broken = false;
+}
+
+Volume VolumeStream::read(const VoxelBox& box) const {
+  const State& s = *s_;
+  check_inside("VolumeStream::read", box, s.header.dims);
+  if (box.lo[2] < s.z0 || box.hi[2] > s.z1)
+    throw std::invalid_argument(
+        fmt::format("VolumeStream::read: the box {} is outside the slices held ({}..{})", box_text(box), s.z0, s.z1));
+  Volume r = stored_box(s.header, box, s.scaling);
+  const std::size_t es = scalar_size(r.type), row = static_cast<std::size_t>(box.dims()[0]) * es;
+  const Dims& d = s.header.dims;
+  auto* out = reinterpret_cast<unsigned char*>(r.bytes.data());
+  for (std::int64_t z = box.lo[2]; z <= box.hi[2]; ++z)
+    for (std::int64_t y = box.lo[1]; y <= box.hi[1]; ++y, out += row)
+      std::memcpy(out, s.held.data() + static_cast<std::size_t>(((z - s.z0) * d[1] + y) * d[0] + box.lo[0]) * es, row);
+  finish(r, s.swap, s.scaling, s.header.type, fmt::format("{}, region {}", s.file, box_text(box)));
+  return r;
+}
+
+std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptions& options) {
+  if (options.raw) return std::nullopt;
+  auto s = std::make_unique<VolumeStream::State>();
+  const auto format = detail::volume_format(path);
+  if (format == detail::VolumeFormat::nifti) {
+    detail::NiftiLayout l = detail::nifti_layout(path);
+    if (!l.gz) return std::nullopt;
+    s->header = std::move(l.header);
+    s->file = l.file, s->skip = l.offset, s->swap = l.swap;
+    s->end = detail::file_size_or_throw(l.file);
+    if (l.scaling) {
+      s->scaling = VolumeRegions::Scaling{s->header.type, l.scaling->slope, l.scaling->inter};
+      s->header.type = l.scaling->type;
+    }
+  } else if (format == detail::VolumeFormat::metaimage) {
+    detail::MetaImageLayout l = detail::metaimage_layout(path);
+    if (!l.compressed || l.files.size() != 1) return std::nullopt;
+    s->header = std::move(l.header);
+    s->file = l.files[0], s->first = l.starts[0], s->end = l.starts[0] + l.stored[0], s->swap = l.swap;
+  } else if (format == detail::VolumeFormat::nrrd) {
+    detail::NrrdLayout l = detail::nrrd_layout(path);
+    if (l.encoding != nrrdEncodingGzip || l.files.size() != 1 || l.line_skip != 0 || l.byte_skip < 0) return std::nullopt;
+    s->header = std::move(l.header);
+    s->file = l.files[0], s->skip = static_cast<std::uint64_t>(l.byte_skip), s->swap = l.swap;
+    s->end = detail::file_size_or_throw(l.files[0]);
+    s->first = l.attached ? std::min(l.data_offset, s->end) : 0;
+  } else {
+    return std::nullopt;
+  }
+  check_geometry(s->header.dims, s->header.spacing, s->header.origin, s->header.direction, path);
+  const Dims& d = s->header.dims;
+  s->slice = static_cast<std::size_t>(d[0] * d[1]) * scalar_size(s->scaling ? s->scaling->stored : s->header.type);
+  s->fd = ::open(s->file.c_str(), O_RDONLY | O_CLOEXEC);
+  if (s->fd < 0) throw InputError(fmt::format("{}: cannot open: {}", s->file, std::strerror(errno)));
+  s->in.resize(1 << 20);
+  return VolumeStream(std::move(s));
 }
 
 }  // namespace adaptiso

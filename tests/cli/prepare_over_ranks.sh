@@ -49,7 +49,7 @@ check noise "$W/noise.raw" "${RAW[@]}"
 check noise-displacement "$W/noise.raw" "${RAW[@]}" --max-displacement 1 --max-error 0.1 --relative
 # The ranks other than 0 read their bricks straight from the file (volume_regions.hpp): a detached
 # header, big-endian 16-bit samples after a byte skip, a MetaImage with a header size, a scaled
-# NIfTI; a gzip file is read whole instead.
+# NIfTI; a gzip file slab by slab as it inflates (volume_regions.hpp, VolumeStream).
 /usr/bin/env python3 -c "
 import gzip, struct, sys
 w = sys.argv[1]
@@ -83,8 +83,14 @@ done
 import json, sys
 w = sys.argv[1]
 read = {n: json.load(open(f'{w}/{n}.json'))['bricks']['ranks_read'] for n in ('n16', 'n16gz', 'm16', 's16')}
-assert read == {'n16': 'regions', 'n16gz': 'whole volume', 'm16': 'regions', 's16': 'regions'}, read
-print('ok: rank 1 read its bricks from the raw NRRD, MetaImage and scaled NIfTI files, the gzip file whole')" "$W"
+assert read == {'n16': 'regions', 'n16gz': 'slabs of the stream', 'm16': 'regions', 's16': 'regions'}, read
+print('ok: rank 1 read its bricks from the raw NRRD, MetaImage and scaled NIfTI files, slab by slab from the gzip one')" "$W"
+# A gzip stream over 3 and 4 ranks, bricks of 2 (many slabs, each rank's bricks in every one).
+for np in 3 4; do
+  ranks $np "$CLI" prepare "$W/n16gz.nhdr" --brick-side 2 --threads 1 --quiet -o "$W/n16gz-np$np.adg"
+  cmp "$W/n16gz-one.adg" "$W/n16gz-np$np.adg" || { echo "FAIL: the gzip file over $np ranks differs"; exit 1; }
+done
+echo "ok: the gzip file over 3 and 4 ranks, bricks of 2"
 
 # --json tells what the ranks did.
 ranks 2 "$CLI" prepare "$W/ml.nrrd" --brick-side 8 --json -o "$W/j.adg" >"$W/j.json"

@@ -5,8 +5,10 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <limits>
+#include <random>
 #include <vector>
 
 #include "adaptiso/volume_io.hpp"
@@ -208,4 +210,133 @@ TEST(VolumeRegions, BoxesOutsideTheVolumeAndNonFiniteSamples) {
   EXPECT_THROW(r->read({{2, 0, 0}, {1, 1, 1}}), std::invalid_argument);
   EXPECT_NO_THROW(r->read({{0, 0, 0}, {3, 2, 0}}));  // the NaN is in the last voxel
   EXPECT_THROW(r->read({{3, 2, 1}, {3, 2, 1}}), InputError);
+}
+
+// ---- slabs of a compressed stream ----
+
+namespace {
+
+// Holds slab after slab as the ranks do (overlapping, with a step back that inflates again), and
+// checks every box shape within each slab against the whole read.
+void expect_slabs(VolumeStream& s, const Volume& whole) {
+  const Dims d = whole.dims;
+  const std::int64_t Z = d[2];
+  struct Slab {
+    std::int64_t z0, z1;
+    bool again;  // inflated again from the start
+  };
+  const std::vector<Slab> slabs = {{0, 1, true}, {1, 3, false}, {2, 2, false}, {3, Z - 1, false}, {Z - 1, Z - 1, false}, {0, Z - 1, true}};
+  for (const auto& [z0, z1, again] : slabs) {
+    SCOPED_TRACE(::testing::Message() << "slices " << z0 << ".." << z1);
+    const std::uint64_t before = s.inflations();
+    s.hold(z0, z1);
+    EXPECT_EQ(s.inflations(), before + (again ? 1 : 0));
+    for (VoxelBox b : boxes({d[0], d[1], z1 - z0 + 1})) {
+      if (b.lo[2] > b.hi[2]) continue;  // the interior box of a slab one or two slices thick
+      b.lo[2] += z0, b.hi[2] += z0;
+      const Volume part = s.read(b);
+      ASSERT_EQ(part.type, whole.type);
+      const std::size_t es = scalar_size(whole.type);
+      for (std::int64_t z = b.lo[2]; z <= b.hi[2]; ++z)
+        for (std::int64_t y = b.lo[1]; y <= b.hi[1]; ++y)
+          for (std::int64_t x = b.lo[0]; x <= b.hi[0]; ++x) {
+            const std::int64_t g = (z * d[1] + y) * d[0] + x;
+            const std::int64_t l = ((z - b.lo[2]) * part.dims[1] + (y - b.lo[1])) * part.dims[0] + (x - b.lo[0]);
+            ASSERT_EQ(0, std::memcmp(part.bytes.data() + l * es, whole.bytes.data() + g * es, es)) << x << "," << y << "," << z;
+          }
+    }
+    if (again && z1 == 1)  // slices 0 and 1 held, from a fresh start: slice 2 is not
+      EXPECT_THROW(s.read({{0, 0, 1}, {d[0] - 1, d[1] - 1, 2}}), std::invalid_argument);
+  }
+  EXPECT_EQ(s.inflations(), 2u);  // once, and once again after stepping back
+}
+
+}  // namespace
+
+TEST(VolumeStream, GzipNrrdAttachedDetachedAndByteSkip) {
+  TempDir t("stream");
+  const Dims dims{9, 4, 7};
+  const Volume ref = testutil::pattern_volume(dims, ScalarType::i16);
+  const std::string big = testutil::swapped(testutil::bytes_of(ref), 2);
+  const std::string head = "NRRD0004\ntype: short\ndimension: 3\nsizes: 9 4 7\nspacings: 0.5 1 2\nendian: big\nencoding: gzip\n";
+  testutil::write_bytes(t / "a.nrrd", head + "\n" + testutil::compress(big, true));
+  testutil::write_bytes(t / "d.raw.gz", testutil::compress(std::string(13, 's') + big, true));
+  testutil::write_bytes(t / "d.nhdr", head + "byte skip: 13\ndata file: d.raw.gz\n");
+  testutil::write_bytes(t / "z.raw.gz", testutil::compress(big, false));  // zlib, not gzip: read_nrrd takes it too
+  testutil::write_bytes(t / "z.nhdr", head + "data file: z.raw.gz\n");
+  for (const char* name : {"a.nrrd", "d.nhdr", "z.nhdr"}) {
+    SCOPED_TRACE(name);
+    const Volume whole = read_volume(t / name);
+    ASSERT_EQ(whole.bytes, ref.bytes);
+    EXPECT_FALSE(open_regions(t / name).has_value());
+    auto s = open_stream(t / name);
+    ASSERT_TRUE(s.has_value());
+    EXPECT_EQ(s->header().spacing, whole.spacing);
+    EXPECT_TRUE(s->header().bytes.empty());
+    expect_slabs(*s, whole);
+  }
+}
+
+TEST(VolumeStream, NiftiGzScaledAndMetaImageCompressed) {
+  TempDir t("stream");
+  const Dims dims{6, 5, 8};
+  testutil::write_nifti(t / "s.nii.gz", testutil::pattern_volume(dims, ScalarType::i16), 1, 0.5, 3);
+  const Volume ref = testutil::pattern_volume(dims, ScalarType::u16);
+  testutil::write_bytes(t / "c.mha",
+                        "NDims = 3\nDimSize = 6 5 8\nElementType = MET_USHORT\nCompressedData = True\nElementDataFile = LOCAL\n" +
+                            testutil::compress(testutil::bytes_of(ref), false));
+  for (const char* name : {"s.nii.gz", "c.mha"}) {
+    SCOPED_TRACE(name);
+    const Volume whole = read_volume(t / name);
+    auto s = open_stream(t / name);
+    ASSERT_TRUE(s.has_value());
+    EXPECT_EQ(s->header().type, whole.type);
+    expect_slabs(*s, whole);
+  }
+  EXPECT_EQ(read_volume(t / "s.nii.gz").type, ScalarType::f32);
+}
+
+TEST(VolumeStream, UncompressedAndOtherLayoutsAreNotStreams) {
+  TempDir t("stream");
+  const Volume ref = testutil::pattern_volume({4, 4, 4}, ScalarType::u8);
+  write_nrrd(ref, t / "r.nrrd");
+  EXPECT_FALSE(open_stream(t / "r.nrrd").has_value());
+  testutil::write_bytes(t / "v.raw", testutil::bytes_of(ref));
+  ReadOptions o;
+  o.raw = RawOptions{{4, 4, 4}, ScalarType::u8};
+  EXPECT_FALSE(open_stream(t / "v.raw", o).has_value());
+  testutil::write_bytes(t / "l.nhdr", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 1 1\nencoding: gzip\nline skip: 1\ndata file: l.gz\n");
+  testutil::write_bytes(t / "l.gz", "skip\n" + testutil::compress("ab", true));
+  EXPECT_FALSE(open_stream(t / "l.nhdr").has_value());
+}
+
+TEST(VolumeStream, ACutOrCorruptStreamNamesTheSlice) {
+  TempDir t("stream");
+  Volume ref = make_volume({16, 16, 10}, ScalarType::f32);  // noise: compressed, half the file holds about half the slices
+  std::mt19937 rng(3);
+  for (std::int64_t i = 0; i < ref.voxel_count(); ++i) ref.set(i, std::uniform_real_distribution<double>(0, 1)(rng));
+  const std::string gz = testutil::compress(testutil::bytes_of(ref), true);
+  const std::string head = "NRRD0004\ntype: float\ndimension: 3\nsizes: 16 16 10\nendian: little\nencoding: gzip\ndata file: v.gz\n";
+  testutil::write_bytes(t / "v.nhdr", head);
+  testutil::write_bytes(t / "v.gz", gz);
+  auto s = open_stream(t / "v.nhdr");
+  ASSERT_TRUE(s.has_value());
+  std::filesystem::resize_file(t / "v.gz", gz.size() / 2);  // cut after opening
+  s->hold(0, 1);                                            // the first slices are within the bytes left
+  try {
+    s->hold(2, 9);
+    FAIL() << "a cut stream was read";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("v.gz"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("slice"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(s->read({{0, 0, 0}, {15, 15, 0}}), std::invalid_argument);  // nothing is held after a failure
+  std::string bad = gz;
+  for (std::size_t i = 20; i < bad.size() - 8; i += 7) bad[i] = static_cast<char>(bad[i] ^ 0x5a);
+  testutil::write_bytes(t / "v.gz", bad);
+  auto c = open_stream(t / "v.nhdr");
+  ASSERT_TRUE(c.has_value());
+  EXPECT_THROW(c->hold(0, 9), InputError);
+  EXPECT_THROW(c->hold(0, 10), std::invalid_argument);
+  EXPECT_THROW(c->hold(3, 2), std::invalid_argument);
 }
