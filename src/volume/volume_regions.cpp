@@ -195,24 +195,23 @@ void VolumeStream::hold(std::int64_t z0, std::int64_t z1) {
     throw std::invalid_argument(fmt::format("VolumeStream::hold: slices {}..{} are not inside the volume's {}", z0, z1, s.header.dims[2]));
   if (z0 >= s.z0 && z1 <= s.z1) return;
   if (!s.open || s.broken || z0 < s.z0) s.restart();  // the slices before z0 are gone
-  // Keep the held slices from z0 on, inflate the rest up to z1.
-  std::vector<unsigned char> held(static_cast<std::size_t>(z1 - z0 + 1) * s.slice);
+  // Keep the held slices from z0 on (moved to the front, in place: one slab's memory, not two),
+  // inflate the rest up to z1.
   std::int64_t have = z0;
   if (s.z1 >= z0) {
-    const std::int64_t from = std::max(z0, s.z0), to = std::min(z1, s.z1);
-    std::memcpy(held.data() + static_cast<std::size_t>(from - z0) * s.slice,
-                s.held.data() + static_cast<std::size_t>(from - s.z0) * s.slice, static_cast<std::size_t>(to - from + 1) * s.slice);
+    const std::int64_t to = std::min(z1, s.z1);
+    std::memmove(s.held.data(), s.held.data() + static_cast<std::size_t>(z0 - s.z0) * s.slice, static_cast<std::size_t>(to - z0 + 1) * s.slice);
     have = to + 1;
   }
-  s.held.clear(), s.held.shrink_to_fit();
   s.z0 = 0, s.z1 = -1, s.broken = true;
+  s.held.resize(static_cast<std::size_t>(z1 - z0 + 1) * s.slice);
   if (s.skipped < s.skip) s.pull(nullptr, s.skip - s.skipped, "the first sample"), s.skipped = s.skip;
   for (; s.next < z0; ++s.next) s.pull(nullptr, s.slice, fmt::format("slice {}", s.next + 1));
   for (; s.next <= z1; ++s.next) {
     if (s.next < have) continue;
-    s.pull(held.data() + static_cast<std::size_t>(s.next - z0) * s.slice, s.slice, fmt::format("the end of slice {}", s.next));
+    s.pull(s.held.data() + static_cast<std::size_t>(s.next - z0) * s.slice, s.slice, fmt::format("the end of slice {}", s.next));
   }
-  s.held = std::move(held), s.z0 = z0, s.z1 = z1, s.broken = false;
+  s.z0 = z0, s.z1 = z1, s.broken = false;
 }
 
 Volume VolumeStream::read(const VoxelBox& box) const {
