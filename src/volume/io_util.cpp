@@ -33,11 +33,15 @@ std::uint64_t file_size_or_throw(const std::string& path) {
   return s;
 }
 
-std::vector<unsigned char> read_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count) {
-  std::uint64_t size = file_size_or_throw(path);
+void check_holds(const std::string& path, std::uint64_t offset, std::uint64_t count) {
+  const std::uint64_t size = file_size_or_throw(path);
   if (offset > size || count > size - offset)
     throw InputError(fmt::format("{}: file is truncated: needs {} bytes from offset {}, has {}", path, count, offset,
                                  size > offset ? size - offset : 0));
+}
+
+std::vector<unsigned char> read_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count) {
+  check_holds(path, offset, count);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(fmt::format("{}: cannot open ({})", path, std::strerror(errno)));
   std::vector<unsigned char> buf;

@@ -12,6 +12,8 @@
 namespace adaptiso::detail {
 
 std::uint64_t file_size_or_throw(const std::string& path);
+// InputError when a file is shorter than offset + count bytes ("file is truncated: …").
+void check_holds(const std::string& path, std::uint64_t offset, std::uint64_t count);
 // Reads bytes [offset, offset+count) of a file; InputError if the file is shorter.
 std::vector<unsigned char> read_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count);
 // Reads the whole file, refusing files above max_bytes.

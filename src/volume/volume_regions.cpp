@@ -93,6 +93,7 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
   } else if (const auto format = detail::volume_format(path); format == detail::VolumeFormat::nifti) {
     detail::NiftiLayout l = detail::nifti_layout(path);
     if (l.gz) return std::nullopt;
+    detail::check_holds(l.file, l.offset, l.bytes);  // as read_volume refuses it
     out.header = std::move(l.header);
     out.file = l.file, out.offset = l.offset, out.swap = l.swap;
     if (l.scaling) {
@@ -102,6 +103,7 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
   } else if (format == detail::VolumeFormat::metaimage) {
     detail::MetaImageLayout l = detail::metaimage_layout(path);
     if (l.compressed || l.files.size() != 1) return std::nullopt;
+    detail::check_holds(l.files[0], l.starts[0], l.stored[0]);
     out.header = std::move(l.header);
     out.file = l.files[0], out.offset = l.starts[0], out.swap = l.swap;
   } else {
@@ -200,7 +202,8 @@ void VolumeStream::hold(std::int64_t z0, std::int64_t z1) {
   std::int64_t have = z0;
   if (s.z1 >= z0) {
     const std::int64_t to = std::min(z1, s.z1);
-    std::memmove(s.held.data(), s.held.data() + static_cast<std::size_t>(z0 - s.z0) * s.slice, static_cast<std::size_t>(to - z0 + 1) * s.slice);
+    std::memmove(s.held.data(), s.held.data() + static_cast<std::size_t>(z0 - s.z0) * s.slice,
+                 static_cast<std::size_t>(to - z0 + 1) * s.slice);
     have = to + 1;
   }
   s.z0 = 0, s.z1 = -1, s.broken = true;

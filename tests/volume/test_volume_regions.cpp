@@ -177,6 +177,27 @@ TEST(VolumeRegions, BadFilesAreRefusedAsTheReaderRefusesThem) {
   testutil::write_bytes(t / "s.nrrd", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 4 4 4\nencoding: raw\n\n" + std::string(60, 'a'));
   EXPECT_THROW(open_regions(t / "s.nrrd"), InputError);
   EXPECT_THROW(open_regions(t / "missing.nrrd"), InputError);
+  // A NIfTI and a MetaImage a byte short: refused as read_volume refuses them.
+  testutil::write_nifti(t / "n.nii", testutil::pattern_volume({4, 4, 4}, ScalarType::i16), 1, 0, 0);
+  std::filesystem::resize_file(t / "n.nii", std::filesystem::file_size(t / "n.nii") - 1);
+  testutil::write_bytes(t / "m.mha",
+                        "NDims = 3\nDimSize = 4 4 4\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(63, 'a'));
+  for (const char* name : {"n.nii", "m.mha"}) {
+    SCOPED_TRACE(name);
+    std::string reader, regions;
+    try {
+      read_volume(t / name);
+    } catch (const InputError& e) {
+      reader = e.what();
+    }
+    try {
+      open_regions(t / name);
+    } catch (const InputError& e) {
+      regions = e.what();
+    }
+    EXPECT_NE(reader, "");
+    EXPECT_EQ(regions, reader);
+  }
 }
 
 TEST(VolumeRegions, AFileTruncatedAfterOpeningNamesTheRegion) {
