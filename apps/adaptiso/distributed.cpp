@@ -118,10 +118,10 @@ std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, 
   }
   // Bricks are numbered x fastest, z slowest: a slab's bricks are consecutive.
   for (std::size_t from = 0; from < mine.size();) {
-    const std::int64_t slab = mine[from] / (bricks.count[0] * bricks.count[1]);
+    const std::int64_t slab = bricks.brick(mine[from])[2];
     std::size_t to = from;
     std::int64_t z0 = bricks.dims[2], z1 = -1;
-    for (; to < mine.size() && mine[to] / (bricks.count[0] * bricks.count[1]) == slab; ++to) {
+    for (; to < mine.size() && bricks.brick(mine[to])[2] == slab; ++to) {
       const VoxelBox box = bricks.reads(mine[to], displacement);
       z0 = std::min(z0, box.lo[2]), z1 = std::max(z1, box.hi[2]);
     }

@@ -48,6 +48,15 @@ Volume stored_box(const Volume& header, const VoxelBox& box, const std::optional
   return r;
 }
 
+// A NIfTI layout's scaling as the readers keep it: the header takes the scaled type, the scaling
+// the stored one.
+std::optional<VolumeRegions::Scaling> take_scaling(Volume& header, const std::optional<detail::NiftiScaling>& s) {
+  if (!s) return std::nullopt;
+  const VolumeRegions::Scaling out{header.type, s->slope, s->inter};
+  header.type = s->type;
+  return out;
+}
+
 // Stored samples as read_volume makes them: this machine's byte order, finite, scaled.
 void finish(Volume& r, bool swap, const std::optional<VolumeRegions::Scaling>& scaling, ScalarType type, const std::string& where) {
   if (swap)
@@ -96,10 +105,7 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
     detail::check_holds(l.file, l.offset, l.bytes);  // as read_volume refuses it
     out.header = std::move(l.header);
     out.file = l.file, out.offset = l.offset, out.swap = l.swap;
-    if (l.scaling) {
-      out.scaling = VolumeRegions::Scaling{out.header.type, l.scaling->slope, l.scaling->inter};
-      out.header.type = l.scaling->type;
-    }
+    out.scaling = take_scaling(out.header, l.scaling);
   } else if (format == detail::VolumeFormat::metaimage) {
     detail::MetaImageLayout l = detail::metaimage_layout(path);
     if (l.compressed || l.files.size() != 1) return std::nullopt;
@@ -244,10 +250,7 @@ std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptio
     s->header = std::move(l.header);
     s->file = l.file, s->skip = l.offset, s->swap = l.swap;
     s->end = detail::file_size_or_throw(l.file);
-    if (l.scaling) {
-      s->scaling = VolumeRegions::Scaling{s->header.type, l.scaling->slope, l.scaling->inter};
-      s->header.type = l.scaling->type;
-    }
+    s->scaling = take_scaling(s->header, l.scaling);
   } else if (format == detail::VolumeFormat::metaimage) {
     detail::MetaImageLayout l = detail::metaimage_layout(path);
     if (!l.compressed || l.files.size() != 1) return std::nullopt;
