@@ -729,7 +729,7 @@ TEST(OutputsNeverDestroy, DanglingSymlinkIsWrittenThrough) {
 TEST(HostileArguments, HexadecimalNumbersAreRefused) {
   TempDir t("cli41");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "s.nrrd")).code, 0);
-  for (const std::string args :
+  for (const std::string& args :
        {"mc " + (t / "s.nrrd") + " --iso 0x10 -o " + (t / "m.ply"), "mc " + (t / "s.nrrd") + " --iso 0x1p4 -o " + (t / "m.ply"),
         "prepare " + (t / "s.nrrd") + " --max-error 0x10 -o " + (t / "g.adg")})
     expect_refused(testutil::run_cli(args), "0x1", args);
