@@ -26,18 +26,32 @@ namespace {
 // bunny, 2 ranks: error hierarchy 12.2 s at 64, 6.3 s at 128, 5.2 s one process on one thread).
 constexpr std::int64_t kDefaultRankBrickSide = 128;
 
-// A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, read
-// straight from the file where it can be (seeking in uncompressed samples, slab by slab from a
-// compressed stream; else the whole volume is read), handed to rank 0; it writes nothing.
+// How a rank other than 0 reads its bricks: straight from the file where it can be (seeking in
+// uncompressed samples, slab by slab from a compressed stream), else from the whole volume.
+struct RankReader {
+  std::optional<VolumeRegions> regions;
+  std::optional<VolumeStream> stream;
+  const char* route() const { return regions ? "regions" : stream ? "slabs of the stream" : "whole volume"; }
+};
+RankReader open_rank_reader(const VolumeInput& in) {
+  RankReader r;
+  r.regions = open_regions(in.path, in.read_options());
+  if (!r.regions) r.stream = open_stream(in.path, in.read_options());
+  return r;
+}
+
+// A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, handed to
+// rank 0; it writes nothing.
 void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
   const bool displacement = options.max_displacement > 0;
-  if (const auto regions = open_regions(in.path, in.read_options())) {
+  RankReader reader = open_rank_reader(in);
+  if (const auto& regions = reader.regions) {
     const RegionSource source = [&](const VoxelBox& box) { return regions->read(box); };
     distributed_errors(ranks, regions->header.dims, source, {}, brick_side, displacement, {}, ignored);
     return;
   }
-  if (auto stream = open_stream(in.path, in.read_options())) {
+  if (auto& stream = reader.stream) {
     const RegionSource source = [&](const VoxelBox& box) { return stream->read(box); };
     const HoldSlices hold = [&](std::int64_t z0, std::int64_t z1) { stream->hold(z0, z1); };
     distributed_errors(ranks, stream->header().dims, source, {}, brick_side, displacement, {}, ignored, hold);
@@ -103,10 +117,7 @@ void add_prepare(CLI::App& app) {
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
     DistributedStats dist;
-    if (ranks.distributed())
-      dist.ranks_read = open_regions(in->path, in->read_options())  ? "regions"
-                        : open_stream(in->path, in->read_options()) ? "slabs of the stream"
-                                                                    : "whole volume";
+    if (ranks.distributed()) dist.ranks_read = open_rank_reader(*in).route();  // the readers' headers only
     if (bricked) options.error_hierarchy = bricked_errors(ranks, side, dist);
     TerminalProgress tp(!out->quiet && !out->json);
     // Written as it is made: the voxels go before the index, the grid's positions and gradients
