@@ -2,10 +2,10 @@
 # Builds and runs the whole test suite: a Release build (with the Python module, whose pytest
 # suite runs against a staging install and again against pip's install, and the installed CMake
 # package's consumer test), then an AddressSanitizer + UndefinedBehaviorSanitizer build of the
-# unit tests. Uses ../shared/data when present (ADAPTISO_DATA overrides); data tests skip with a
-# message otherwise. Every option the suite
-# depends on is set explicitly (a build folder configured by demo.sh has the tests off), and
-# ctest fails when it finds no test.
+# unit and command-line tests (clang), then a short run of every fuzz target. Uses
+# ../shared/data when present (ADAPTISO_DATA overrides); data tests skip with a message otherwise.
+# Every option the suite depends on is set explicitly (a build folder configured by demo.sh has
+# the tests off), and ctest fails when it finds no test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # VTK's Python module: a reference for the marching-cubes tests and Mesh.to_vtk's target; never linked.

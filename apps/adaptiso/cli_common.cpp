@@ -4,11 +4,14 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
 #include <mutex>
 
+#include "adaptiso/memory.hpp"
 #include "adaptiso/number.hpp"
 
 namespace adaptiso::cli {
@@ -133,6 +136,34 @@ std::string flag_for(const std::string& option) {
   std::string flag = "--" + option;
   std::replace(flag.begin(), flag.end(), '_', '-');
   return flag;
+}
+
+std::uint64_t parse_byte_size(const std::string& text, const std::string& option) {
+  const std::string refusal = fmt::format("'{}' is not a size in bytes (e.g. 4000000000, 4G, 512M)", text.substr(0, 40));
+  std::size_t used = 0, points = 0;
+  while (used < text.size() && (std::isdigit(static_cast<unsigned char>(text[used])) || text[used] == '.')) points += text[used++] == '.';
+  if (used == 0 || points > 1 || text[0] == '.' || text[used - 1] == '.') throw OptionError(option, refusal);
+  std::string unit = text.substr(used);
+  for (auto& c : unit) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  double scale = 1;
+  if (!unit.empty() && unit != "B") {
+    const auto p = std::string("KMGT").find(unit[0]);
+    const std::string rest = unit.substr(1);
+    if (p == std::string::npos || !(rest.empty() || rest == "B" || rest == "IB")) throw OptionError(option, refusal);
+    scale = std::pow(1024.0, static_cast<double>(p + 1));
+  }
+  const double bytes = std::round(std::stod(text.substr(0, used)) * scale);
+  if (bytes >= 18446744073709551616.0) throw OptionError(option, fmt::format("'{}' is more than 2^64 bytes", text.substr(0, 40)));
+  if (bytes < 1) throw OptionError(option, "must be at least 1 byte");
+  return static_cast<std::uint64_t>(bytes);
+}
+
+void add_memory_limit(CLI::App* cmd) {
+  cmd->add_option_function<std::string>(
+         "--memory-limit", [](const std::string& text) { set_memory_limit(parse_byte_size(text, "memory_limit")); },
+         "The most memory this command may hold, in bytes (8000000000, 8G, 512M): work whose estimate does not fit is refused "
+         "before it starts (default: what the machine has free)")
+      ->type_name("BYTES");
 }
 
 }  // namespace adaptiso::cli

@@ -71,6 +71,12 @@ nlohmann::json volume_json(const Volume& v, const ValueRange& range);
 std::vector<double> parse_iso_values(const std::vector<std::string>& tokens, bool relative, const ValueRange& range,
                                      const std::string& source);
 
+// A size in bytes: digits with at most one decimal point, then an optional unit (k, M, G, T: powers
+// of 1024, with or without "iB"; "B": bytes). No signs, exponents or hex. OptionError(option) else.
+std::uint64_t parse_byte_size(const std::string& text, const std::string& option);
+// --memory-limit (adaptiso/memory.hpp): set as the options are parsed, before the command runs.
+void add_memory_limit(CLI::App* cmd);
+
 // The command-line flag of a library option named in an OptionError ("max_error" → "--max-error").
 std::string flag_for(const std::string& option);
 

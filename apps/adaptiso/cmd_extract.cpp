@@ -226,6 +226,7 @@ void add_extract(CLI::App& app) {
       cmd->add_option("--max-displacement", *max_displacement, "Bisection grids prepared with it: a coarser displacement bound (voxels)")
           ->check(finite_number());
   out->add(cmd);
+  add_memory_limit(cmd);
   cmd->callback([=] {
     mesh_out->check(*input);
     // Given, a bound is used or refused: never ignored.
@@ -273,6 +274,7 @@ void add_run(CLI::App& app) {
   in->add(cmd);
   pf->add(cmd);
   out->add(cmd);
+  add_memory_limit(cmd);
   mesh_out->add(cmd);
   cmd->add_option("--save-grid", *save, "Also save the prepared grid (.adg) for later extract or view");
   auto distance = std::make_shared<double>(-1);
@@ -321,6 +323,7 @@ void add_mc(CLI::App& app) {
   auto relative = std::make_shared<bool>(false);
   in->add(cmd);
   out->add(cmd);
+  add_memory_limit(cmd);
   mesh_out->add(cmd);
   cmd->add_flag("--relative", *relative, "Iso-values as fractions of the value range [min, max]");
   cmd->callback([=] {

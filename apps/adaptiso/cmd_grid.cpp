@@ -91,6 +91,7 @@ void add_prepare(CLI::App& app) {
   in->add(cmd);
   pf->add(cmd);
   out->add(cmd);
+  add_memory_limit(cmd);
   cmd->add_option("-o,--output", *output, "Grid file (.adg)")->required();
   auto brick_side = std::make_shared<std::int64_t>(0);
   cmd->add_option("--brick-side", *brick_side,

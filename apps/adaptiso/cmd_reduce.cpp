@@ -19,6 +19,7 @@ void add_reduce(CLI::App& app) {
   in->add(cmd);
   rf->add(cmd);
   out->add(cmd);
+  add_memory_limit(cmd);
   cmd->add_option("-o,--output", *output, "Kept vertices (.ply)")->required();
   cmd->add_flag("--verify", *verify, "Check the error bound voxel by voxel and report the largest error found");
   cmd->callback([=] {

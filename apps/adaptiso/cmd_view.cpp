@@ -29,28 +29,6 @@ std::string default_web_dir() {
   return (exe.parent_path().parent_path() / "share" / "adaptiso" / "web").string();
 }
 
-// --memory-budget: digits with at most one decimal point, then an optional unit (k, M, G, T:
-// powers of 1024, with or without "iB"; "B": bytes). No signs, exponents or hex.
-std::uint64_t parse_byte_size(const std::string& text) {
-  const std::string refusal = fmt::format("'{}' is not a size in bytes (e.g. 4000000000, 4G, 512M)", text.substr(0, 40));
-  std::size_t used = 0, points = 0;
-  while (used < text.size() && (std::isdigit(static_cast<unsigned char>(text[used])) || text[used] == '.')) points += text[used++] == '.';
-  if (used == 0 || points > 1 || text[0] == '.' || text[used - 1] == '.') throw OptionError("memory_budget", refusal);
-  std::string unit = text.substr(used);
-  for (auto& c : unit) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  double scale = 1;
-  if (!unit.empty() && unit != "B") {
-    const auto p = std::string("KMGT").find(unit[0]);
-    const std::string rest = unit.substr(1);
-    if (p == std::string::npos || !(rest.empty() || rest == "B" || rest == "IB")) throw OptionError("memory_budget", refusal);
-    scale = std::pow(1024.0, static_cast<double>(p + 1));
-  }
-  const double bytes = std::round(std::stod(text.substr(0, used)) * scale);
-  if (bytes >= 18446744073709551616.0) throw OptionError("memory_budget", fmt::format("'{}' is more than 2^64 bytes", text.substr(0, 40)));
-  if (bytes < 1) throw OptionError("memory_budget", "must be at least 1 byte");
-  return static_cast<std::uint64_t>(bytes);
-}
-
 }  // namespace
 
 void add_view(CLI::App& app) {
@@ -78,7 +56,7 @@ void add_view(CLI::App& app) {
                   "Let web pages of this origin (http://host:port; * for any) use the API; others are refused (repeatable)");
   cmd->callback([=] {
     ViewOptions o = *opt;
-    if (budget_option->count() > 0) o.memory_budget = parse_byte_size(*budget);  // "" too is refused
+    if (budget_option->count() > 0) o.memory_budget = parse_byte_size(*budget, "memory_budget");  // "" too is refused
     if (o.web_dir.empty()) o.web_dir = default_web_dir();
     const bool is_grid = std::filesystem::path(in->path).extension() == ".adg";
     std::shared_ptr<const Volume> volume;

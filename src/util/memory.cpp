@@ -9,10 +9,12 @@
 #endif
 
 #include <algorithm>
+#include <atomic>
 #include <cstdlib>
 #include <fstream>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/memory.hpp"
 
 namespace adaptiso::detail {
 
@@ -55,14 +57,30 @@ std::uint64_t system_memory() {
 
 }  // namespace
 
-std::uint64_t available_memory() {
-  // A cap a user (or a test) sets for adaptiso, in bytes: a shared machine, a container.
+namespace {
+std::atomic<std::uint64_t> g_memory_limit{0};  // set_memory_limit's; 0: none
+}  // namespace
+
+void set_memory_limit(std::uint64_t bytes) { g_memory_limit = bytes; }
+
+std::uint64_t memory_limit() {
+  if (const std::uint64_t set = g_memory_limit) return set;
+  // The same limit from the environment, in bytes: a shared machine, a container, a test.
   if (const char* cap = std::getenv("ADAPTISO_MEMORY_LIMIT")) {
     char* end = nullptr;
     const unsigned long long v = std::strtoull(cap, &end, 10);
     if (end != cap && *end == '\0') return v;
   }
-  return std::min(system_memory(), address_space_left());
+  return 0;
+}
+
+std::uint64_t available_memory() {
+  std::uint64_t available = std::min(system_memory(), address_space_left());
+  if (const std::uint64_t limit = memory_limit()) {
+    const std::uint64_t held = process_status_bytes("VmRSS");
+    available = std::min(available, limit > held ? limit - held : 0);
+  }
+  return available;
 }
 
 namespace {
@@ -84,9 +102,18 @@ std::string duration_text(double seconds) {
 void check_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice) {
   const std::uint64_t available = available_memory();
   if (bytes <= available) return;
-  const std::string text = fmt::format("{} needs about {}, {} are available; {}", what, bytes_text(bytes), bytes_text(available), advice);
+  const std::uint64_t limit = memory_limit();
+  const bool limited = limit > 0 && available < std::min(system_memory(), address_space_left());
+  const std::string left = limited ? fmt::format("the memory limit of {} leaves {}", bytes_text(limit), bytes_text(available))
+                                   : fmt::format("{} are available", bytes_text(available));
+  const std::string text = fmt::format("{} needs about {}, {}; {}", what, bytes_text(bytes), left, advice);
   if (option.empty()) throw InputError(text);
   throw OptionError(option, text);
 }
 
 }  // namespace adaptiso::detail
+
+namespace adaptiso {
+void set_memory_limit(std::uint64_t bytes) { detail::set_memory_limit(bytes); }
+std::uint64_t memory_limit() { return detail::memory_limit(); }
+}  // namespace adaptiso

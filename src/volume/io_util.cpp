@@ -1,5 +1,6 @@
 #include "io_util.hpp"
 #include "util/big_array.hpp"
+#include "util/memory.hpp"
 
 #include <bzlib.h>
 #include <fmt/format.h>
@@ -40,8 +41,14 @@ void check_holds(const std::string& path, std::uint64_t offset, std::uint64_t co
                                  size > offset ? size - offset : 0));
 }
 
+void check_fits(const std::string& path, std::uint64_t bytes) {
+  if (bytes < kBigArrayBytes) return;  // headers and small volumes: no need to ask the system
+  check_memory(bytes, path + ": reading it", "", "a volume is read whole (free memory, or raise --memory-limit)");
+}
+
 std::vector<unsigned char> read_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count) {
   check_holds(path, offset, count);
+  check_fits(path, count);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(fmt::format("{}: cannot open ({})", path, std::strerror(errno)));
   std::vector<unsigned char> buf;

@@ -14,7 +14,11 @@ namespace adaptiso::detail {
 std::uint64_t file_size_or_throw(const std::string& path);
 // InputError when a file is shorter than offset + count bytes ("file is truncated: …").
 void check_holds(const std::string& path, std::uint64_t offset, std::uint64_t count);
-// Reads bytes [offset, offset+count) of a file; InputError if the file is shorter.
+// InputError, before anything is allocated, when `bytes` read or decoded from a file cannot fit in
+// the memory available ("<path>: reading it needs about X GB, Y GB are available; …").
+void check_fits(const std::string& path, std::uint64_t bytes);
+// Reads bytes [offset, offset+count) of a file; InputError if the file is shorter or the bytes
+// cannot fit (check_fits).
 std::vector<unsigned char> read_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count);
 // Reads the whole file, refusing files above max_bytes.
 std::string read_text(const std::string& path, std::uint64_t max_bytes);

@@ -150,7 +150,9 @@ Volume read_dicom_folder(const std::string& path) {
       frames_per_file = frames;
       v.dims = {cols, rows, static_cast<std::int64_t>(slices.size()) * frames};
       v.type = *type;
-      v.bytes.resize(checked_volume_bytes(v.dims, scalar_size(v.type), path));
+      const std::size_t bytes = checked_volume_bytes(v.dims, scalar_size(v.type), path);
+      detail::check_fits(path, bytes);
+      v.bytes.resize(bytes);
       const double* sp = img.GetSpacing();
       v.spacing = {sp[0], sp[1], frames > 1 ? sp[2] : 1.0};
     } else if (cols != v.dims[0] || rows != v.dims[1] || *type != v.type) {

@@ -180,6 +180,7 @@ MetaImageLayout metaimage_layout(const std::string& path) {
 Volume read_metaimage(const std::string& path) {
   detail::MetaImageLayout l = detail::metaimage_layout(path);
   Volume v = std::move(l.header);
+  detail::check_fits(path, l.bytes);
   v.bytes.resize(l.bytes);
   const std::size_t per_file = l.bytes / l.files.size();
   for (std::size_t fi = 0; fi < l.files.size(); ++fi) {

@@ -44,6 +44,7 @@ std::optional<ScalarType> from_nifti(int dt) {
 // stream must be whole (its length and CRC trailer checked).
 std::vector<unsigned char> image_bytes(const detail::NiftiLayout& l) {
   if (!l.gz) return detail::read_bytes(l.file, l.offset, l.bytes);  // throws when the file is truncated
+  detail::check_fits(l.file, l.offset + l.bytes);
   const auto compressed = detail::read_bytes(l.file, 0, detail::file_size_or_throw(l.file));
   std::vector<unsigned char> all(l.offset + l.bytes);
   detail::inflate_exact(compressed.data(), compressed.size(), all.data(), all.size(), l.file, /*allow_trailing=*/true);

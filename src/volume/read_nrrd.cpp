@@ -363,6 +363,7 @@ Volume read_nrrd(const std::string& path) {
   Volume v = std::move(layout.header);
   {
     std::vector<unsigned char> bytes;
+    detail::check_fits(path, layout.bytes);
     detail::resize_big(bytes, layout.bytes);
     v.bytes = std::move(bytes);
   }

@@ -189,6 +189,7 @@ Volume read_vti(const std::string& path) {
   v.type = *type;
   const std::size_t es = scalar_size(*type);
   const std::size_t bytes = checked_volume_bytes(dims, es, path);
+  detail::check_fits(path, bytes);
   const std::string format = arr.attrs["format"];
   std::size_t arr_close = text.find("</DataArray>", arr.end);
 
@@ -340,6 +341,7 @@ Volume read_legacy_vtk(const std::string& path) {
   v.type = *type;
   const std::size_t es = scalar_size(*type);
   const std::size_t bytes = checked_volume_bytes(dims, es, path);
+  detail::check_fits(path, bytes);
   if (binary) {
     auto data = detail::read_bytes(path, pos, bytes);
     v.bytes = std::move(data);
