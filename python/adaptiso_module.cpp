@@ -36,6 +36,7 @@
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_cubes.hpp"
+#include "adaptiso/memory.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/prepare_to_file.hpp"
@@ -740,6 +741,19 @@ Delaunay grid's reduction. verify: measure the error voxel by voxel. ValueError 
 prepare(volume, ...) and Grid.save(path) in one (the command line's `prepare`): the same file,
 written as it is made, so the grid and its index are never in memory at once. Returns the
 statistics (Grid.stats). ValueError on a bad option, OSError when the path cannot be written.)");
+
+  m.def(
+      "set_memory_limit",
+      [](double bytes) {
+        if (!(bytes >= 0 && bytes < 18446744073709551616.0)) throw py::value_error("set_memory_limit: bytes must be 0 or more");
+        set_memory_limit(static_cast<std::uint64_t>(bytes));
+      },
+      py::arg("bytes"),
+      "set_memory_limit(bytes)\n\nThe most memory this process may hold, in bytes (0: none but the machine's). Every stage "
+      "estimates what it will allocate before it starts; work that does not fit beside what the process holds raises "
+      "ValueError with the estimate, instead of ending in a MemoryError or the out-of-memory killer. Without a call, the "
+      "environment's ADAPTISO_MEMORY_LIMIT.");
+  m.def("memory_limit", &memory_limit, "memory_limit() -> int\n\nThe limit set_memory_limit set, in bytes (0: none).");
 
   m.def(
       "load",

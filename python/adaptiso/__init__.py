@@ -18,10 +18,12 @@ from ._core import (
     Volume,
     __version__,
     load,
+    memory_limit,
     prepare,
     prepare_file,
     read,
     reduce,
+    set_memory_limit,
     write_mesh,
 )
 from . import _core
@@ -57,10 +59,12 @@ __all__ = [
     "__version__",
     "load",
     "marching_cubes",
+    "memory_limit",
     "prepare",
     "prepare_file",
     "read",
     "reduce",
+    "set_memory_limit",
     "simplify",
     "write_mesh",
 ]

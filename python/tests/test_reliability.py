@@ -216,3 +216,29 @@ def test_a_nul_in_a_path_is_refused_not_truncated(tmp_path):
         with pytest.raises(ValueError, match="embedded null character"):
             call()
     assert os.listdir(tmp_path) == []
+
+
+def test_memory_limit_refuses_work_that_cannot_fit_with_the_estimate():
+    # Run apart: the limit is the process's, and a test must not leave it set for the others.
+    out = run_isolated(textwrap.dedent("""
+        import numpy as np, adaptiso
+        z, y, x = np.mgrid[0:64, 0:64, 0:64]
+        v = adaptiso.Volume(np.sqrt((x - 31.5) ** 2 + (y - 31.5) ** 2 + (z - 31.5) ** 2).astype(np.float32))
+        assert adaptiso.memory_limit() == 0
+        adaptiso.set_memory_limit(1_000_000)  # below what the interpreter itself holds
+        assert adaptiso.memory_limit() == 1_000_000
+        try:
+            adaptiso.prepare(v, max_error=0)
+            print("prepared")
+        except ValueError as e:
+            print("refused:", e)
+        adaptiso.set_memory_limit(0)
+        print("then:", adaptiso.prepare(v, max_error=0).tetrahedron_count > 0)
+        try:
+            adaptiso.set_memory_limit(-1)
+        except ValueError as e:
+            print("negative:", e)
+    """))
+    assert "refused:" in out and "needs about" in out and "the memory limit of 1 MB" in out, out
+    assert "then: True" in out, out
+    assert "negative: set_memory_limit: bytes must be 0 or more" in out, out
