@@ -3,8 +3,11 @@
 // kind of machine, so the bytes are the machine's own).
 #include "distributed.hpp"
 
+#include <fmt/format.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <bit>
 #include <chrono>
 #include <cstring>
@@ -12,6 +15,7 @@
 
 #include "adaptiso/bisection_bricks.hpp"
 #include "adaptiso/error.hpp"
+#include "adaptiso/memory.hpp"
 
 namespace adaptiso::cli {
 namespace {
@@ -99,6 +103,29 @@ std::vector<BrickErrors> unpack(std::span<const std::byte> bytes, std::uint64_t&
   return bricks;
 }
 
+// Refuses up front (--memory-limit, or the machine's free memory) what this rank's bricks would
+// hold: a code per owned voxel (two with the displacement criterion) until they are sent, and per
+// thread one brick at work: its region (at most 8 bytes a sample), codes and the hierarchy's
+// state (as bisection_errors counts it: 14 bytes per 8 voxels); from a stream, one slab of slices.
+void check_rank_memory(const Ranks& ranks, const BrickGrid& bricks, const std::vector<std::int64_t>& mine, bool slabs, bool displacement) {
+  if (mine.empty()) return;
+  const std::uint64_t per_code = displacement ? 2 : 1;
+  std::uint64_t owned = 0, brick = 0;
+  for (const std::int64_t n : mine) {
+    const VoxelBox o = bricks.owns(n), r = bricks.reads(n, displacement);
+    owned += static_cast<std::uint64_t>(o.dims()[0] * o.dims()[1] * o.dims()[2]);
+    brick = std::max(brick, static_cast<std::uint64_t>(r.dims()[0] * r.dims()[1] * r.dims()[2]));
+  }
+  const auto threads = static_cast<std::uint64_t>(std::min<std::size_t>(tbb::this_task_arena::max_concurrency(), mine.size()));
+  const std::uint64_t slab =
+      slabs ? static_cast<std::uint64_t>(bricks.side + 2) * static_cast<std::uint64_t>(bricks.dims[0] * bricks.dims[1]) * 8 : 0;
+  const std::uint64_t bytes = owned * per_code + threads * brick * (8 + per_code + 2) + slab;
+  require_memory(bytes,
+                 fmt::format("the error hierarchy of rank {}'s {} bricks of side {} ({} at a time{})", ranks.rank(), mine.size(),
+                             bricks.side, threads, slabs ? ", from a slab of the stream" : ""),
+                 "brick_side", "more ranks, or a smaller brick side");
+}
+
 // This rank's bricks (n ≡ rank mod size), in parallel on its threads. With `hold` (a compressed
 // stream read front to back), slab after slab of bricks: hold(z0, z1) is told the slices the next
 // slab reads before its bricks are read.
@@ -106,6 +133,7 @@ std::vector<BrickErrors> my_bricks(const Ranks& ranks, const BrickGrid& bricks, 
                                    const ValueRange& range, bool displacement) {
   std::vector<std::int64_t> mine;
   for (std::int64_t n = ranks.rank(); n < bricks.size(); n += ranks.size()) mine.push_back(n);
+  check_rank_memory(ranks, bricks, mine, hold != nullptr, displacement);
   std::vector<BrickErrors> out(mine.size());
   auto run = [&](std::size_t from, std::size_t to) {
     tbb::parallel_for(from, to, [&](std::size_t i) {

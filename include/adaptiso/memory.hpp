@@ -6,11 +6,16 @@
 // `ulimit -v`), and no more than the limit leaves beside what the process holds (resident).
 #pragma once
 #include <cstdint>
+#include <string>
 
 namespace adaptiso {
 
 // Bytes (0: none but the machine's). Without a call, the environment's ADAPTISO_MEMORY_LIMIT.
 void set_memory_limit(std::uint64_t bytes);
 std::uint64_t memory_limit();
+
+// Refuses `bytes` more than can be had now: OptionError(option, "<what> needs about X MB, Y MB are
+// available; <advice>"), InputError when option is empty (no setting of the work can help).
+void require_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice);
 
 }  // namespace adaptiso

@@ -88,7 +88,8 @@ namespace {
 // Three significant digits at most: an estimate from absurd counts must not print 20 of them.
 std::string bytes_text(std::uint64_t b) {
   const double x = static_cast<double>(b);
-  return x >= 1e9 ? fmt::format("{:.3g} GB", x / 1e9) : fmt::format("{:.0f} MB", x / 1e6);
+  if (x >= 1e9) return fmt::format("{:.3g} GB", x / 1e9);
+  return x >= 1e6 ? fmt::format("{:.0f} MB", x / 1e6) : fmt::format("{:.0f} kB", x / 1e3);
 }
 
 }  // namespace
@@ -116,4 +117,7 @@ void check_memory(std::uint64_t bytes, const std::string& what, const std::strin
 namespace adaptiso {
 void set_memory_limit(std::uint64_t bytes) { detail::set_memory_limit(bytes); }
 std::uint64_t memory_limit() { return detail::memory_limit(); }
+void require_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice) {
+  detail::check_memory(bytes, what, option, advice);
+}
 }  // namespace adaptiso

@@ -121,6 +121,20 @@ set -e
 [ "$(grep -c 'is flat' "$W/flat.out")" -eq 1 ] || { echo "FAIL: the flat volume's message is not told once"; cat "$W/flat.out"; exit 1; }
 echo "ok: an input error under mpirun is told once, exit 2"
 
+# A memory limit below what each rank's bricks need is refused before the bricks are read, told
+# once with the size needed; one they fit under gives the one-process file.
+set +e
+ranks 2 "$CLI" prepare "$W/ml.nrrd" --brick-side 8 --threads 1 --memory-limit 1M --quiet -o "$W/limited.adg" >"$W/limited.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: --memory-limit 1M under mpirun exited $code"; cat "$W/limited.out"; exit 1; }
+[ "$(grep -c "bricks of side 8 .*needs about .*the memory limit of 1 MB" "$W/limited.out")" -eq 1 ] ||
+  { echo "FAIL: the memory refusal is not told once with its size"; cat "$W/limited.out"; exit 1; }
+[ ! -e "$W/limited.adg" ] || { echo "FAIL: a refused run left a grid"; exit 1; }
+ranks 2 "$CLI" prepare "$W/ml.nrrd" --brick-side 8 --threads 1 --memory-limit 4G --quiet -o "$W/limited.adg"
+cmp "$W/ml-one.adg" "$W/limited.adg" || { echo "FAIL: a memory limit changed the grid"; exit 1; }
+echo "ok: --memory-limit under mpirun"
+
 # A rank killed mid-run: mpirun fails and no grid file appears under its name.
 "$CLI" generate sphere --size 160 --quiet -o "$W/big.nrrd"
 "$MPIEXEC" -np 2 "$CLI" prepare "$W/big.nrrd" --brick-side 16 --threads 1 --quiet -o "$W/killed.adg" >"$W/killed.out" 2>&1 &
