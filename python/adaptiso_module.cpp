@@ -753,7 +753,8 @@ statistics (Grid.stats). ValueError on a bad option, OSError when the path canno
       "estimates what it will allocate before it starts; work that does not fit beside what the process holds raises "
       "ValueError with the estimate, instead of ending in a MemoryError or the out-of-memory killer. Without a call, the "
       "environment's ADAPTISO_MEMORY_LIMIT.");
-  m.def("memory_limit", &memory_limit, "memory_limit() -> int\n\nThe limit in bytes: set_memory_limit's, else ADAPTISO_MEMORY_LIMIT's (0: none).");
+  m.def("memory_limit", &memory_limit,
+        "memory_limit() -> int\n\nThe limit in bytes: set_memory_limit's, else ADAPTISO_MEMORY_LIMIT's (0: none).");
 
   m.def(
       "load",
