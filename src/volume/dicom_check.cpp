@@ -194,6 +194,7 @@ std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool 
         std::all_of(r.b.begin() + static_cast<long>(std::min(at, r.b.size())), r.b.end(), [](unsigned char c) { return c == 0; })) {
       const std::size_t padding = r.b.size() - std::min(at, r.b.size());
       if (padding >= 4 && padding < 8) r.fail(fmt::format("{} zero bytes after the pixel data (a tag without its length)", padding), at);
+      if (padding > 0) top->padded_from = at;
       return r.b.size();
     }
   }

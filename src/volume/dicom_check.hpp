@@ -11,6 +11,9 @@ struct DicomSummary {
   std::uint64_t frames = 1, pixel_bytes = 0;
   bool has_pixels = false, encapsulated = false, has_intercept = false;
   std::optional<double> slope;  // RescaleSlope as GDCM reads it
+  // Where the data set ends when zero bytes pad the file after the pixel data (0: no padding).
+  // GDCM parses padding as empty elements, an exception each: 2.1 s for 2.5 MB of zeros.
+  std::uint64_t padded_from = 0;
 };
 
 // "DICM" after the 128-byte preamble: the file claims to be DICOM Part 10.

@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <map>
 #include <set>
+#include <sstream>
 
 #include "adaptiso/volume_io.hpp"
 #include "dicom_check.hpp"
@@ -75,10 +76,14 @@ Volume read_dicom_folder(const std::string& path) {
   // Every file is walked before GDCM reads it (GDCM aborts on some corrupt files). A file that
   // says it is DICOM must be whole; one that does not and fails the walk is not DICOM (a README).
   std::vector<std::string> files;
+  std::map<std::string, std::uint64_t> padded_from;
   for (const auto& f : candidates) {
     const bool claims = detail::has_dicom_magic(f);
     try {
-      if (detail::check_dicom_file(f).has_pixels) files.push_back(f);
+      const detail::DicomSummary summary = detail::check_dicom_file(f);
+      if (!summary.has_pixels) continue;
+      files.push_back(f);
+      if (summary.padded_from > 0) padded_from[f] = summary.padded_from;
     } catch (const InputError&) {
       if (claims || candidates.size() == 1) throw;
     }
@@ -135,7 +140,14 @@ Volume read_dicom_folder(const std::string& path) {
   std::int64_t frames_per_file = 1;
   for (std::size_t si = 0; si < slices.size(); ++si) {
     gdcm::ImageReader reader;
-    reader.SetFileName(slices[si].file.c_str());
+    std::istringstream unpadded;  // outlives Read()
+    if (auto p = padded_from.find(slices[si].file); p != padded_from.end()) {
+      const std::vector<unsigned char> head = detail::read_bytes(slices[si].file, 0, p->second);
+      unpadded.str(std::string(head.begin(), head.end()));
+      reader.SetStream(unpadded);
+    } else {
+      reader.SetFileName(slices[si].file.c_str());
+    }
     if (!reader.Read()) throw InputError(fmt::format("{}: cannot read the DICOM image", slices[si].file));
     const gdcm::Image& img = reader.GetImage();
     const gdcm::PixelFormat& pf = img.GetPixelFormat();
