@@ -53,9 +53,11 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
 // any thread between holds. Memory: the slices held, and zlib's state.
 //
 // Throws what read_volume throws for a file it cannot read; hold() throws InputError naming the
-// file and the slice when the stream is cut short or corrupt before it, std::invalid_argument for
-// slices outside the volume; read() std::invalid_argument for a box outside the slices held, and
-// InputError for a NaN or infinite float sample. Other files give nullopt (see open_regions).
+// file and the slice when the stream is cut short or corrupt before it, or, holding the last
+// slice, when the stream does not end with its check value (gzip's CRC-32) where read_volume would
+// refuse it; std::invalid_argument for slices outside the volume. read() throws
+// std::invalid_argument for a box outside the slices held, and InputError for a NaN or infinite
+// float sample. Other files give nullopt (see open_regions).
 class VolumeStream {
 public:
   VolumeStream(VolumeStream&&) noexcept;

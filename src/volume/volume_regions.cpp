@@ -146,6 +146,7 @@ struct VolumeStream::State {
   std::int64_t z0 = 0, z1 = -1;  // the slices held
   std::vector<unsigned char> held, in;
   std::uint64_t inflations = 0;
+  bool trailing = false;  // data after the samples is allowed (as read_volume allows it: NIfTI)
 
   ~State() {
     if (open) inflateEnd(&zs);
@@ -161,22 +162,51 @@ struct VolumeStream::State {
     ++inflations;
   }
 
+  // More compressed bytes for zlib, when it has used up those it had and the file has more. (zlib
+  // may still hold output and the trailer's bytes when it has taken every input byte.)
+  void feed(const std::string& what) {
+    if (zs.avail_in > 0 || read_to >= end) return;
+    const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(in.size(), end - read_to));
+    ssize_t got = -1;
+    while (got < 0) {
+      got = ::pread(fd, in.data(), want, static_cast<off_t>(read_to));
+      if (got < 0 && errno != EINTR) throw InputError(fmt::format("{}: cannot read before {}: {}", file, what, std::strerror(errno)));
+    }
+    if (got == 0) throw InputError(fmt::format("{}: the file ends before {} (truncated?)", file, what));
+    read_to += static_cast<std::uint64_t>(got);
+    zs.next_in = in.data(), zs.avail_in = static_cast<uInt>(got);
+  }
+
+  // zlib can go no further and the file has no more bytes for it.
+  void check_progress(int rc, const std::string& what) const {
+    if (rc == Z_BUF_ERROR && zs.avail_in == 0 && read_to >= end)
+      throw InputError(fmt::format("{}: the compressed stream is cut short before {}", file, what));
+  }
+
+  // After the last sample: the stream must end there, its check value (gzip's CRC-32 and length,
+  // zlib's Adler-32) verified by inflate, as read_volume verifies it; without this a corrupt
+  // stream whose samples still inflate would pass. More data than the samples is refused as
+  // read_volume refuses it, or inflated and dropped where it allows it (trailing).
+  void finish() {
+    unsigned char scratch[1 << 14];
+    for (int rc = Z_OK; rc != Z_STREAM_END;) {
+      const std::string what = "its trailer (the check value after the last sample)";
+      feed(what);
+      zs.next_out = scratch, zs.avail_out = sizeof scratch;
+      rc = inflate(&zs, Z_NO_FLUSH);
+      if (zs.avail_out != sizeof scratch && !trailing)
+        throw InputError(fmt::format("{}: compressed data holds more than the expected {} bytes", file, skip + slice * header.dims[2]));
+      check_progress(rc, what);
+      if (rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR)
+        throw InputError(fmt::format("{}: compressed data is corrupt after the last slice ({})", file, zs.msg ? zs.msg : "corrupt data"));
+    }
+  }
+
   // The next n inflated bytes into out (nullptr: dropped); `what` names them in errors.
   void pull(unsigned char* out, std::size_t n, const std::string& what) {
     unsigned char scratch[1 << 14];
     while (n > 0) {
-      if (zs.avail_in == 0) {
-        const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(in.size(), end - read_to));
-        if (want == 0) throw InputError(fmt::format("{}: the compressed stream is cut short before {}", file, what));
-        ssize_t got = -1;
-        while (got < 0) {
-          got = ::pread(fd, in.data(), want, static_cast<off_t>(read_to));
-          if (got < 0 && errno != EINTR) throw InputError(fmt::format("{}: cannot read before {}: {}", file, what, std::strerror(errno)));
-        }
-        if (got == 0) throw InputError(fmt::format("{}: the file ends before {} (truncated?)", file, what));
-        read_to += static_cast<std::uint64_t>(got);
-        zs.next_in = in.data(), zs.avail_in = static_cast<uInt>(got);
-      }
+      feed(what);
       const std::size_t step = std::min(n, out ? std::size_t{1} << 30 : sizeof scratch);
       zs.next_out = out ? out : scratch, zs.avail_out = static_cast<uInt>(step);
       const int rc = inflate(&zs, Z_NO_FLUSH);
@@ -184,6 +214,7 @@ struct VolumeStream::State {
       if (out) out += got;
       n -= got;
       if (rc == Z_STREAM_END && n > 0) throw InputError(fmt::format("{}: the compressed stream ends before {}", file, what));
+      check_progress(rc, what);
       if (rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR)
         throw InputError(fmt::format("{}: compressed data is corrupt before {} ({})", file, what, zs.msg ? zs.msg : "corrupt data"));
     }
@@ -219,6 +250,7 @@ void VolumeStream::hold(std::int64_t z0, std::int64_t z1) {
   for (; s.next <= z1; ++s.next) {
     if (s.next < have) continue;
     s.pull(s.held.data() + static_cast<std::size_t>(s.next - z0) * s.slice, s.slice, fmt::format("the end of slice {}", s.next));
+    if (s.next == s.header.dims[2] - 1) s.finish();
   }
   s.z0 = z0, s.z1 = z1, s.broken = false;
 }
@@ -251,6 +283,7 @@ std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptio
     s->file = l.file, s->skip = l.offset, s->swap = l.swap;
     s->end = detail::file_size_or_throw(l.file);
     s->scaling = take_scaling(s->header, l.scaling);
+    s->trailing = true;
   } else if (format == detail::VolumeFormat::metaimage) {
     detail::MetaImageLayout l = detail::metaimage_layout(path);
     if (!l.compressed || l.files.size() != 1) return std::nullopt;

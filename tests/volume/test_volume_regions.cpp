@@ -361,3 +361,36 @@ TEST(VolumeStream, ACutOrCorruptStreamNamesTheSlice) {
   EXPECT_THROW(c->hold(0, 10), std::invalid_argument);
   EXPECT_THROW(c->hold(3, 2), std::invalid_argument);
 }
+
+TEST(VolumeStream, AStreamWhoseCheckValueOrLengthIsWrongIsRefusedAtItsLastSliceAsReadVolumeRefusesIt) {
+  // The samples of these streams all inflate; only the end after them is wrong. Before, holding
+  // every slice never read the trailer, and a stream read_volume refuses gave samples.
+  TempDir t("stream");
+  const Volume ref = testutil::pattern_volume({8, 6, 5}, ScalarType::u16);
+  const std::string raw = testutil::bytes_of(ref), gz = testutil::compress(raw, true);
+  const std::string head = "NRRD0004\ntype: ushort\ndimension: 3\nsizes: 8 6 5\nendian: little\nencoding: gzip\ndata file: v.gz\n";
+  testutil::write_bytes(t / "v.nhdr", head);
+  std::string crc = gz, size = gz;
+  crc[gz.size() - 8] = static_cast<char>(crc[gz.size() - 8] ^ 1);  // gzip's trailer: CRC-32, then the length
+  size[gz.size() - 4] = static_cast<char>(size[gz.size() - 4] ^ 1);
+  const std::string cases[][2] = {
+      {"CRC", crc}, {"length", size}, {"trailer cut", gz.substr(0, gz.size() - 3)}, {"more samples", testutil::compress(raw + "xy", true)}};
+  for (const auto& [name, bytes] : cases) {
+    SCOPED_TRACE(name);
+    testutil::write_bytes(t / "v.gz", bytes);
+    EXPECT_THROW(read_volume(t / "v.nhdr"), InputError);
+    auto s = open_stream(t / "v.nhdr");
+    ASSERT_TRUE(s.has_value());
+    s->hold(0, 3);  // the slices before the last are whole
+    try {
+      s->hold(3, 4);
+      FAIL() << "the stream's end was not checked";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("v.gz"), std::string::npos) << e.what();
+    }
+  }
+  testutil::write_bytes(t / "v.gz", gz);  // whole: the same samples
+  auto s = open_stream(t / "v.nhdr");
+  s->hold(0, 4);
+  EXPECT_TRUE(s->read({{0, 0, 0}, {7, 5, 4}}).bytes == read_volume(t / "v.nhdr").bytes);
+}
