@@ -420,9 +420,10 @@ TEST(Cli, MemoryLimitBelowWhatTheWorkNeedsIsRefusedUpFrontWithTheSizeItNeeds) {
   }
   EXPECT_FALSE(std::filesystem::exists(t / "g.adg"));
   EXPECT_FALSE(std::filesystem::exists(t / "m.ply"));
-  // A limit the work fits under changes nothing: the same file as without one.
-  ASSERT_EQ(testutil::run_cli(fmt::format("prepare {} --memory-limit 4G --quiet -o {}", t / "b.nrrd", t / "g.adg")).code, 0);
-  ASSERT_EQ(testutil::run_cli(fmt::format("prepare {} --quiet -o {}", t / "b.nrrd", t / "h.adg")).code, 0);
+  // A limit the work fits under changes nothing: the same file as without one. (The small volume:
+  // preparing the large one twice was most of this test's time under the sanitizers.)
+  ASSERT_EQ(testutil::run_cli(fmt::format("prepare {} --memory-limit 4G --quiet -o {}", t / "s.nrrd", t / "g.adg")).code, 0);
+  ASSERT_EQ(testutil::run_cli(fmt::format("prepare {} --quiet -o {}", t / "s.nrrd", t / "h.adg")).code, 0);
   EXPECT_EQ(testutil::read_bytes(t / "g.adg"), testutil::read_bytes(t / "h.adg"));
 }
 
