@@ -31,7 +31,11 @@ constexpr std::int64_t kDefaultRankBrickSide = 128;
 struct RankReader {
   std::optional<VolumeRegions> regions;
   std::optional<VolumeStream> stream;
-  const char* route() const { return regions ? "regions" : stream ? "slabs of the stream" : "whole volume"; }
+  const char* route() const {
+    if (regions) return "regions";
+    if (stream) return stream->slice_files() ? "slabs of the slice files" : "slabs of the stream";
+    return "whole volume";
+  }
 };
 RankReader open_rank_reader(const VolumeInput& in) {
   RankReader r;

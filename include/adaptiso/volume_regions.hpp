@@ -1,7 +1,7 @@
 // adaptiso/volume_regions.hpp — boxes of voxels read straight from a volume file, so that a brick
 // of a volume can be read without the rest (issue 38: the MPI ranks other than rank 0 read only
 // their bricks): by seeking in uncompressed files (VolumeRegions), slab by slab from a compressed
-// stream (VolumeStream).
+// stream or from the slice files of a DICOM series (VolumeStream).
 //
 // open_regions() looks at a file as read_volume() would and, when its samples lie in it as one
 // uncompressed run of bytes — raw samples (RawOptions), NRRD with raw encoding in one data file
@@ -10,7 +10,7 @@
 // returns a reader of boxes. read(box) gives the box's samples exactly as read_volume(path) holds
 // them (the same bytes, x fastest), with the volume's spacing and direction and the origin at the
 // box's first voxel, reading only the box's rows. Other files (compressed, text-encoded, one file
-// per slice, DICOM, VTK) give nullopt: read them whole.
+// per slice, DICOM, VTK) give nullopt: read them whole (or, compressed or DICOM, by open_stream).
 //
 // Units: voxel index space for boxes. Throws what read_volume throws for a file it cannot read
 // (InputError or OptionError, one line naming the file); read() throws InputError naming the box
@@ -46,9 +46,10 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
 
 // Slabs of whole slices of a volume whose samples are one compressed stream — NRRD with gzip
 // encoding in one data file (any byte skip ≥ 0, no line skip), .nii.gz (or .hdr with .img.gz),
-// MetaImage with CompressedData in one file — inflated once, front to back, never whole.
-// hold(z0, z1) keeps slices z0..z1 inflated (dropping those before z0; a z0 before the slices held
-// inflates the stream again from its start); read(box) gives a box within the slices held exactly
+// MetaImage with CompressedData in one file — inflated once, front to back, never whole; or a
+// DICOM series of one slice per file, whose files are read as their slices are held (a multi-frame
+// file is not a stream: read it whole). hold(z0, z1) keeps slices z0..z1 (dropping the others; in a
+// stream, a z0 before the slices held inflates it again from its start); read(box) gives a box within the slices held exactly
 // as read_volume(path) holds it (the same bytes, scaling and origin as VolumeRegions::read), from
 // any thread between holds. Memory: the slices held, and zlib's state.
 //
@@ -67,6 +68,7 @@ public:
   void hold(std::int64_t z0, std::int64_t z1);
   Volume read(const VoxelBox& box) const;
   std::uint64_t inflations() const;  // how many times the stream was inflated from its start
+  bool slice_files() const;          // a DICOM series: its slices are read from their files
 
   struct State;
 

@@ -211,9 +211,9 @@ bool has_dicom_magic(const std::string& file) {
   return std::memcmp(head.data(), "DICM", 4) == 0;
 }
 
-DicomSummary check_dicom_file(const std::string& file) {
-  const std::uint64_t size = file_size_or_throw(file);
-  const auto bytes = read_bytes(file, 0, size);
+DicomSummary check_dicom_file(const std::string& file) { return check_dicom_bytes(read_bytes(file, 0, file_size_or_throw(file)), file); }
+
+DicomSummary check_dicom_bytes(const std::vector<unsigned char>& bytes, const std::string& file) {
   Reader r{bytes, file};
   std::size_t at = 0;
   std::string syntax = "1.2.840.10008.1.2";  // implicit VR little endian: files without a meta group

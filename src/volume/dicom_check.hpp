@@ -3,6 +3,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 namespace adaptiso::detail {
 
@@ -23,5 +24,7 @@ bool has_dicom_magic(const std::string& file);
 // file when a length runs past its end, nesting is absurd, or the image the header describes is
 // larger than its pixel data can hold. A file without pixel data (DICOMDIR) has has_pixels false.
 DicomSummary check_dicom_file(const std::string& file);
+// The same for a file's bytes already read.
+DicomSummary check_dicom_bytes(const std::vector<unsigned char>& bytes, const std::string& file);
 
 }  // namespace adaptiso::detail

@@ -3,7 +3,9 @@
 // ImagePositionPatient projected on the slice normal, and the slice spacing is taken from those
 // positions, not from SliceThickness. Rescale slope/intercept are applied per slice.
 #include <gdcmDirectory.h>
+#include <gdcmImageHelper.h>
 #include <gdcmImageReader.h>
+#include <gdcmReader.h>
 #include <gdcmScanner.h>
 #include <gdcmTag.h>
 #include <gdcmTrace.h>
@@ -11,6 +13,7 @@
 #include <fmt/format.h>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <set>
@@ -18,6 +21,7 @@
 
 #include "adaptiso/volume_io.hpp"
 #include "dicom_check.hpp"
+#include "dicom_series.hpp"
 #include "io_util.hpp"
 
 namespace adaptiso {
@@ -54,9 +58,14 @@ struct Slice {
   std::array<double, 3> ipp{};
 };
 
-}  // namespace
+// The files of the one series at path, in order along the slice normal, and their orientation.
+struct Scan {
+  std::vector<Slice> slices;
+  std::array<double, 6> iop{1, 0, 0, 0, 1, 0};
+  std::array<double, 3> nrm{0, 0, 1};
+};
 
-Volume read_dicom_folder(const std::string& path) {
+Scan scan_series(const std::string& path) {
   // GDCM prints a line per tolerated quirk or error; adaptiso's one-line messages say what matters.
   gdcm::Trace::WarningOff();
   gdcm::Trace::DebugOff();
@@ -76,14 +85,10 @@ Volume read_dicom_folder(const std::string& path) {
   // Every file is walked before GDCM reads it (GDCM aborts on some corrupt files). A file that
   // says it is DICOM must be whole; one that does not and fails the walk is not DICOM (a README).
   std::vector<std::string> files;
-  std::map<std::string, std::uint64_t> padded_from;
   for (const auto& f : candidates) {
     const bool claims = detail::has_dicom_magic(f);
     try {
-      const detail::DicomSummary summary = detail::check_dicom_file(f);
-      if (!summary.has_pixels) continue;
-      files.push_back(f);
-      if (summary.padded_from > 0) padded_from[f] = summary.padded_from;
+      if (detail::check_dicom_file(f).has_pixels) files.push_back(f);
     } catch (const InputError&) {
       if (claims || candidates.size() == 1) throw;
     }
@@ -109,15 +114,15 @@ Volume read_dicom_folder(const std::string& path) {
   auto& sfiles = series.begin()->second;
 
   // Orientation from the first file; slice normal = row × column direction.
-  std::array<double, 6> iop{1, 0, 0, 0, 1, 0};
+  Scan scan;
+  auto& iop = scan.iop;
   if (const char* s = scanner.GetValue(sfiles[0].c_str(), t_iop)) {
     std::string str(s);
     std::replace(str.begin(), str.end(), '\\', ' ');
     auto n = parse_number_list(str, -1, sfiles[0] + ": ImageOrientationPatient");
     if (n.size() == 6) std::copy(n.begin(), n.end(), iop.begin());
   }
-  std::array<double, 3> nrm{iop[1] * iop[5] - iop[2] * iop[4], iop[2] * iop[3] - iop[0] * iop[5], iop[0] * iop[4] - iop[1] * iop[3]};
-  std::vector<Slice> slices;
+  scan.nrm = {iop[1] * iop[5] - iop[2] * iop[4], iop[2] * iop[3] - iop[0] * iop[5], iop[0] * iop[4] - iop[1] * iop[3]};
   for (const auto& f : sfiles) {
     Slice s{f, 0, {0, 0, 0}};
     if (const char* p = scanner.GetValue(f.c_str(), t_ipp)) {
@@ -126,64 +131,74 @@ Volume read_dicom_folder(const std::string& path) {
       auto n = parse_number_list(str, -1, f + ": ImagePositionPatient");
       if (n.size() == 3) s.ipp = {n[0], n[1], n[2]};
     }
-    s.key = s.ipp[0] * nrm[0] + s.ipp[1] * nrm[1] + s.ipp[2] * nrm[2];
-    slices.push_back(s);
+    s.key = s.ipp[0] * scan.nrm[0] + s.ipp[1] * scan.nrm[1] + s.ipp[2] * scan.nrm[2];
+    scan.slices.push_back(s);
   }
+  auto& slices = scan.slices;
   std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.key < b.key; });
   for (std::size_t i = 1; i < slices.size(); ++i)
     if (std::abs(slices[i].key - slices[i - 1].key) < 1e-6)
       throw InputError(fmt::format("{}: {} and {} have the same slice position", path, slices[i - 1].file, slices[i].file));
+  return scan;
+}
 
-  Volume v;
-  std::vector<double> slope(slices.size(), 1.0), inter(slices.size(), 0.0);
-  std::vector<unsigned char> buf;
-  std::int64_t frames_per_file = 1;
-  for (std::size_t si = 0; si < slices.size(); ++si) {
-    gdcm::ImageReader reader;
-    std::istringstream unpadded;  // outlives Read()
-    if (auto p = padded_from.find(slices[si].file); p != padded_from.end()) {
-      const std::vector<unsigned char> head = detail::read_bytes(slices[si].file, 0, p->second);
-      unpadded.str(std::string(head.begin(), head.end()));
-      reader.SetStream(unpadded);
-    } else {
-      reader.SetFileName(slices[si].file.c_str());
-    }
-    if (!reader.Read()) throw InputError(fmt::format("{}: cannot read the DICOM image", slices[si].file));
-    const gdcm::Image& img = reader.GetImage();
-    const gdcm::PixelFormat& pf = img.GetPixelFormat();
+// One file's image, read once and walked again before GDCM reads it from memory (it may have
+// changed since the series was scanned: GDCM aborts on some corrupt files), and only as far as its
+// data set goes: zero padding after the pixel data would be parsed as empty elements, an exception
+// each (2.1 s for 2.5 MB of zeros).
+class SliceImage {
+public:
+  explicit SliceImage(const std::string& file) : file_(file) {
+    const std::vector<unsigned char> bytes = detail::read_bytes(file, 0, detail::file_size_or_throw(file));
+    const detail::DicomSummary summary = detail::check_dicom_bytes(bytes, file);
+    if (!summary.has_pixels) throw InputError(fmt::format("{}: holds no DICOM image", file));
+    const std::size_t end = summary.padded_from > 0 ? static_cast<std::size_t>(summary.padded_from) : bytes.size();
+    data_.str(std::string(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(end)));
+    reader_.SetStream(data_);
+    if (!reader_.Read()) throw InputError(fmt::format("{}: cannot read the DICOM image", file));
+    const gdcm::PixelFormat& pf = image().GetPixelFormat();
     if (pf.GetSamplesPerPixel() != 1)
-      throw InputError(fmt::format("{}: {} samples per pixel; adaptiso reads grey-scale images", slices[si].file, pf.GetSamplesPerPixel()));
-    auto type = gdcm_type(pf);
-    if (!type) throw InputError(fmt::format("{}: pixel type {} is not supported", slices[si].file, pf.GetScalarTypeAsString()));
-    std::int64_t cols = img.GetDimension(0), rows = img.GetDimension(1);
-    std::int64_t frames = img.GetNumberOfDimensions() > 2 ? img.GetDimension(2) : 1;
-    if (si == 0) {
-      if (frames > 1 && slices.size() > 1) throw InputError(fmt::format("{}: mixes a multi-frame file with other slices", path));
-      frames_per_file = frames;
-      v.dims = {cols, rows, static_cast<std::int64_t>(slices.size()) * frames};
-      v.type = *type;
-      const std::size_t bytes = checked_volume_bytes(v.dims, scalar_size(v.type), path);
-      detail::check_fits(path, bytes);
-      v.bytes.resize(bytes);
-      const double* sp = img.GetSpacing();
-      v.spacing = {sp[0], sp[1], frames > 1 ? sp[2] : 1.0};
-    } else if (cols != v.dims[0] || rows != v.dims[1] || *type != v.type) {
-      throw InputError(fmt::format("{}: slice is {}x{} {}, the series' first is {}x{} {}", slices[si].file, cols, rows, scalar_name(*type),
-                                   v.dims[0], v.dims[1], scalar_name(v.type)));
-    }
-    const std::size_t slice_bytes = static_cast<std::size_t>(cols * rows * frames) * scalar_size(v.type);
-    if (img.GetBufferLength() != slice_bytes)
-      throw InputError(fmt::format("{}: pixel data holds {} bytes, expected {}", slices[si].file, img.GetBufferLength(), slice_bytes));
-    if (!img.GetBuffer(reinterpret_cast<char*>(v.bytes.data() + si * slice_bytes)))
-      throw InputError(fmt::format("{}: cannot decode the pixel data", slices[si].file));
-    slope[si] = img.GetSlope();
-    inter[si] = img.GetIntercept();
+      throw InputError(fmt::format("{}: {} samples per pixel; adaptiso reads grey-scale images", file, pf.GetSamplesPerPixel()));
+    const auto t = gdcm_type(pf);
+    if (!t) throw InputError(fmt::format("{}: pixel type {} is not supported", file, pf.GetScalarTypeAsString()));
+    type = *t;
+    cols = image().GetDimension(0), rows = image().GetDimension(1);
+    frames = image().GetNumberOfDimensions() > 2 ? image().GetDimension(2) : 1;
   }
-  // Geometry: x along the row direction, y along the column direction, z along the normal.
+  const gdcm::Image& image() const { return reader_.GetImage(); }
+
+  // Refuses an image that is not `cols`×`rows` of `type`, as the series' first one is.
+  void check_like(std::int64_t c, std::int64_t r, ScalarType t) const {
+    if (cols != c || rows != r || type != t)
+      throw InputError(
+          fmt::format("{}: slice is {}x{} {}, the series' first is {}x{} {}", file_, cols, rows, scalar_name(type), c, r, scalar_name(t)));
+  }
+  void copy_pixels(unsigned char* out) const {
+    const std::size_t bytes = static_cast<std::size_t>(cols * rows * frames) * scalar_size(type);
+    if (image().GetBufferLength() != bytes)
+      throw InputError(fmt::format("{}: pixel data holds {} bytes, expected {}", file_, image().GetBufferLength(), bytes));
+    if (!image().GetBuffer(reinterpret_cast<char*>(out))) throw InputError(fmt::format("{}: cannot decode the pixel data", file_));
+  }
+
+  ScalarType type = ScalarType::u8;
+  std::int64_t cols = 0, rows = 0, frames = 1;
+
+private:
+  std::string file_;
+  std::istringstream data_;  // outlives Read()
+  gdcm::ImageReader reader_;
+};
+
+// Geometry: x along the row direction, y along the column direction, z along the normal, the
+// slice spacing from the slices' positions (`frame_spacing` for one file's frames).
+void set_geometry(Volume& v, const Scan& scan, const double* pixel_spacing, double frame_spacing, const std::string& path) {
+  namespace fs = std::filesystem;
+  const auto& slices = scan.slices;
+  v.spacing = {pixel_spacing[0], pixel_spacing[1], frame_spacing};
   for (int c = 0; c < 3; ++c) {
-    v.direction[3 * c + 0] = iop[c];
-    v.direction[3 * c + 1] = iop[3 + c];
-    v.direction[3 * c + 2] = nrm[c];
+    v.direction[3 * c + 0] = scan.iop[c];
+    v.direction[3 * c + 1] = scan.iop[3 + c];
+    v.direction[3 * c + 2] = scan.nrm[c];
   }
   v.origin = slices[0].ipp;
   if (slices.size() > 1) {
@@ -197,24 +212,127 @@ Volume read_dicom_folder(const std::string& path) {
     }
     v.spacing[2] = mean;
   }
-  (void)frames_per_file;
   for (int a = 0; a < 3; ++a)
     if (!(v.spacing[a] > 0) || !std::isfinite(v.spacing[a])) v.spacing[a] = 1.0;
-  check_finite(v, path);
+}
 
-  bool rescale = false;
-  for (std::size_t i = 0; i < slices.size(); ++i) rescale |= slope[i] != 1.0 || inter[i] != 0.0;
-  if (rescale) {
-    bool wide = v.type == ScalarType::u32 || v.type == ScalarType::i32 || v.type == ScalarType::f64;
-    Volume out = make_volume(v.dims, wide ? ScalarType::f64 : ScalarType::f32);
-    const std::int64_t per = v.dims[0] * v.dims[1] * frames_per_file;
-    for (std::int64_t i = 0; i < v.voxel_count(); ++i) {
-      std::size_t s = static_cast<std::size_t>(i / per);
-      out.set(i, v.at(i) * slope[s] + inter[s]);
+// Rescaled samples are float32, float64 for types float32 cannot hold exactly.
+ScalarType rescaled_type(ScalarType stored) {
+  return stored == ScalarType::u32 || stored == ScalarType::i32 || stored == ScalarType::f64 ? ScalarType::f64 : ScalarType::f32;
+}
+
+// `stored` (frames of `per` samples) as s × slope + inter of the frame's slice, into out (float32
+// or float64, rescaled_type's; rounded as Volume::set rounds).
+void rescale(const Volume& stored, const double* slope, const double* inter, std::int64_t per, ScalarType type, unsigned char* out) {
+  auto to = [&]<class T>(T* o) {
+    for (std::int64_t i = 0; i < stored.voxel_count(); ++i) {
+      const std::size_t s = static_cast<std::size_t>(i / per);
+      o[i] = static_cast<T>(stored.at(i) * slope[s] + inter[s]);
     }
-    v.bytes.swap(out.bytes);
-    v.type = out.type;
+  };
+  if (type == ScalarType::f64) return to(reinterpret_cast<double*>(out));
+  to(reinterpret_cast<float*>(out));
+}
+
+// A multi-frame file, read whole.
+Volume read_frames(const Scan& scan, const SliceImage& img, const std::string& path) {
+  Volume v;
+  v.dims = {img.cols, img.rows, img.frames};
+  v.type = img.type;
+  const std::size_t bytes = checked_volume_bytes(v.dims, scalar_size(v.type), path);
+  detail::check_fits(path, bytes);
+  v.bytes.resize(bytes);
+  img.copy_pixels(v.bytes.data());
+  set_geometry(v, scan, img.image().GetSpacing(), img.image().GetSpacing()[2], path);
+  check_finite(v, path);
+  const double slope = img.image().GetSlope(), inter = img.image().GetIntercept();
+  if (slope == 1.0 && inter == 0.0) return v;
+  Volume out = make_volume(v.dims, rescaled_type(v.type));
+  rescale(v, &slope, &inter, v.voxel_count(), out.type, out.bytes.data());
+  out.spacing = v.spacing, out.origin = v.origin, out.direction = v.direction;
+  return out;
+}
+
+std::optional<detail::DicomSeries> series_of(const Scan& scan, const SliceImage& first, const std::string& path) {
+  if (first.frames > 1) {
+    if (scan.slices.size() > 1) throw InputError(fmt::format("{}: mixes a multi-frame file with other slices", path));
+    return std::nullopt;
   }
+  detail::DicomSeries s;
+  s.path = path;
+  s.stored = first.type;
+  s.header.dims = {first.cols, first.rows, static_cast<std::int64_t>(scan.slices.size())};
+  s.header.type = first.type;
+  set_geometry(s.header, scan, first.image().GetSpacing(), 1.0, path);
+  // Each file's rescale as GDCM's ImageReader sets it (ImageHelper on the file's data set), from
+  // its header alone: whether the series is rescaled decides its type before any slab is read.
+  const gdcm::Tag pixel_data(0x7fe0, 0x0010);
+  for (const Slice& slice : scan.slices) {
+    detail::DicomSeries::File f{slice.file};
+    gdcm::Reader header;
+    header.SetFileName(slice.file.c_str());
+    if (!header.ReadUpToTag(pixel_data, {})) throw InputError(fmt::format("{}: cannot read the DICOM header", slice.file));
+    const std::vector<double> is = gdcm::ImageHelper::GetRescaleInterceptSlopeValue(header.GetFile());
+    f.inter = is.at(0), f.slope = is.at(1);
+    s.rescale |= f.slope != 1.0 || f.inter != 0.0;
+    s.files.push_back(std::move(f));
+  }
+  if (s.rescale) s.header.type = rescaled_type(s.stored);
+  return s;
+}
+
+}  // namespace
+
+namespace detail {
+
+std::optional<DicomSeries> open_dicom_series(const std::string& path) {
+  const Scan scan = scan_series(path);
+  const SliceImage first(scan.slices[0].file);
+  return series_of(scan, first, path);
+}
+
+void read_dicom_slices(const DicomSeries& series, std::int64_t z0, std::int64_t z1, unsigned char* out) {
+  const Dims& d = series.header.dims;
+  if (z0 < 0 || z1 >= d[2] || z0 > z1)
+    throw std::invalid_argument(fmt::format("read_dicom_slices: slices {}..{} are not inside the series' {}", z0, z1, d[2]));
+  // Stored samples go straight to out, or, rescaled, to a slab of their own first.
+  const std::size_t slice_bytes = static_cast<std::size_t>(d[0] * d[1]) * scalar_size(series.stored);
+  const std::size_t n = static_cast<std::size_t>(z1 - z0 + 1);
+  std::vector<unsigned char> staging(series.rescale ? n * slice_bytes : 0);
+  unsigned char* to = series.rescale ? staging.data() : out;
+  std::vector<double> slope, inter;
+  for (std::int64_t z = z0; z <= z1; ++z) {
+    const DicomSeries::File& f = series.files[static_cast<std::size_t>(z)];
+    const SliceImage img(f.name);
+    img.check_like(d[0], d[1], series.stored);
+    if (img.frames != 1) throw InputError(fmt::format("{}: mixes a multi-frame file with other slices", series.path));
+    img.copy_pixels(to + static_cast<std::size_t>(z - z0) * slice_bytes);
+    // The header's rescale decided the series' type; GDCM gives the image the same (a guard).
+    if (img.image().GetSlope() != f.slope || img.image().GetIntercept() != f.inter)
+      throw InputError(fmt::format("{}: its image's rescale ({} × s + {}) is not its header's ({} × s + {})", f.name,
+                                   img.image().GetSlope(), img.image().GetIntercept(), f.slope, f.inter));
+    slope.push_back(f.slope), inter.push_back(f.inter);
+  }
+  Volume stored;
+  stored.dims = {d[0], d[1], z1 - z0 + 1};
+  stored.type = series.stored;
+  stored.bytes = VoxelBuffer::view(to, n * slice_bytes, nullptr);
+  check_finite(stored, series.path);
+  if (series.rescale) rescale(stored, slope.data(), inter.data(), d[0] * d[1], series.header.type, out);
+}
+
+}  // namespace detail
+
+Volume read_dicom_folder(const std::string& path) {
+  const Scan scan = scan_series(path);
+  const SliceImage first(scan.slices[0].file);
+  const std::optional<detail::DicomSeries> series = series_of(scan, first, path);
+  if (!series) return read_frames(scan, first, path);
+  Volume v = series->header;
+  const std::size_t bytes = checked_volume_bytes(v.dims, scalar_size(v.type), path);
+  detail::check_fits(path, bytes);
+  v.bytes.resize(bytes);
+  detail::read_dicom_slices(*series, 0, v.dims[2] - 1, v.bytes.data());
   return v;
 }
 

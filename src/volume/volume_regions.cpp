@@ -11,6 +11,7 @@
 #include <cstring>
 #include <stdexcept>
 
+#include "dicom_series.hpp"
 #include "io_util.hpp"
 #include "layout.hpp"
 
@@ -146,7 +147,25 @@ struct VolumeStream::State {
   std::int64_t z0 = 0, z1 = -1;  // the slices held
   std::vector<unsigned char> held, in;
   std::uint64_t inflations = 0;
-  bool trailing = false;  // data after the samples is allowed (as read_volume allows it: NIfTI)
+  bool trailing = false;                     // data after the samples is allowed (as read_volume allows it: NIfTI)
+  std::optional<detail::DicomSeries> dicom;  // slices read from their files instead of a stream
+
+  // A DICOM series: the slices held that are asked for again are kept, the others read from
+  // their files, in any order. Nothing changes when a file fails.
+  void hold_files(std::int64_t lo, std::int64_t hi) {
+    std::vector<unsigned char> next_held(static_cast<std::size_t>(hi - lo + 1) * slice);
+    std::int64_t keep_lo = std::max(lo, z0), keep_hi = std::min(hi, z1);
+    if (keep_lo <= keep_hi)
+      std::memcpy(next_held.data() + static_cast<std::size_t>(keep_lo - lo) * slice,
+                  held.data() + static_cast<std::size_t>(keep_lo - z0) * slice, static_cast<std::size_t>(keep_hi - keep_lo + 1) * slice);
+    else
+      keep_lo = hi + 1, keep_hi = hi;
+    if (lo < keep_lo) detail::read_dicom_slices(*dicom, lo, keep_lo - 1, next_held.data());
+    if (keep_hi < hi)
+      detail::read_dicom_slices(*dicom, keep_hi + 1, hi, next_held.data() + static_cast<std::size_t>(keep_hi + 1 - lo) * slice);
+    held.swap(next_held);
+    z0 = lo, z1 = hi;
+  }
 
   ~State() {
     if (open) inflateEnd(&zs);
@@ -227,12 +246,14 @@ VolumeStream& VolumeStream::operator=(VolumeStream&&) noexcept = default;
 VolumeStream::~VolumeStream() = default;
 const Volume& VolumeStream::header() const { return s_->header; }
 std::uint64_t VolumeStream::inflations() const { return s_->inflations; }
+bool VolumeStream::slice_files() const { return s_->dicom.has_value(); }
 
 void VolumeStream::hold(std::int64_t z0, std::int64_t z1) {
   State& s = *s_;
   if (z0 < 0 || z1 >= s.header.dims[2] || z0 > z1)
     throw std::invalid_argument(fmt::format("VolumeStream::hold: slices {}..{} are not inside the volume's {}", z0, z1, s.header.dims[2]));
   if (z0 >= s.z0 && z1 <= s.z1) return;
+  if (s.dicom) return s.hold_files(z0, z1);
   if (!s.open || s.broken || z0 < s.z0) s.restart();  // the slices before z0 are gone
   // Keep the held slices from z0 on (moved to the front, in place: one slab's memory, not two),
   // inflate the rest up to z1.
@@ -296,6 +317,14 @@ std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptio
     s->file = l.files[0], s->skip = static_cast<std::uint64_t>(l.byte_skip), s->swap = l.swap;
     s->end = detail::file_size_or_throw(l.files[0]);
     s->first = l.attached ? std::min(l.data_offset, s->end) : 0;
+  } else if (format == detail::VolumeFormat::dicom) {
+    s->dicom = detail::open_dicom_series(path);
+    if (!s->dicom) return std::nullopt;  // a multi-frame file: read whole
+    s->header = s->dicom->header;
+    s->file = path;
+    check_geometry(s->header.dims, s->header.spacing, s->header.origin, s->header.direction, path);
+    s->slice = static_cast<std::size_t>(s->header.dims[0] * s->header.dims[1]) * scalar_size(s->header.type);
+    return VolumeStream(std::move(s));
   } else {
     return std::nullopt;
   }

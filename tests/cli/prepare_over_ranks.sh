@@ -92,6 +92,40 @@ for np in 3 4; do
 done
 echo "ok: the gzip file over 3 and 4 ranks, bricks of 2"
 
+# A DICOM series (11×7 uint16, 9 slices rescaled slice by slice, files named against their order):
+# the other ranks read only the slice files of their slabs.
+mkdir -p "$W/series"
+/usr/bin/env python3 -c "
+import struct, sys
+def el(g, e, vr, v):
+    v += b'\0' * (len(v) % 2)
+    size = b'\0\0' + struct.pack('<I', len(v)) if vr in (b'OB', b'OW') else struct.pack('<H', len(v))
+    return struct.pack('<HH', g, e) + vr + size + v
+us = lambda x: struct.pack('<H', x)
+meta = el(2, 1, b'OB', b'\0\1') + el(2, 2, b'UI', b'1.2.840.10008.5.1.4.1.1.4') + el(2, 3, b'UI', b'1.2.3.4') + el(2, 0x10, b'UI', b'1.2.840.10008.1.2.1')
+x = 777
+for z in range(9):
+    px = b''
+    for _ in range(77):
+        x = (1103515245 * x + 12345) % 2**31
+        px += us(x >> 20)
+    ds = (el(0x20, 0xE, b'UI', b'1.2.3.5') + el(0x20, 0x32, b'DS', b'0\\\\0\\\\%g' % (1.25 * z)) + el(0x20, 0x37, b'DS', b'1\\\\0\\\\0\\\\0\\\\1\\\\0')
+          + el(0x28, 2, b'US', us(1)) + el(0x28, 4, b'CS', b'MONOCHROME2') + el(0x28, 0x10, b'US', us(7)) + el(0x28, 0x11, b'US', us(11))
+          + el(0x28, 0x30, b'DS', b'0.5\\\\0.75') + el(0x28, 0x100, b'US', us(16)) + el(0x28, 0x101, b'US', us(12)) + el(0x28, 0x102, b'US', us(11))
+          + el(0x28, 0x103, b'US', us(0)) + el(0x28, 0x1052, b'DS', b'%d' % (z % 3 - 1)) + el(0x28, 0x1053, b'DS', b'2' if z % 2 else b'1')
+          + el(0x7fe0, 0x10, b'OW', px))
+    open(f'{sys.argv[1]}/f{8 - z}.dcm', 'wb').write(b'\0' * 128 + b'DICM' + el(2, 0, b'UL', struct.pack('<I', len(meta))) + meta + ds)" "$W/series"
+"$CLI" prepare "$W/series" --quiet -o "$W/series-one.adg"
+for np in 2 3; do
+  ranks $np "$CLI" prepare "$W/series" --brick-side 2 --threads 1 --json -o "$W/series-np$np.adg" >"$W/series.json"
+  cmp "$W/series-one.adg" "$W/series-np$np.adg" || { echo "FAIL: the DICOM series over $np ranks differs"; exit 1; }
+done
+/usr/bin/env python3 -c "
+import json, sys
+read = json.load(open(sys.argv[1]))['bricks']['ranks_read']
+assert read == 'slabs of the slice files', read" "$W/series.json"
+echo "ok: a DICOM series over 2 and 3 ranks, the other ranks reading the slice files of their slabs"
+
 # --json tells what the ranks did.
 ranks 2 "$CLI" prepare "$W/ml.nrrd" --brick-side 8 --json -o "$W/j.adg" >"$W/j.json"
 /usr/bin/env python3 -c "

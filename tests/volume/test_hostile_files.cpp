@@ -16,6 +16,7 @@
 #include "adaptiso/volume_io.hpp"
 #include "test_util.hpp"
 #include "volume/dicom_check.hpp"
+#include "volume/dicom_writer.hpp"
 #include "volume/nifti_writer.hpp"
 
 using namespace adaptiso;
@@ -32,7 +33,9 @@ void expect_refused(const std::string& path, const std::string& name, const std:
     const std::string m = e.what();
     EXPECT_NE(m.find(name), std::string::npos) << m;
     EXPECT_EQ(m.find('\n'), std::string::npos) << m;
-    if (!fragment.empty()) EXPECT_NE(m.find(fragment), std::string::npos) << m;
+    if (!fragment.empty()) {
+      EXPECT_NE(m.find(fragment), std::string::npos) << m;
+    }
   }
 }
 
@@ -292,32 +295,12 @@ TEST(HostileSpecialFiles, FifoAsVolumeDataFileGridOrMeshIsRefused) {
 // ---------------- Found by the fuzz targets (fuzz/, scripts/fuzz.sh) ----------------
 
 namespace {
-// A minimal DICOM Part 10 file (explicit VR little endian): one 8×8 uint16 slice, with the
-// rescale elements given (empty: left out).
+// A minimal DICOM Part 10 file: one 8×8 uint16 slice, with the rescale elements given (empty: left
+// out).
 std::string minimal_dicom(const std::string& intercept, const std::string& slope) {
-  auto el = [](std::uint16_t g, std::uint16_t e, const char* vr, std::string v) {
-    if (v.size() % 2) v += '\0';
-    std::string out(reinterpret_cast<const char*>(&g), 2);
-    out.append(reinterpret_cast<const char*>(&e), 2);
-    out += vr;
-    if (std::string(vr) == "OW" || std::string(vr) == "OB") {
-      out += std::string(2, '\0') + testutil::u32(static_cast<std::uint32_t>(v.size()));
-    } else {
-      const auto n = static_cast<std::uint16_t>(v.size());
-      out.append(reinterpret_cast<const char*>(&n), 2);
-    }
-    return out + v;
-  };
-  auto us = [](std::uint16_t x) { return std::string(reinterpret_cast<const char*>(&x), 2); };
-  const std::string meta_body = el(2, 1, "OB", std::string("\0\1", 2)) + el(2, 2, "UI", "1.2.840.10008.5.1.4.1.1.4") +
-                                el(2, 3, "UI", "1.2.3.4") + el(2, 0x10, "UI", "1.2.840.10008.1.2.1");
-  std::string ds = el(0x20, 0xE, "UI", "1.2.3.5") + el(0x28, 2, "US", us(1)) + el(0x28, 4, "CS", "MONOCHROME2") +
-                   el(0x28, 0x10, "US", us(8)) + el(0x28, 0x11, "US", us(8)) + el(0x28, 0x100, "US", us(16)) +
-                   el(0x28, 0x101, "US", us(12)) + el(0x28, 0x102, "US", us(11)) + el(0x28, 0x103, "US", us(0));
-  if (!intercept.empty()) ds += el(0x28, 0x1052, "DS", intercept);
-  if (!slope.empty()) ds += el(0x28, 0x1053, "DS", slope);
-  ds += el(0x7fe0, 0x10, "OW", std::string(128, '\1'));
-  return std::string(128, '\0') + "DICM" + el(2, 0, "UL", testutil::u32(static_cast<std::uint32_t>(meta_body.size()))) + meta_body + ds;
+  testutil::DicomSlice s;
+  s.intercept = intercept, s.slope = slope;
+  return testutil::dicom_file(s);
 }
 }  // namespace
 

