@@ -12,7 +12,8 @@ namespace testutil {
 struct DicomSlice {
   std::string intercept, slope;                 // RescaleIntercept and RescaleSlope; empty: left out
   std::optional<double> z;                      // ImagePositionPatient (0, 0, z), an axial orientation and a pixel spacing; none: left out
-  std::string pixels = std::string(128, '\1');  // the 64 samples' bytes
+  std::string pixels = std::string(128, '\1');  // the 64 samples' bytes (per frame)
+  int frames = 0;                               // NumberOfFrames; 0: left out
 };
 
 inline std::string dicom_file(const DicomSlice& s) {
@@ -34,7 +35,9 @@ inline std::string dicom_file(const DicomSlice& s) {
                                 el(2, 3, "UI", "1.2.3.4") + el(2, 0x10, "UI", "1.2.840.10008.1.2.1");
   std::string ds = el(0x20, 0xE, "UI", "1.2.3.5");
   if (s.z) ds += el(0x20, 0x32, "DS", "0\\0\\" + std::to_string(*s.z)) + el(0x20, 0x37, "DS", "1\\0\\0\\0\\1\\0");
-  ds += el(0x28, 2, "US", us(1)) + el(0x28, 4, "CS", "MONOCHROME2") + el(0x28, 0x10, "US", us(8)) + el(0x28, 0x11, "US", us(8));
+  ds += el(0x28, 2, "US", us(1)) + el(0x28, 4, "CS", "MONOCHROME2");
+  if (s.frames > 0) ds += el(0x28, 8, "IS", std::to_string(s.frames));
+  ds += el(0x28, 0x10, "US", us(8)) + el(0x28, 0x11, "US", us(8));
   if (s.z) ds += el(0x28, 0x30, "DS", "0.5\\0.75");
   ds += el(0x28, 0x100, "US", us(16)) + el(0x28, 0x101, "US", us(12)) + el(0x28, 0x102, "US", us(11)) + el(0x28, 0x103, "US", us(0));
   if (!s.intercept.empty()) ds += el(0x28, 0x1052, "DS", s.intercept);

@@ -369,6 +369,19 @@ TEST(HostileDicom, FourToSevenZeroBytesAfterThePixelDataAreRefusedNotAGdcmAssert
   }
 }
 
+TEST(HostileDicom, AMultiFrameFileAfterTheFirstSliceIsRefusedNotWrittenPastTheVolume) {
+  // The volume was sized from the first file (one frame per file); a later file's frames were
+  // copied at its slice's place whatever their number, past the end of the samples.
+  TempDir t("hostile");
+  for (int z = 0; z < 3; ++z) {
+    testutil::DicomSlice s;
+    s.z = z;
+    if (z == 2) s.frames = 2, s.pixels = std::string(256, '\2');
+    testutil::write_bytes(t / fmt::format("s{}.dcm", z), testutil::dicom_file(s));
+  }
+  expect_refused(t.path.string(), t.path.string(), "mixes a multi-frame file with other slices");
+}
+
 TEST(HostileDicom, ZeroPaddingAfterThePixelDataIsSkippedNotParsedElementByElement) {
   // Found on brain_001.dcm of the shared data (2.5 MB of zeros after 132 kB of data): GDCM parses
   // padding as empty elements, an exception each, and took 2.1 s to read it. The walk records where
