@@ -1,6 +1,7 @@
 // Test helpers: temporary folders, writing bytes, gzip/zlib/base64 encoders (independent of the
 // readers under test), access to ../shared/data, running the CLI.
 #pragma once
+#include <bzlib.h>
 #include <gtest/gtest.h>
 #include <zlib.h>
 
@@ -79,6 +80,13 @@ inline std::string compress(const std::string& s, bool gzip) {
   out.resize(zs.total_out);
   deflateEnd(&zs);
   return out;
+}
+
+inline std::string bzip2(const std::string& s) {
+  std::vector<char> out(s.size() * 2 + 1024);
+  unsigned n = static_cast<unsigned>(out.size());
+  EXPECT_EQ(BZ2_bzBuffToBuffCompress(out.data(), &n, const_cast<char*>(s.data()), static_cast<unsigned>(s.size()), 9, 0, 0), BZ_OK);
+  return std::string(out.data(), n);
 }
 
 inline std::string base64(const std::string& s) {

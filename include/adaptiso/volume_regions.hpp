@@ -44,8 +44,8 @@ struct VolumeRegions {
 
 std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOptions& options = {});
 
-// Slabs of whole slices of a volume whose samples are one compressed stream — NRRD with gzip
-// encoding in one data file (any byte skip ≥ 0, no line skip), .nii.gz (or .hdr with .img.gz),
+// Slabs of whole slices of a volume whose samples are one compressed stream — NRRD with gzip or
+// bzip2 encoding in one data file (any byte skip ≥ 0, no line skip), .nii.gz (or .hdr with .img.gz),
 // MetaImage with CompressedData in one file — inflated once, front to back, never whole; or a
 // DICOM series of one slice per file, whose files are read as their slices are held (a multi-frame
 // file is not a stream: read it whole). hold(z0, z1) keeps slices z0..z1 (dropping the others; in a

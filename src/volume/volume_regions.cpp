@@ -5,6 +5,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <bzlib.h>
 #include <fmt/format.h>
 #include <zlib.h>
 #include <cerrno>
@@ -128,6 +129,80 @@ std::optional<VolumeRegions> open_regions(const std::string& path, const ReadOpt
 
 // ---- slabs of a compressed stream ----
 
+namespace {
+
+// The decompressor behind a stream: zlib (zlib or gzip streams, as read_volume's inflate) or
+// bzip2, driven the same way.
+class Decoder {
+public:
+  enum class Step { progress, end, stuck, corrupt };  // stuck: nothing more without more input
+
+  Decoder() = default;
+  Decoder(const Decoder&) = delete;
+  Decoder& operator=(const Decoder&) = delete;
+  ~Decoder() { close(); }
+
+  bool bzip2 = false;
+  bool open() const { return open_; }
+  void restart() {
+    close();
+    if (bzip2) {
+      bz_ = bz_stream{};
+      if (BZ2_bzDecompressInit(&bz_, 0, 0) != BZ_OK) throw std::runtime_error("bzip2: init failed");
+    } else {
+      zs_ = z_stream{};
+      if (inflateInit2(&zs_, 15 + 32) != Z_OK) throw std::runtime_error("zlib: inflateInit failed");
+    }
+    open_ = true, ended_ = false;
+  }
+  std::size_t input_left() const { return bzip2 ? bz_.avail_in : zs_.avail_in; }
+  void give(unsigned char* p, std::size_t n) {
+    if (bzip2)
+      bz_.next_in = reinterpret_cast<char*>(p), bz_.avail_in = static_cast<unsigned>(n);
+    else
+      zs_.next_in = p, zs_.avail_in = static_cast<uInt>(n);
+  }
+  // Decodes into out[0, n) (n < 2^32); n becomes the bytes produced.
+  Step run(unsigned char* out, std::size_t& n) {
+    if (ended_) return n = 0, Step::end;  // bzip2 ends with the last byte, zlib after it; neither runs again
+    const Step step = decode(out, n);
+    ended_ = step == Step::end;
+    return step;
+  }
+  const std::string& message() const { return message_; }
+
+private:
+  Step decode(unsigned char* out, std::size_t& n) {
+    if (bzip2) {
+      bz_.next_out = reinterpret_cast<char*>(out), bz_.avail_out = static_cast<unsigned>(n);
+      const unsigned in_before = bz_.avail_in;
+      const int rc = BZ2_bzDecompress(&bz_);
+      n -= bz_.avail_out;
+      if (rc == BZ_STREAM_END) return Step::end;
+      if (rc != BZ_OK) return message_ = fmt::format("bzip2 code {}", rc), Step::corrupt;
+      return n == 0 && bz_.avail_in == in_before ? Step::stuck : Step::progress;
+    }
+    zs_.next_out = out, zs_.avail_out = static_cast<uInt>(n);
+    const int rc = inflate(&zs_, Z_NO_FLUSH);
+    n -= zs_.avail_out;
+    if (rc == Z_STREAM_END) return Step::end;
+    if (rc == Z_BUF_ERROR) return Step::stuck;
+    if (rc != Z_OK) return message_ = zs_.msg ? zs_.msg : "corrupt data", Step::corrupt;
+    return Step::progress;
+  }
+  void close() {
+    if (open_ && bzip2) BZ2_bzDecompressEnd(&bz_);
+    if (open_ && !bzip2) inflateEnd(&zs_);
+    open_ = false;
+  }
+  bool open_ = false, ended_ = false;
+  z_stream zs_{};
+  bz_stream bz_{};
+  std::string message_;
+};
+
+}  // namespace
+
 struct VolumeStream::State {
   Volume header;
   std::string file;
@@ -138,8 +213,7 @@ struct VolumeStream::State {
   std::size_t slice = 0;  // bytes of one stored slice
 
   int fd = -1;
-  z_stream zs{};
-  bool open = false;             // zs initialised
+  Decoder decoder;
   bool broken = false;           // a hold failed part way: where the stream stands is unknown
   std::uint64_t read_to = 0;     // the next compressed byte to feed
   std::int64_t next = 0;         // the first slice not inflated yet
@@ -168,23 +242,19 @@ struct VolumeStream::State {
   }
 
   ~State() {
-    if (open) inflateEnd(&zs);
     if (fd >= 0) ::close(fd);
   }
 
   void restart() {
-    if (open) inflateEnd(&zs);
-    zs = z_stream{};
-    open = inflateInit2(&zs, 15 + 32) == Z_OK;  // zlib or gzip, as read_volume's inflate
-    if (!open) throw std::runtime_error("zlib: inflateInit failed");
+    decoder.restart();
     read_to = first, next = 0, skipped = 0, z0 = 0, z1 = -1, broken = false;
     ++inflations;
   }
 
-  // More compressed bytes for zlib, when it has used up those it had and the file has more. (zlib
-  // may still hold output and the trailer's bytes when it has taken every input byte.)
+  // More compressed bytes for the decoder, when it has used up those it had and the file has more.
+  // (It may still hold output and the trailer's bytes when it has taken every input byte.)
   void feed(const std::string& what) {
-    if (zs.avail_in > 0 || read_to >= end) return;
+    if (decoder.input_left() > 0 || read_to >= end) return;
     const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(in.size(), end - read_to));
     ssize_t got = -1;
     while (got < 0) {
@@ -193,49 +263,45 @@ struct VolumeStream::State {
     }
     if (got == 0) throw InputError(fmt::format("{}: the file ends before {} (truncated?)", file, what));
     read_to += static_cast<std::uint64_t>(got);
-    zs.next_in = in.data(), zs.avail_in = static_cast<uInt>(got);
+    decoder.give(in.data(), static_cast<std::size_t>(got));
   }
 
-  // zlib can go no further and the file has no more bytes for it.
-  void check_progress(int rc, const std::string& what) const {
-    if (rc == Z_BUF_ERROR && zs.avail_in == 0 && read_to >= end)
+  // The decoder's step: stuck with no bytes left in the file is a stream cut short.
+  void check(Decoder::Step step, const std::string& what) const {
+    if (step == Decoder::Step::stuck && decoder.input_left() == 0 && read_to >= end)
       throw InputError(fmt::format("{}: the compressed stream is cut short before {}", file, what));
+    if (step == Decoder::Step::corrupt)
+      throw InputError(fmt::format("{}: compressed data is corrupt before {} ({})", file, what, decoder.message()));
   }
 
   // After the last sample: the stream must end there, its check value (gzip's CRC-32 and length,
-  // zlib's Adler-32) verified by inflate, as read_volume verifies it; without this a corrupt
-  // stream whose samples still inflate would pass. More data than the samples is refused as
-  // read_volume refuses it, or inflated and dropped where it allows it (trailing).
+  // zlib's Adler-32, bzip2's CRCs) verified by the decoder, as read_volume verifies it; without
+  // this a corrupt stream whose samples still decode would pass. More data than the samples is
+  // refused as read_volume refuses it, or decoded and dropped where it allows it (trailing).
   void finish() {
     unsigned char scratch[1 << 14];
-    for (int rc = Z_OK; rc != Z_STREAM_END;) {
-      const std::string what = "its trailer (the check value after the last sample)";
+    const std::string what = "its end (the check value after the last sample)";
+    for (Decoder::Step step = Decoder::Step::progress; step != Decoder::Step::end;) {
       feed(what);
-      zs.next_out = scratch, zs.avail_out = sizeof scratch;
-      rc = inflate(&zs, Z_NO_FLUSH);
-      if (zs.avail_out != sizeof scratch && !trailing)
+      std::size_t n = sizeof scratch;
+      step = decoder.run(scratch, n);
+      if (n > 0 && !trailing)
         throw InputError(fmt::format("{}: compressed data holds more than the expected {} bytes", file, skip + slice * header.dims[2]));
-      check_progress(rc, what);
-      if (rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR)
-        throw InputError(fmt::format("{}: compressed data is corrupt after the last slice ({})", file, zs.msg ? zs.msg : "corrupt data"));
+      check(step, what);
     }
   }
 
-  // The next n inflated bytes into out (nullptr: dropped); `what` names them in errors.
+  // The next n decoded bytes into out (nullptr: dropped); `what` names them in errors.
   void pull(unsigned char* out, std::size_t n, const std::string& what) {
     unsigned char scratch[1 << 14];
     while (n > 0) {
       feed(what);
-      const std::size_t step = std::min(n, out ? std::size_t{1} << 30 : sizeof scratch);
-      zs.next_out = out ? out : scratch, zs.avail_out = static_cast<uInt>(step);
-      const int rc = inflate(&zs, Z_NO_FLUSH);
-      const std::size_t got = step - zs.avail_out;
+      std::size_t got = std::min(n, out ? std::size_t{1} << 30 : sizeof scratch);
+      const Decoder::Step step = decoder.run(out ? out : scratch, got);
       if (out) out += got;
       n -= got;
-      if (rc == Z_STREAM_END && n > 0) throw InputError(fmt::format("{}: the compressed stream ends before {}", file, what));
-      check_progress(rc, what);
-      if (rc != Z_OK && rc != Z_STREAM_END && rc != Z_BUF_ERROR)
-        throw InputError(fmt::format("{}: compressed data is corrupt before {} ({})", file, what, zs.msg ? zs.msg : "corrupt data"));
+      if (step == Decoder::Step::end && n > 0) throw InputError(fmt::format("{}: the compressed stream ends before {}", file, what));
+      check(step, what);
     }
   }
 };
@@ -254,7 +320,7 @@ void VolumeStream::hold(std::int64_t z0, std::int64_t z1) {
     throw std::invalid_argument(fmt::format("VolumeStream::hold: slices {}..{} are not inside the volume's {}", z0, z1, s.header.dims[2]));
   if (z0 >= s.z0 && z1 <= s.z1) return;
   if (s.dicom) return s.hold_files(z0, z1);
-  if (!s.open || s.broken || z0 < s.z0) s.restart();  // the slices before z0 are gone
+  if (!s.decoder.open() || s.broken || z0 < s.z0) s.restart();  // the slices before z0 are gone
   // Keep the held slices from z0 on (moved to the front, in place: one slab's memory, not two),
   // inflate the rest up to z1.
   std::int64_t have = z0;
@@ -312,7 +378,9 @@ std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptio
     s->file = l.files[0], s->first = l.starts[0], s->end = l.starts[0] + l.stored[0], s->swap = l.swap;
   } else if (format == detail::VolumeFormat::nrrd) {
     detail::NrrdLayout l = detail::nrrd_layout(path);
-    if (l.encoding != nrrdEncodingGzip || l.files.size() != 1 || l.line_skip != 0 || l.byte_skip < 0) return std::nullopt;
+    if ((l.encoding != nrrdEncodingGzip && l.encoding != nrrdEncodingBzip2) || l.files.size() != 1 || l.line_skip != 0 || l.byte_skip < 0)
+      return std::nullopt;
+    s->decoder.bzip2 = l.encoding == nrrdEncodingBzip2;
     s->header = std::move(l.header);
     s->file = l.files[0], s->skip = static_cast<std::uint64_t>(l.byte_skip), s->swap = l.swap;
     s->end = detail::file_size_or_throw(l.files[0]);

@@ -49,9 +49,9 @@ check noise "$W/noise.raw" "${RAW[@]}"
 check noise-displacement "$W/noise.raw" "${RAW[@]}" --max-displacement 1 --max-error 0.1 --relative
 # The ranks other than 0 read their bricks straight from the file (volume_regions.hpp): a detached
 # header, big-endian 16-bit samples after a byte skip, a MetaImage with a header size, a scaled
-# NIfTI; a gzip file slab by slab as it inflates (volume_regions.hpp, VolumeStream).
+# NIfTI; gzip and bzip2 files slab by slab as they decode (volume_regions.hpp, VolumeStream).
 /usr/bin/env python3 -c "
-import gzip, struct, sys
+import bz2, gzip, struct, sys
 w = sys.argv[1]
 noise = open(w + '/noise.raw', 'rb').read()
 data = b''.join(struct.pack('>h', 40 * b - 3000) for b in noise)
@@ -60,6 +60,8 @@ head = 'NRRD0004\ntype: short\ndimension: 3\nsizes: 37 20 13\nspacings: 1 0.7 2.
 open(w + '/n16.nhdr', 'w').write(head + 'encoding: raw\nbyte skip: 8\ndata file: n16.raw\n')
 open(w + '/n16gz.raw.gz', 'wb').write(gzip.compress(data))
 open(w + '/n16gz.nhdr', 'w').write(head + 'encoding: gzip\ndata file: n16gz.raw.gz\n')
+open(w + '/n16bz.raw.bz2', 'wb').write(bz2.compress(data))
+open(w + '/n16bz.nhdr', 'w').write(head + 'encoding: bzip2\ndata file: n16bz.raw.bz2\n')
 # MetaImage: the same big-endian samples after a 5-byte header of their own.
 open(w + '/m16.mha', 'wb').write(b'NDims = 3\nDimSize = 37 20 13\nElementType = MET_SHORT\nElementSpacing = 1 0.7 2.5\n'
   b'ElementByteOrderMSB = True\nHeaderSize = 5\nElementDataFile = LOCAL\n' + b'12345' + data)
@@ -73,8 +75,8 @@ struct.pack_into('<fff', h, 108, 352, 0.25, 7)
 h[344:348] = b'n+1\0'
 open(w + '/s16.nii', 'wb').write(bytes(h) + b''.join(struct.pack('<h', 40 * b - 3000) for b in noise))" "$W"
 check n16 "$W/n16.nhdr"
-for input in n16gz.nhdr m16.mha s16.nii; do "$CLI" prepare "$W/$input" --quiet -o "$W/${input%.*}-one.adg"; done
-for input in n16.nhdr n16gz.nhdr m16.mha s16.nii; do
+for input in n16gz.nhdr n16bz.nhdr m16.mha s16.nii; do "$CLI" prepare "$W/$input" --quiet -o "$W/${input%.*}-one.adg"; done
+for input in n16.nhdr n16gz.nhdr n16bz.nhdr m16.mha s16.nii; do
   name=${input%.*}
   ranks 2 "$CLI" prepare "$W/$input" --brick-side 4 --threads 1 --json -o "$W/$name-np2.adg" >"$W/$name.json"
   cmp "$W/$name-one.adg" "$W/$name-np2.adg" || { echo "FAIL: $input over 2 ranks differs"; exit 1; }
@@ -82,9 +84,9 @@ done
 /usr/bin/env python3 -c "
 import json, sys
 w = sys.argv[1]
-read = {n: json.load(open(f'{w}/{n}.json'))['bricks']['ranks_read'] for n in ('n16', 'n16gz', 'm16', 's16')}
-assert read == {'n16': 'regions', 'n16gz': 'slabs of the stream', 'm16': 'regions', 's16': 'regions'}, read
-print('ok: rank 1 read its bricks from the raw NRRD, MetaImage and scaled NIfTI files, slab by slab from the gzip one')" "$W"
+read = {n: json.load(open(f'{w}/{n}.json'))['bricks']['ranks_read'] for n in ('n16', 'n16gz', 'n16bz', 'm16', 's16')}
+assert read == {'n16': 'regions', 'n16gz': 'slabs of the stream', 'n16bz': 'slabs of the stream', 'm16': 'regions', 's16': 'regions'}, read
+print('ok: rank 1 read its bricks from the raw NRRD, MetaImage and scaled NIfTI files, slab by slab from the gzip and bzip2 ones')" "$W"
 # A gzip stream over 3 and 4 ranks, bricks of 2 (many slabs, each rank's bricks in every one).
 for np in 3 4; do
   ranks $np "$CLI" prepare "$W/n16gz.nhdr" --brick-side 2 --threads 1 --quiet -o "$W/n16gz-np$np.adg"

@@ -113,8 +113,9 @@ TEST(LevelsOfDetail, FlooredLevelsFitABudgetThatCoarserBoundsCannot) {
         if (best == lod.size() || lod.bound(j) < lod.bound(best) || (lod.bound(j) == lod.bound(best) && triangles[j] > triangles[best]))
           best = j;
       }
-      if (best < lod.size())
+      if (best < lod.size()) {
         EXPECT_EQ(lod.level_for_budget(triangles[k], finest), best) << "budget " << triangles[k] << " finest " << finest;
+      }
     }
   for (std::size_t k = 0; k < lod.size(); ++k) EXPECT_EQ(lod.cell_floor(lod.level_for_error(lod.bound(k))), 0) << k;
 }

@@ -47,13 +47,6 @@ std::string sample_data() { return testutil::bytes_of(testutil::pattern_volume({
 
 std::string u64(std::uint64_t x) { return std::string(reinterpret_cast<char*>(&x), 8); }
 
-std::string bzip2(const std::string& s) {
-  std::vector<char> out(s.size() * 2 + 1024);
-  unsigned n = static_cast<unsigned>(out.size());
-  EXPECT_EQ(BZ2_bzBuffToBuffCompress(out.data(), &n, const_cast<char*>(s.data()), static_cast<unsigned>(s.size()), 9, 0, 0), BZ_OK);
-  return std::string(out.data(), n);
-}
-
 void expect_same(const Volume& a, const Volume& b) {
   ASSERT_EQ(a.dims, b.dims);
   for (std::int64_t i = 0; i < a.voxel_count(); ++i) ASSERT_EQ(a.at(i), b.at(i)) << i;
@@ -177,7 +170,7 @@ TEST(HostileNrrd, EveryEncodingAndSkipStillReads) {
   for (unsigned char c : data) hex += fmt::format("{:02x}", c);
   testutil::write_bytes(t / "a.nrrd", nrrd_header("\n", "ascii") + ascii);
   testutil::write_bytes(t / "h.nrrd", nrrd_header("\n", "hex") + hex);
-  testutil::write_bytes(t / "b.nrrd", nrrd_header("\n", "bzip2") + bzip2(data));
+  testutil::write_bytes(t / "b.nrrd", nrrd_header("\n", "bzip2") + testutil::bzip2(data));
   testutil::write_bytes(t / "d.raw", "two lines\nof text\n" + std::string(7, '?') + data);
   testutil::write_bytes(t / "skip.nhdr", nrrd_header("line skip: 2\nbyte skip: 7\ndata file: d.raw\n"));
   testutil::write_bytes(t / "e.raw", std::string(100, '?') + data);

@@ -276,7 +276,7 @@ void expect_slabs(VolumeStream& s, const Volume& whole, bool inflates = true) {
 
 }  // namespace
 
-TEST(VolumeStream, GzipNrrdAttachedDetachedAndByteSkip) {
+TEST(VolumeStream, GzipAndBzip2NrrdAttachedDetachedAndByteSkip) {
   TempDir t("stream");
   const Dims dims{9, 4, 7};
   const Volume ref = testutil::pattern_volume(dims, ScalarType::i16);
@@ -287,7 +287,11 @@ TEST(VolumeStream, GzipNrrdAttachedDetachedAndByteSkip) {
   testutil::write_bytes(t / "d.nhdr", head + "byte skip: 13\ndata file: d.raw.gz\n");
   testutil::write_bytes(t / "z.raw.gz", testutil::compress(big, false));  // zlib, not gzip: read_nrrd takes it too
   testutil::write_bytes(t / "z.nhdr", head + "data file: z.raw.gz\n");
-  for (const char* name : {"a.nrrd", "d.nhdr", "z.nhdr"}) {
+  const std::string bz_head = head.substr(0, head.find("encoding")) + "encoding: bzip2\n";
+  testutil::write_bytes(t / "b.nrrd", bz_head + "\n" + testutil::bzip2(big));
+  testutil::write_bytes(t / "b.raw.bz2", testutil::bzip2(std::string(13, 's') + big));
+  testutil::write_bytes(t / "b.nhdr", bz_head + "byte skip: 13\ndata file: b.raw.bz2\n");
+  for (const char* name : {"a.nrrd", "d.nhdr", "z.nhdr", "b.nrrd", "b.nhdr"}) {
     SCOPED_TRACE(name);
     const Volume whole = read_volume(t / name);
     ASSERT_EQ(whole.bytes, ref.bytes);
@@ -375,10 +379,19 @@ TEST(VolumeStream, AStreamWhoseCheckValueOrLengthIsWrongIsRefusedAtItsLastSliceA
   std::string crc = gz, size = gz;
   crc[gz.size() - 8] = static_cast<char>(crc[gz.size() - 8] ^ 1);  // gzip's trailer: CRC-32, then the length
   size[gz.size() - 4] = static_cast<char>(size[gz.size() - 4] ^ 1);
-  const std::string cases[][2] = {
-      {"CRC", crc}, {"length", size}, {"trailer cut", gz.substr(0, gz.size() - 3)}, {"more samples", testutil::compress(raw + "xy", true)}};
-  for (const auto& [name, bytes] : cases) {
+  const std::string bz = testutil::bzip2(raw);
+  std::string bz_crc = bz;
+  bz_crc[bz.size() - 2] = static_cast<char>(bz_crc[bz.size() - 2] ^ 1);  // bzip2's stream CRC, last of all
+  const std::string cases[][3] = {{"CRC", crc, "gzip"},
+                                  {"length", size, "gzip"},
+                                  {"trailer cut", gz.substr(0, gz.size() - 3), "gzip"},
+                                  {"more samples", testutil::compress(raw + "xy", true), "gzip"},
+                                  {"bzip2 CRC", bz_crc, "bzip2"},
+                                  {"bzip2 end cut", bz.substr(0, bz.size() - 3), "bzip2"},
+                                  {"bzip2 more samples", testutil::bzip2(raw + "xy"), "bzip2"}};
+  for (const auto& [name, bytes, encoding] : cases) {
     SCOPED_TRACE(name);
+    testutil::write_bytes(t / "v.nhdr", head.substr(0, head.find("encoding")) + "encoding: " + encoding + "\ndata file: v.gz\n");
     testutil::write_bytes(t / "v.gz", bytes);
     EXPECT_THROW(read_volume(t / "v.nhdr"), InputError);
     auto s = open_stream(t / "v.nhdr");
@@ -391,6 +404,7 @@ TEST(VolumeStream, AStreamWhoseCheckValueOrLengthIsWrongIsRefusedAtItsLastSliceA
       EXPECT_NE(std::string(e.what()).find("v.gz"), std::string::npos) << e.what();
     }
   }
+  testutil::write_bytes(t / "v.nhdr", head);
   testutil::write_bytes(t / "v.gz", gz);  // whole: the same samples
   auto s = open_stream(t / "v.nhdr");
   s->hold(0, 4);
