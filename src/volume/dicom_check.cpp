@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <span>
 
 #include "adaptiso/error.hpp"
 #include "io_util.hpp"
@@ -24,7 +25,7 @@ constexpr std::uint32_t kUndefined = 0xffffffffu;
 constexpr int kMaxDepth = 16;
 
 struct Reader {
-  const std::vector<unsigned char>& b;
+  std::span<const unsigned char> b;
   const std::string& file;
   bool explicit_vr = true;
   bool big_endian = false;
@@ -213,7 +214,7 @@ bool has_dicom_magic(const std::string& file) {
 
 DicomSummary check_dicom_file(const std::string& file) { return check_dicom_bytes(read_bytes(file, 0, file_size_or_throw(file)), file); }
 
-DicomSummary check_dicom_bytes(const std::vector<unsigned char>& bytes, const std::string& file) {
+DicomSummary check_dicom_bytes(std::span<const unsigned char> bytes, const std::string& file) {
   Reader r{bytes, file};
   std::size_t at = 0;
   std::string syntax = "1.2.840.10008.1.2";  // implicit VR little endian: files without a meta group

@@ -2,8 +2,8 @@
 #pragma once
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string>
-#include <vector>
 
 namespace adaptiso::detail {
 
@@ -25,6 +25,6 @@ bool has_dicom_magic(const std::string& file);
 // larger than its pixel data can hold. A file without pixel data (DICOMDIR) has has_pixels false.
 DicomSummary check_dicom_file(const std::string& file);
 // The same for a file's bytes already read.
-DicomSummary check_dicom_bytes(const std::vector<unsigned char>& bytes, const std::string& file);
+DicomSummary check_dicom_bytes(std::span<const unsigned char> bytes, const std::string& file);
 
 }  // namespace adaptiso::detail

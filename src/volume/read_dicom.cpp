@@ -142,20 +142,28 @@ Scan scan_series(const std::string& path) {
   return scan;
 }
 
-// One file's image, read once and walked again before GDCM reads it from memory (it may have
-// changed since the series was scanned: GDCM aborts on some corrupt files), and only as far as its
-// data set goes: zero padding after the pixel data would be parsed as empty elements, an exception
-// each (2.1 s for 2.5 MB of zeros).
+// One file's image, walked again just before GDCM reads it (it may have changed since the series
+// was scanned: GDCM aborts on some corrupt files), and only as far as its data set goes: zero
+// padding after the pixel data would be parsed as empty elements, an exception each (2.1 s for
+// 2.5 MB of zeros).
 class SliceImage {
 public:
   explicit SliceImage(const std::string& file) : file_(file) {
-    const std::vector<unsigned char> bytes = detail::read_bytes(file, 0, detail::file_size_or_throw(file));
-    const detail::DicomSummary summary = detail::check_dicom_bytes(bytes, file);
-    if (!summary.has_pixels) throw InputError(fmt::format("{}: holds no DICOM image", file));
-    const std::size_t end = summary.padded_from > 0 ? static_cast<std::size_t>(summary.padded_from) : bytes.size();
-    data_.str(std::string(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(end)));
-    reader_.SetStream(data_);
-    if (!reader_.Read()) throw InputError(fmt::format("{}: cannot read the DICOM image", file));
+    // The walk reads the file; GDCM then reads it again from the page cache, or, when zero padding
+    // follows the data set, from a copy of the data set alone (dropped once parsed).
+    {
+      const std::vector<unsigned char> bytes = detail::read_bytes(file, 0, detail::file_size_or_throw(file));
+      const detail::DicomSummary summary = detail::check_dicom_bytes(bytes, file);
+      if (!summary.has_pixels) throw InputError(fmt::format("{}: holds no DICOM image", file));
+      if (summary.padded_from > 0) data_.str(std::string(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(summary.padded_from)));
+    }
+    if (data_.str().empty())
+      reader_.SetFileName(file.c_str());
+    else
+      reader_.SetStream(data_);
+    const bool read = reader_.Read();
+    data_.str(std::string{});
+    if (!read) throw InputError(fmt::format("{}: cannot read the DICOM image", file));
     const gdcm::PixelFormat& pf = image().GetPixelFormat();
     if (pf.GetSamplesPerPixel() != 1)
       throw InputError(fmt::format("{}: {} samples per pixel; adaptiso reads grey-scale images", file, pf.GetSamplesPerPixel()));
@@ -185,7 +193,7 @@ public:
 
 private:
   std::string file_;
-  std::istringstream data_;  // outlives Read()
+  std::istringstream data_;  // GDCM's input while it reads a padded file
   gdcm::ImageReader reader_;
 };
 
