@@ -113,8 +113,8 @@ void check_rank_memory(const Ranks& ranks, const BrickGrid& bricks, const std::v
   std::uint64_t owned = 0, brick = 0;
   for (const std::int64_t n : mine) {
     const VoxelBox o = bricks.owns(n), r = bricks.reads(n, displacement);
-    owned += static_cast<std::uint64_t>(o.dims()[0] * o.dims()[1] * o.dims()[2]);
-    brick = std::max(brick, static_cast<std::uint64_t>(r.dims()[0] * r.dims()[1] * r.dims()[2]));
+    owned += static_cast<std::uint64_t>(o.voxel_count());
+    brick = std::max(brick, static_cast<std::uint64_t>(r.voxel_count()));
   }
   const auto threads = static_cast<std::uint64_t>(std::min<std::size_t>(tbb::this_task_arena::max_concurrency(), mine.size()));
   const std::uint64_t slab =

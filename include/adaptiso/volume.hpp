@@ -171,6 +171,10 @@ inline Vec3 grid_to_world(const Vec3& origin, const std::array<double, 9>& d, co
 struct VoxelBox {
   Dims lo{0, 0, 0}, hi{0, 0, 0};
   Dims dims() const { return {hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1}; }
+  std::int64_t voxel_count() const {
+    const Dims d = dims();
+    return d[0] * d[1] * d[2];
+  }
 };
 
 struct ValueRange {

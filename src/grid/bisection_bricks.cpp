@@ -242,7 +242,7 @@ BrickErrors bisection_brick_errors(const BrickGrid& bricks, std::int64_t brick, 
   // The owned voxels' codes, cut out of the window.
   const VoxelBox inner{{owns.lo[0] - reads.lo[0], owns.lo[1] - reads.lo[1], owns.lo[2] - reads.lo[2]},
                        {owns.hi[0] - reads.lo[0], owns.hi[1] - reads.lo[1], owns.hi[2] - reads.lo[2]}};
-  const auto owned = static_cast<std::size_t>(owns.dims()[0] * owns.dims()[1] * owns.dims()[2]);
+  const auto owned = static_cast<std::size_t>(owns.voxel_count());
   out.code.resize(owned);
   copy_box(code.data(), region.dims, inner, 1, out.code.data());
   if (displacement) {

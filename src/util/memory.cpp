@@ -58,30 +58,27 @@ std::uint64_t system_memory() {
 }  // namespace
 
 namespace {
+
 std::atomic<std::uint64_t> g_memory_limit{0};  // set_memory_limit's; 0: none
+
+// What the machine gives now, the limit, and what is available under both.
+struct MemoryNow {
+  std::uint64_t machine = 0, limit = 0, available = 0;
+};
+MemoryNow memory_now() {
+  MemoryNow m;
+  m.machine = m.available = std::min(system_memory(), address_space_left());
+  m.limit = adaptiso::memory_limit();
+  if (m.limit > 0) {
+    const std::uint64_t held = process_status_bytes("VmRSS");
+    m.available = std::min(m.available, m.limit > held ? m.limit - held : 0);
+  }
+  return m;
+}
+
 }  // namespace
 
-void set_memory_limit(std::uint64_t bytes) { g_memory_limit = bytes; }
-
-std::uint64_t memory_limit() {
-  if (const std::uint64_t set = g_memory_limit) return set;
-  // The same limit from the environment, in bytes: a shared machine, a container, a test.
-  if (const char* cap = std::getenv("ADAPTISO_MEMORY_LIMIT")) {
-    char* end = nullptr;
-    const unsigned long long v = std::strtoull(cap, &end, 10);
-    if (end != cap && *end == '\0') return v;
-  }
-  return 0;
-}
-
-std::uint64_t available_memory() {
-  std::uint64_t available = std::min(system_memory(), address_space_left());
-  if (const std::uint64_t limit = memory_limit()) {
-    const std::uint64_t held = process_status_bytes("VmRSS");
-    available = std::min(available, limit > held ? limit - held : 0);
-  }
-  return available;
-}
+std::uint64_t available_memory() { return memory_now().available; }
 
 namespace {
 
@@ -101,12 +98,11 @@ std::string duration_text(double seconds) {
 }
 
 void check_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice) {
-  const std::uint64_t available = available_memory();
-  if (bytes <= available) return;
-  const std::uint64_t limit = memory_limit();
-  const bool limited = limit > 0 && available < std::min(system_memory(), address_space_left());
-  const std::string left = limited ? fmt::format("the memory limit of {} leaves {}", bytes_text(limit), bytes_text(available))
-                                   : fmt::format("{} are available", bytes_text(available));
+  const MemoryNow m = memory_now();
+  if (bytes <= m.available) return;
+  const bool limited = m.limit > 0 && m.available < m.machine;
+  const std::string left = limited ? fmt::format("the memory limit of {} leaves {}", bytes_text(m.limit), bytes_text(m.available))
+                                   : fmt::format("{} are available", bytes_text(m.available));
   const std::string text = fmt::format("{} needs about {}, {}; {}", what, bytes_text(bytes), left, advice);
   if (option.empty()) throw InputError(text);
   throw OptionError(option, text);
@@ -115,8 +111,20 @@ void check_memory(std::uint64_t bytes, const std::string& what, const std::strin
 }  // namespace adaptiso::detail
 
 namespace adaptiso {
-void set_memory_limit(std::uint64_t bytes) { detail::set_memory_limit(bytes); }
-std::uint64_t memory_limit() { return detail::memory_limit(); }
+
+void set_memory_limit(std::uint64_t bytes) { detail::g_memory_limit = bytes; }
+
+std::uint64_t memory_limit() {
+  if (const std::uint64_t set = detail::g_memory_limit) return set;
+  // The same limit from the environment, in bytes: a shared machine, a container, a test.
+  if (const char* cap = std::getenv("ADAPTISO_MEMORY_LIMIT")) {
+    char* end = nullptr;
+    const unsigned long long v = std::strtoull(cap, &end, 10);
+    if (end != cap && *end == '\0') return v;
+  }
+  return 0;
+}
+
 void require_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice) {
   detail::check_memory(bytes, what, option, advice);
 }

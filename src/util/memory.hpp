@@ -8,13 +8,8 @@ namespace adaptiso::detail {
 
 // Memory the system can give this process now (Linux: MemAvailable, and no more than the address
 // space `ulimit -v` leaves; elsewhere the physical memory), and no more than the memory limit
-// leaves beside what the process holds (resident).
+// (adaptiso/memory.hpp) leaves beside what the process holds (resident).
 std::uint64_t available_memory();
-
-// The most memory the process may hold, in bytes (0: no limit but the machine's): what
-// set_memory_limit set (the command line's --memory-limit), else ADAPTISO_MEMORY_LIMIT.
-std::uint64_t memory_limit();
-void set_memory_limit(std::uint64_t bytes);
 
 // A memory field of /proc/self/status ("VmHWM", "VmSize", …: kB there) in bytes; 0 where there is
 // none (other systems).
