@@ -44,24 +44,33 @@
 #include "adaptiso/simplify.hpp"
 #include "adaptiso/version.hpp"
 #include "adaptiso/volume_io.hpp"
+#include "prepare_over_comm.hpp"
 
 namespace py = pybind11;
 using namespace adaptiso;
 
 namespace {
 
-// Runs f with the GIL released; InputError becomes OSError (file operations).
+// Runs f; InputError becomes OSError (file operations), OptionError stays a ValueError.
 template <class F>
-auto file_call(F&& f) {
+auto file_errors(F&& f) {
   try {
-    py::gil_scoped_release release;
     return f();
   } catch (const OptionError&) {
     throw;
-  } catch (const InputError& e) {  // the GIL is held again here
+  } catch (const InputError& e) {  // with the GIL held
     PyErr_SetString(PyExc_OSError, e.what());
     throw py::error_already_set();
   }
+}
+
+// The same with the GIL released while f runs.
+template <class F>
+auto file_call(F&& f) {
+  return file_errors([&] {
+    py::gil_scoped_release release;
+    return f();
+  });
 }
 
 // A path argument: str, bytes or os.PathLike, in the file system's encoding. A NUL would cut the
@@ -700,17 +709,26 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
       "prepare",
       [=](py::handle volume, const std::string& grid, std::optional<double> max_error, bool relative, double max_displacement,
           const std::string& gradients, const std::string& method, double threshold, const std::string& structural_gradient, double sigma,
-          int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay) {
-        const Volume& v = volume_of(volume);
-        const PrepareOptions o = prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
-                                                 structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay);
-        py::gil_scoped_release release;
-        return std::make_unique<Grid>(std::make_shared<const PreparedGrid>(prepare(v, o)));
+          int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay, std::optional<std::int64_t> brick_side,
+          const py::object& comm) -> py::object {
+        const auto setup = [&] {
+          return std::pair<const Volume*, PrepareOptions>(
+              &volume_of(volume), prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
+                                                  structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
+        };
+        python::CommShare share(comm, brick_side);
+        if (!share.root()) {
+          share.serve(setup);
+          return py::none();
+        }
+        auto p = share.run_root<std::shared_ptr<const PreparedGrid>>(
+            setup, [](const Volume& v, const PrepareOptions& o) { return std::make_shared<const PreparedGrid>(prepare(v, o)); });
+        return py::cast(std::make_unique<Grid>(std::move(p)));
       },
       py::arg("volume"), py::kw_only(), py::arg("grid") = "bisection", py::arg("max_error") = py::none(), py::arg("relative") = false,
       py::arg("max_displacement") = 0.0, py::arg("gradients") = "auto", py::arg("method") = "reconstruction", py::arg("threshold") = 0.0,
       py::arg("structural_gradient") = "central", py::arg("sigma") = 1.0, py::arg("kernel") = 0, py::arg("tree_depth") = kDefaultTreeDepth,
-      py::arg("verify") = false, py::arg("parallel_delaunay") = true,
+      py::arg("verify") = false, py::arg("parallel_delaunay") = true, py::arg("brick_side") = py::none(), py::arg("comm") = py::none(),
       R"(prepare(volume, *, grid="bisection", max_error=None, relative=False, ...) -> Grid
 
 Prepares a grid for extraction (the command line's `prepare`; the same option names).
@@ -718,29 +736,51 @@ grid: "bisection" (error guaranteed; default) or "delaunay" (the paper's). max_e
 data units or a fraction of the value range with relative=True; None: DEFAULT_RELATIVE_ERROR of
 the range. max_displacement (bisection): voxels an iso-surface may move, to first order.
 gradients: "auto", "lsq" or "central". method, threshold, structural_gradient, sigma, kernel: the
-Delaunay grid's reduction. verify: measure the error voxel by voxel. ValueError on a bad option.)");
+Delaunay grid's reduction. verify: measure the error voxel by voxel. ValueError on a bad option.
+
+brick_side (bisection): compute the error hierarchy in bricks of this many voxels a side (a power
+of two >= 2; the same grid, byte for byte). comm: an mpi4py communicator (e.g. MPI.COMM_WORLD under
+`mpirun -np N python3 -m mpi4py script.py`): every process calls prepare with its own Volume of the
+same dimensions (a memmap is read only in that process's bricks), the bricks (rank 0's side,
+default 128) are shared out over the processes, rank 0 returns the Grid (byte for byte the one a
+single process makes) and the others None. An error on any process raises on every process, the
+others' as ValueError "comm: rank R: ...".)");
 
   m.def(
       "prepare_file",
       [=](py::handle volume, const py::object& path, const std::string& grid, std::optional<double> max_error, bool relative,
           double max_displacement, const std::string& gradients, const std::string& method, double threshold,
-          const std::string& structural_gradient, double sigma, int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay) {
-        const Volume& v = volume_of(volume);
-        const std::string p = path_arg(path);
-        const PrepareOptions o = prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
-                                                 structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay);
-        const PrepareStats stats = file_call([&] { return prepare_to_file(v, o, p); });
+          const std::string& structural_gradient, double sigma, int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay,
+          std::optional<std::int64_t> brick_side, const py::object& comm) -> py::object {
+        std::string p;
+        const auto setup = [&] {
+          p = path_arg(path);
+          return std::pair<const Volume*, PrepareOptions>(
+              &volume_of(volume), prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
+                                                  structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
+        };
+        python::CommShare share(comm, brick_side);
+        if (!share.root()) {
+          share.serve(setup);
+          return py::none();
+        }
+        const PrepareStats stats = file_errors([&] {
+          return share.run_root<PrepareStats>(setup, [&](const Volume& v, const PrepareOptions& o) { return prepare_to_file(v, o, p); });
+        });
         return json_object(to_json(stats));
       },
       py::arg("volume"), py::arg("path"), py::kw_only(), py::arg("grid") = "bisection", py::arg("max_error") = py::none(),
       py::arg("relative") = false, py::arg("max_displacement") = 0.0, py::arg("gradients") = "auto", py::arg("method") = "reconstruction",
       py::arg("threshold") = 0.0, py::arg("structural_gradient") = "central", py::arg("sigma") = 1.0, py::arg("kernel") = 0,
       py::arg("tree_depth") = kDefaultTreeDepth, py::arg("verify") = false, py::arg("parallel_delaunay") = true,
+      py::arg("brick_side") = py::none(), py::arg("comm") = py::none(),
       R"(prepare_file(volume, path, *, grid="bisection", max_error=None, ...) -> dict
 
 prepare(volume, ...) and Grid.save(path) in one (the command line's `prepare`): the same file,
 written as it is made, so the grid and its index are never in memory at once. Returns the
-statistics (Grid.stats). ValueError on a bad option, OSError when the path cannot be written.)");
+statistics (Grid.stats). ValueError on a bad option, OSError when the path cannot be written.
+brick_side and comm as for prepare: with comm, rank 0 writes the file and returns the statistics,
+the others return None.)");
 
   m.def(
       "set_memory_limit",

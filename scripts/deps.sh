@@ -10,8 +10,9 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libmeshoptimizer-dev pybind11-dev python3-dev python3-numpy python3-pytest python3-skimage
       python3-matplotlib chromium "$@")
 # The distributed engine (mpirun -np N adaptiso prepare): OpenMPI's headers and launcher. A build
-# without them still works and says so when started under mpirun.
-PKGS+=(libopenmpi-dev openmpi-bin)
+# without them still works and says so when started under mpirun. mpi4py: the Python module's
+# transport under mpirun (adaptiso.prepare(..., comm=MPI.COMM_WORLD)); the module itself needs none.
+PKGS+=(libopenmpi-dev openmpi-bin python3-mpi4py)
 # The Python package's pip route (pyproject.toml → setuptools → setup.py → CMake) in a venv, the
 # wheel route (python3 -m build), and the hand-offs its tests exercise (Mesh.to_meshio, nibabel
 # images as volumes; Mesh.to_vtk takes python3-vtk9, which scripts/test.sh asks for).

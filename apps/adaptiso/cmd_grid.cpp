@@ -9,6 +9,7 @@
 
 #include "adaptiso/atomic_file.hpp"
 #include "adaptiso/bisection_bricks.hpp"
+#include "adaptiso/brick_shares.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/point_cloud.hpp"
 #include "adaptiso/prepare.hpp"
@@ -20,11 +21,6 @@
 
 namespace adaptiso::cli {
 namespace {
-
-// Under mpirun the bricks default to 128 voxels a side: 48 on a 512²×361 scan, enough to balance
-// two or four ranks; at 64 the seams the combine step evaluates cost more than they share out (the
-// bunny, 2 ranks: error hierarchy 12.2 s at 64, 6.3 s at 128, 5.2 s one process on one thread).
-constexpr std::int64_t kDefaultRankBrickSide = 128;
 
 // How a rank other than 0 reads its bricks: straight from the file where it can be (seeking in
 // uncompressed samples, slab by slab from a compressed stream), else from the whole volume.
@@ -114,7 +110,7 @@ void add_prepare(CLI::App& app) {
     if (bricked && options.grid != GridKind::bisection)
       throw InputError(ranks.distributed() ? "only the bisection grid is prepared over MPI ranks (drop --grid delaunay or mpirun)"
                                            : "--brick-side applies to the bisection grid only");
-    const std::int64_t side = *brick_side > 0 ? *brick_side : kDefaultRankBrickSide;
+    const std::int64_t side = *brick_side > 0 ? *brick_side : kDefaultShareBrickSide;
     if (bricked) check_brick_side(side);           // a bad side fails before the volume is read
     if (ranks.root()) check_output_path(*output);  // and an output that cannot be written (rank 0 writes it)
     auto t_all = Clock::now();

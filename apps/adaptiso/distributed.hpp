@@ -1,19 +1,19 @@
 // prepare over MPI ranks (ranks.hpp): the bisection grid's error hierarchy shared out brick by
-// brick (bisection_bricks.hpp), brick n to rank n mod size, the results handed to rank 0, which
+// brick (brick_shares.hpp), brick n to rank n mod size, the results handed to rank 0, which
 // combines them and makes the grid exactly as one process would (the same file, byte for byte).
 //
 // Issue 38, first steps: rank 0 reads the whole volume; the other ranks read only their bricks
-// straight from the file where its format allows (volume_regions.hpp: raw samples, raw NRRD), the
-// whole volume otherwise. Only the error hierarchy is distributed; selection, gradients and the
-// index run on rank 0.
+// straight from the file where its format allows (volume_regions.hpp: seeking in uncompressed
+// samples, slab by slab from a compressed stream or a DICOM series), the whole volume otherwise. Only the error hierarchy is distributed;
+// selection, gradients and the index run on rank 0.
 #pragma once
 #include <cstdint>
-#include <functional>
 #include <nlohmann/json.hpp>
 #include <string>
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/bisection_bricks.hpp"
+#include "adaptiso/brick_shares.hpp"
 #include "adaptiso/progress.hpp"
 #include "adaptiso/volume.hpp"
 #include "ranks.hpp"
@@ -31,9 +31,6 @@ struct DistributedStats {
   double combine_seconds = 0;
   nlohmann::json to_json(int ranks) const;
 };
-
-// Told the slices [z0, z1] a slab of bricks is about to read (VolumeStream::hold).
-using HoldSlices = std::function<void(std::int64_t z0, std::int64_t z1)>;
 
 // The error hierarchy of a volume of `dims` over the ranks: each computes its bricks, reading them
 // from `source` (with `hold`: slab after slab, front to back); rank 0 receives the others' and

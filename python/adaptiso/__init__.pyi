@@ -1,6 +1,6 @@
 # Type hints for the package adaptiso (its compiled part, adaptiso._core, has none of its own).
 import os
-from typing import Any, Literal, Optional, Sequence, Tuple, Union
+from typing import Any, Literal, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -90,6 +90,7 @@ def read(path: _Path) -> Volume: ...
 def load(path: _Path) -> Grid: ...
 def set_memory_limit(bytes: float) -> None: ...
 def memory_limit() -> int: ...
+@overload
 def prepare(
     volume: Volume,
     *,
@@ -106,7 +107,30 @@ def prepare(
     tree_depth: int = ...,
     verify: bool = ...,
     parallel_delaunay: bool = ...,
+    brick_side: Optional[int] = ...,
+    comm: None = ...,
 ) -> Grid: ...
+@overload
+def prepare(
+    volume: Volume,
+    *,
+    grid: Literal["bisection", "delaunay"] = ...,
+    max_error: Optional[float] = ...,
+    relative: bool = ...,
+    max_displacement: float = ...,
+    gradients: Literal["auto", "lsq", "central"] = ...,
+    method: Literal["reconstruction", "structural", "both"] = ...,
+    threshold: float = ...,
+    structural_gradient: Literal["central", "canny"] = ...,
+    sigma: float = ...,
+    kernel: int = ...,
+    tree_depth: int = ...,
+    verify: bool = ...,
+    parallel_delaunay: bool = ...,
+    brick_side: Optional[int] = ...,
+    comm: Any,
+) -> Optional[Grid]: ...
+@overload
 def prepare_file(
     volume: Volume,
     path: _Path,
@@ -124,7 +148,30 @@ def prepare_file(
     tree_depth: int = ...,
     verify: bool = ...,
     parallel_delaunay: bool = ...,
+    brick_side: Optional[int] = ...,
+    comm: None = ...,
 ) -> dict: ...
+@overload
+def prepare_file(
+    volume: Volume,
+    path: _Path,
+    *,
+    grid: Literal["bisection", "delaunay"] = ...,
+    max_error: Optional[float] = ...,
+    relative: bool = ...,
+    max_displacement: float = ...,
+    gradients: Literal["auto", "lsq", "central"] = ...,
+    method: Literal["reconstruction", "structural", "both"] = ...,
+    threshold: float = ...,
+    structural_gradient: Literal["central", "canny"] = ...,
+    sigma: float = ...,
+    kernel: int = ...,
+    tree_depth: int = ...,
+    verify: bool = ...,
+    parallel_delaunay: bool = ...,
+    brick_side: Optional[int] = ...,
+    comm: Any,
+) -> Optional[dict]: ...
 def simplify(mesh: Any, distance: float, *, checked: bool = ...) -> Mesh: ...
 def write_mesh(path: _Path, vertices: npt.ArrayLike, faces: npt.ArrayLike, normals: Optional[npt.ArrayLike] = ...) -> None: ...
 def marching_cubes(

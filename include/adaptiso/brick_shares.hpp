@@ -1,0 +1,50 @@
+// adaptiso/brick_shares.hpp — the bisection grid's error hierarchy shared out over processes
+// (issue 38): which bricks (bisection_bricks.hpp) a process computes, and their results as bytes
+// to hand to the one that combines them. The transport is the caller's: the command line's MPI
+// ranks (`mpirun adaptiso prepare`), or mpi4py in Python (`adaptiso.prepare(…, comm=…)`), so the
+// library itself speaks no MPI.
+//
+// Process r of n computes the bricks whose numbers are ≡ r (mod n), on its threads; process 0
+// receives the others' bytes, unpacks them beside its own results and calls
+// bisection_combine_bricks with the value range every process used (bit for bit: the codes are
+// relative to it). The grid is then byte for byte the one a single process makes.
+//
+// The bytes are the machine's own (every process runs one build on one kind of machine): per
+// brick its number and its arrays, each as a length and its elements.
+//
+// Throws: what bisection_brick_errors and the region source throw; InputError when bytes to
+// unpack are truncated or have bytes left over; InputError (via require_memory) when a process's
+// share will not fit in its memory, before any brick is read.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <vector>
+
+#include "adaptiso/bisection_bricks.hpp"
+
+namespace adaptiso {
+
+// The brick side when shared over processes and none is given: 128 voxels, 48 bricks on a 512²×361
+// scan, enough to balance two or four processes; at 64 the seams the combine step evaluates cost
+// more than they share out (the bunny, 2 ranks: error hierarchy 12.2 s at 64, 6.3 s at 128, 5.2 s
+// one process on one thread).
+constexpr std::int64_t kDefaultShareBrickSide = 128;
+
+// Told the slices [z0, z1] the next slab of bricks will read (VolumeStream::hold: a compressed
+// stream read front to back).
+using HoldSlices = std::function<void(std::int64_t z0, std::int64_t z1)>;
+
+// The brick step for process `process` of `processes`: its bricks (n ≡ process mod processes),
+// in parallel, each read from `source`. With `hold`, slab after slab of bricks, each slab's slices
+// announced before its bricks are read. Refuses up front what will not fit (memory.hpp): a code
+// per owned voxel until they are handed up, and per thread one brick at work.
+std::vector<BrickErrors> bisection_share_errors(const BrickGrid& bricks, int process, int processes, const RegionSource& source,
+                                                const ValueRange& range, bool displacement = false, const HoldSlices& hold = {});
+
+// A process's results as one flat message, and back.
+std::vector<std::byte> pack_brick_errors(const std::vector<BrickErrors>& bricks);
+std::vector<BrickErrors> unpack_brick_errors(std::span<const std::byte> bytes);
+
+}  // namespace adaptiso

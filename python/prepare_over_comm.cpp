@@ -1,0 +1,136 @@
+// The error hierarchy over an mpi4py communicator (prepare_over_comm.hpp).
+#include "prepare_over_comm.hpp"
+
+#include <fmt/format.h>
+
+#include <bit>
+#include <limits>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "adaptiso/brick_shares.hpp"
+#include "adaptiso/error.hpp"
+
+namespace py = pybind11;
+
+namespace adaptiso::python {
+namespace {
+
+constexpr const char* kBisectionOnly = "only the bisection grid is prepared over several processes (drop grid=\"delaunay\" or comm)";
+
+// mpi4py's lowercase collectives count bytes in a C int.
+void check_message_size(std::size_t bytes, int rank) {
+  if (bytes > static_cast<std::size_t>(std::numeric_limits<int>::max()))
+    throw InputError(
+        fmt::format("rank {} would hand up {} bytes at once (at most 2 GiB): use more ranks or a smaller brick_side", rank, bytes));
+}
+
+// Rank 0's range travels as Python floats: the same bits on every rank.
+py::tuple go_message(const ValueRange& range, const Dims& dims, std::int64_t side, bool displacement) {
+  return py::make_tuple("go", range.min, range.max, py::make_tuple(dims[0], dims[1], dims[2]), side, displacement);
+}
+
+}  // namespace
+
+CommShare::CommShare(const py::object& comm, std::optional<std::int64_t> brick_side) : brick_side_(brick_side) {
+  if (!comm.is_none()) {
+    for (const char* method : {"Get_rank", "Get_size", "bcast", "gather"})
+      if (!py::hasattr(comm, method)) throw py::type_error(fmt::format("comm: must be an mpi4py communicator (it has no {}())", method));
+    comm_ = comm;
+    rank_ = comm.attr("Get_rank")().cast<int>();
+    size_ = comm.attr("Get_size")().cast<int>();
+  }
+}
+
+void CommShare::tell_the_others(const py::object& message) {
+  if (size_ <= 1) return;
+  sent_ = true;
+  comm_.attr("bcast")(message, py::arg("root") = 0);
+}
+
+// Rank 0's hook: its own bricks and the others', combined as one process would.
+void CommShare::share_hierarchy(PrepareOptions& options) {
+  if (!brick_side_ && size_ <= 1) return;
+  const std::int64_t side = brick_side_.value_or(kDefaultShareBrickSide);
+  check_brick_side(side);
+  if (options.grid != GridKind::bisection)
+    throw size_ > 1 ? OptionError("comm", kBisectionOnly) : OptionError("brick_side", "applies to the bisection grid only");
+  if (size_ <= 1) {
+    options.error_hierarchy = [side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+      return bisection_errors_bricked(v.dims, range, side, region_source(v), displacement, progress);
+    };
+    return;
+  }
+  options.error_hierarchy = [this, side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+    const BrickGrid bricks = brick_grid(v.dims, side);
+    {
+      py::gil_scoped_acquire gil;
+      tell_the_others(go_message(range, v.dims, side, displacement));
+    }
+    // The others wait in the gather below: rank 0 reaches it whatever happens to its own bricks.
+    std::vector<BrickErrors> results;
+    std::exception_ptr failed;
+    try {
+      results = bisection_share_errors(bricks, 0, size_, region_source(v), range, displacement);
+    } catch (...) {
+      failed = std::current_exception();
+    }
+    std::vector<std::string> errors;
+    std::vector<std::vector<BrickErrors>> theirs;
+    {
+      py::gil_scoped_acquire gil;
+      const py::list all = comm_.attr("gather")(py::make_tuple("ok", py::bytes()), py::arg("root") = 0);
+      for (int r = 1; r < size_; ++r) {
+        const py::tuple m = all[static_cast<std::size_t>(r)].cast<py::tuple>();
+        const std::string status = m[0].cast<std::string>();
+        if (status != "ok") {
+          errors.push_back(fmt::format("rank {}: {}", r, m[1].cast<std::string>()));
+          continue;
+        }
+        if (failed || !errors.empty()) continue;
+        const std::string_view bytes = m[1].cast<std::string_view>();
+        theirs.push_back(unpack_brick_errors(std::as_bytes(std::span(bytes.data(), bytes.size()))));
+      }
+    }
+    if (failed) std::rethrow_exception(failed);
+    if (!errors.empty()) throw OptionError("comm", errors.front());  // ValueError, whatever the call
+    for (auto& rank : theirs)
+      for (auto& b : rank) results.push_back(std::move(b));
+    return bisection_combine_bricks(bricks, std::move(results), range, displacement, progress);
+  };
+}
+
+void CommShare::serve(const Setup& setup) {
+  const py::object message = comm_.attr("bcast")(py::none(), py::arg("root") = 0);
+  const py::tuple m = message.cast<py::tuple>();
+  const std::string what = m[0].cast<std::string>();
+  if (what == "done") return;
+  if (what == "failed") throw OptionError("comm", "rank 0: " + m[1].cast<std::string>());
+  py::tuple reply;
+  try {
+    const ValueRange range{m[1].cast<double>(), m[2].cast<double>()};
+    const auto d = m[3].cast<py::tuple>();
+    const Dims dims{d[0].cast<std::int64_t>(), d[1].cast<std::int64_t>(), d[2].cast<std::int64_t>()};
+    const std::int64_t side = m[4].cast<std::int64_t>();
+    const bool displacement = m[5].cast<bool>();
+    const auto [v, options] = setup();
+    if (options.grid != GridKind::bisection) throw OptionError("comm", kBisectionOnly);
+    if (v->dims != dims)
+      throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, {}×{}×{} on rank 0", v->dims[0], v->dims[1], v->dims[2],
+                                   rank_, dims[0], dims[1], dims[2]));
+    std::vector<std::byte> bytes;
+    {
+      py::gil_scoped_release release;
+      bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, region_source(*v), range, displacement));
+    }
+    check_message_size(bytes.size(), rank_);
+    reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
+  } catch (const std::exception& e) {  // the GIL is held again here
+    comm_.attr("gather")(py::make_tuple("error", std::string(e.what())), py::arg("root") = 0);
+    throw;
+  }
+  comm_.attr("gather")(reply, py::arg("root") = 0);
+}
+
+}  // namespace adaptiso::python

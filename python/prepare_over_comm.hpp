@@ -1,0 +1,75 @@
+// adaptiso.prepare(…, comm=…) and prepare_file(…, comm=…): the bisection grid's error hierarchy
+// shared out over the processes of an mpi4py communicator, as `mpirun adaptiso prepare` shares it
+// over MPI ranks (brick_shares.hpp), and the same grid, byte for byte, as one process makes.
+//
+// The communicator is used through its Python methods alone (Get_rank, Get_size, bcast, gather),
+// so the module links no MPI and imports no mpi4py: any object with those methods will do.
+//
+// Every process calls prepare with its own Volume of the same dimensions: a numpy.memmap, or a
+// Volume over one, is read only in the process's bricks. Rank 0 makes the grid; the others
+// compute their bricks, hand them to rank 0 and return None. The protocol always completes, so an
+// error on any process (a bad option, a volume of other dimensions, memory refused) raises on
+// every process, naming the rank, instead of leaving the others waiting:
+//   1. rank 0 broadcasts ("go", range min, range max, dims, brick side, displacement) when its
+//      preparation reaches the error hierarchy, or ("failed", message) / ("done",) when it fails
+//      or finishes before it;
+//   2. every other rank computes its bricks with rank 0's range, side and criterion, and every
+//      rank gathers to rank 0 ("ok", bytes) or ("error", message).
+// A process that dies outright still leaves the others waiting, as with any MPI program: run
+// under `python3 -m mpi4py script.py`, which aborts the job on an uncaught exception.
+#pragma once
+#include <pybind11/pybind11.h>
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <utility>
+
+#include "adaptiso/prepare.hpp"
+#include "adaptiso/volume.hpp"
+
+namespace adaptiso::python {
+
+class CommShare {
+public:
+  // comm: None or an mpi4py communicator (TypeError for another object); brick_side: None for the
+  // default (one process: no bricks; several: brick_shares.hpp's kDefaultShareBrickSide).
+  CommShare(const pybind11::object& comm, std::optional<std::int64_t> brick_side);
+  bool root() const { return rank_ == 0; }
+
+  // Finds the volume and checks the options (Python's arguments; the GIL held).
+  using Setup = std::function<std::pair<const Volume*, PrepareOptions>()>;
+  // Rank 0 (or one process): `setup`, then `prepare` with the GIL released, which calls
+  // options.error_hierarchy, set here when the hierarchy is bricked or shared. The protocol
+  // completes whether either succeeds or throws.
+  template <class R>
+  R run_root(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare);
+  // Any other rank: its part of the protocol (a throw in `setup` reaches rank 0 too).
+  void serve(const Setup& setup);
+
+private:
+  void share_hierarchy(PrepareOptions& options);
+  void tell_the_others(const pybind11::object& message);
+  pybind11::object comm_;
+  int rank_ = 0, size_ = 1;
+  std::optional<std::int64_t> brick_side_;  // as given
+  bool sent_ = false;                       // rank 0 has broadcast its message
+};
+
+template <class R>
+R CommShare::run_root(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare) {
+  std::optional<R> r;
+  try {
+    auto [volume, options] = setup();
+    share_hierarchy(options);
+    pybind11::gil_scoped_release release;
+    r.emplace(prepare(*volume, options));
+  } catch (const std::exception& e) {  // the GIL is held again here (pybind11's errors too)
+    if (!sent_) tell_the_others(pybind11::make_tuple("failed", std::string(e.what())));
+    throw;
+  }
+  if (!sent_) tell_the_others(pybind11::make_tuple("done"));
+  return std::move(*r);
+}
+
+}  // namespace adaptiso::python

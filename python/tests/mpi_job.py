@@ -1,0 +1,37 @@
+"""One rank's part of test_over_ranks.py, run as `mpiexec -n N python -m mpi4py mpi_job.py ARGS.json`.
+
+Every rank prepares from a memmap of the same .npy file (a rank given "other_shape" a different
+volume, one given "bad_option" a bad gradients name, to check that errors reach every rank) and
+rank 0 saves the grid. Each rank prints one line: "rank R: ok" or "rank R: ErrorType: message".
+"""
+import json
+import sys
+
+import numpy as np
+from mpi4py import MPI
+
+import adaptiso
+
+comm = MPI.COMM_WORLD
+rank = comm.Get_rank()
+job = json.load(open(sys.argv[1], encoding="utf-8"))
+array = np.load(job["npy"], mmap_mode="r")
+if rank == job.get("other_shape_rank", -1):
+    array = np.zeros((3, 4, 5), dtype=array.dtype)
+    array[1, 1, 1] = 1
+options = dict(job["options"])
+if rank == job.get("bad_option_rank", -1):
+    options["gradients"] = "no such method"
+volume = adaptiso.Volume(array, spacing=tuple(job["spacing"]))
+try:
+    if job["route"] == "prepare_file":
+        out = adaptiso.prepare_file(volume, job["output"], brick_side=job["brick_side"], comm=comm, **options)
+        assert (out is None) == (rank != 0), out
+    else:
+        grid = adaptiso.prepare(volume, brick_side=job["brick_side"], comm=comm, **options)
+        assert (grid is None) == (rank != 0), grid
+        if grid is not None:
+            grid.save(job["output"])
+    print(f"rank {rank}: ok", flush=True)
+except Exception as e:  # reported for the test to read; the job itself ends normally
+    print(f"rank {rank}: {type(e).__name__}: {e}", flush=True)

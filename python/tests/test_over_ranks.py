@@ -1,0 +1,136 @@
+"""adaptiso.prepare and prepare_file over an mpi4py communicator (issue 38): under mpiexec with 2 and
+3 processes, each reading a memmap, the grid file is byte for byte the one a single process writes;
+an error on any rank raises on every rank instead of leaving the others waiting. The in-process
+tests need neither MPI nor mpi4py."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import adaptiso
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+MPIEXEC = shutil.which("mpiexec")
+
+
+def have_mpi4py():
+    return subprocess.run([sys.executable, "-c", "import mpi4py"], capture_output=True).returncode == 0
+
+
+needs_mpi = pytest.mark.skipif(
+    MPIEXEC is None or not have_mpi4py(),
+    reason="needs mpiexec (openmpi-bin) and mpi4py (python3-mpi4py) for this interpreter; scripts/deps.sh installs both",
+)
+
+
+def field(shape=(23, 29, 37), seed=5):
+    """A smooth field with noise and a flat slab, odd and unequal sizes, array[z, y, x]."""
+    rng = np.random.default_rng(seed)
+    z, y, x = np.mgrid[0 : shape[0], 0 : shape[1], 0 : shape[2]].astype(np.float32)
+    f = np.sin(x / 5.0) * np.cos(y / 7.0) + z / 9.0 + 0.05 * rng.standard_normal(shape).astype(np.float32)
+    f[:, :, 20:26] = 0.25  # a brick face (side 8 at x = 24) through a flat region
+    return f.astype(np.float32)
+
+
+def one_process_grid(tmp_path, array, spacing, options):
+    path = tmp_path / "one.adg"
+    adaptiso.prepare(adaptiso.Volume(array, spacing=spacing), **options).save(path)
+    return path.read_bytes()
+
+
+def mpi_run(tmp_path, ranks, job):
+    job_path = tmp_path / f"job-{ranks}.json"
+    job_path.write_text(json.dumps(job))
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1", OMPI_MCA_rmaps_base_oversubscribe="1",
+               OMPI_MCA_btl="self,vader", OMPI_MCA_btl_vader_single_copy_mechanism="none")
+    # A rank left waiting would hang the job: fail after 300 s instead.
+    out = subprocess.run([MPIEXEC, "-n", str(ranks), sys.executable, "-m", "mpi4py", os.path.join(HERE, "mpi_job.py"), str(job_path)],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    lines = sorted(line for line in out.stdout.splitlines() if line.startswith("rank "))
+    assert len(lines) == ranks, out.stdout + out.stderr
+    return lines
+
+
+@needs_mpi
+@pytest.mark.parametrize("ranks, route, options", [
+    (2, "prepare", {"max_error": 0.05}),
+    (3, "prepare", {"max_error": 0.05}),
+    (2, "prepare", {"max_displacement": 0.5}),
+    (3, "prepare_file", {"max_error": 0.02, "relative": True}),
+])
+def test_prepare_over_mpi_ranks_writes_the_one_process_grid_from_memmaps(tmp_path, ranks, route, options):
+    array = field()
+    np.save(tmp_path / "f.npy", array)
+    spacing = (1.0, 0.8, 1.5)
+    expected = one_process_grid(tmp_path, array, spacing, options)
+    out = tmp_path / "ranks.adg"
+    lines = mpi_run(tmp_path, ranks, {"npy": str(tmp_path / "f.npy"), "spacing": spacing, "options": options, "route": route,
+                                      "brick_side": 8, "output": str(out)})
+    assert lines == [f"rank {r}: ok" for r in range(ranks)]
+    assert out.read_bytes() == expected
+
+
+@needs_mpi
+def test_a_volume_of_other_dimensions_on_one_rank_raises_on_every_rank(tmp_path):
+    np.save(tmp_path / "f.npy", field())
+    out = tmp_path / "ranks.adg"
+    lines = mpi_run(tmp_path, 3, {"npy": str(tmp_path / "f.npy"), "spacing": (1, 1, 1), "options": {}, "route": "prepare",
+                                  "brick_side": 8, "output": str(out), "other_shape_rank": 2})
+    assert lines[0] == "rank 0: ValueError: comm: rank 2: the volume has 5×4×3 voxels on rank 2, 37×29×23 on rank 0", lines
+    assert lines[2] == "rank 2: ValueError: the volume has 5×4×3 voxels on rank 2, 37×29×23 on rank 0", lines
+    assert lines[1] == "rank 1: ok"  # its part done; rank 0 reports the failure
+    assert not out.exists()
+
+
+@needs_mpi
+def test_a_bad_option_on_rank_0_raises_on_every_rank(tmp_path):
+    np.save(tmp_path / "f.npy", field())
+    out = tmp_path / "ranks.adg"
+    lines = mpi_run(tmp_path, 2, {"npy": str(tmp_path / "f.npy"), "spacing": (1, 1, 1), "options": {}, "route": "prepare_file",
+                                  "brick_side": 8, "output": str(out), "bad_option_rank": 0})
+    assert lines[0].startswith("rank 0: ValueError: gradients: must be"), lines
+    assert lines[1].startswith("rank 1: ValueError: comm: rank 0: gradients: must be"), lines
+    assert not out.exists()
+
+
+class OneProcess:
+    """What mpi4py's COMM_SELF answers, for the tests that need no MPI."""
+
+    def Get_rank(self):
+        return 0
+
+    def Get_size(self):
+        return 1
+
+    def bcast(self, obj, root=0):
+        return obj
+
+    def gather(self, obj, root=0):
+        return [obj]
+
+
+def test_bricks_in_one_process_and_a_communicator_of_one_make_the_same_grid(tmp_path):
+    array = field((17, 20, 33))
+    expected = one_process_grid(tmp_path, array, (1, 1, 1), {})
+    for i, kwargs in enumerate([{"brick_side": 4}, {"brick_side": 16}, {"comm": OneProcess()}, {"comm": OneProcess(), "brick_side": 2}]):
+        path = tmp_path / f"b{i}.adg"
+        adaptiso.prepare(adaptiso.Volume(array), **kwargs).save(path)
+        assert path.read_bytes() == expected, kwargs
+    stats = adaptiso.prepare_file(adaptiso.Volume(array), tmp_path / "f.adg", brick_side=8, comm=OneProcess())
+    assert stats["tetrahedra"] > 0
+    assert (tmp_path / "f.adg").read_bytes() == expected
+
+
+def test_bad_bricks_and_communicators_are_refused():
+    v = adaptiso.Volume(field((9, 10, 11)))
+    with pytest.raises(ValueError, match="brick_side"):
+        adaptiso.prepare(v, brick_side=6)
+    with pytest.raises(ValueError, match="brick_side: applies to the bisection grid only"):
+        adaptiso.prepare(v, grid="delaunay", brick_side=8)
+    with pytest.raises(TypeError, match="comm: must be an mpi4py communicator"):
+        adaptiso.prepare(v, comm=object())

@@ -1,0 +1,102 @@
+// The error hierarchy shared out over processes (brick_shares.hpp), the processes played in turn
+// by this one: every process's share, packed to bytes and unpacked, combines to the whole volume's
+// hierarchy byte for byte; the shares partition the bricks; bytes cut short, with bytes left over
+// or with a length beyond their end are refused.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <set>
+
+#include "adaptiso/bisection.hpp"
+#include "adaptiso/brick_shares.hpp"
+#include "adaptiso/error.hpp"
+
+using namespace adaptiso;
+
+namespace {
+
+Volume noisy_sines(Dims d, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0, 0.05);
+  Volume v = make_volume(d, ScalarType::f32);
+  for (std::int64_t z = 0; z < d[2]; ++z)
+    for (std::int64_t y = 0; y < d[1]; ++y)
+      for (std::int64_t x = 0; x < d[0]; ++x)
+        v.set(v.index(x, y, z), std::sin(0.37 * x) + std::sin(0.23 * y + 1) + std::sin(0.51 * z + 2) + noise(rng));
+  return v;
+}
+
+// What process 0 combines when `processes` processes each hand up their packed share.
+BisectionErrors over_processes(const Volume& v, std::int64_t side, int processes, bool displacement, std::set<std::int64_t>* seen) {
+  const ValueRange range = value_range(v);
+  const BrickGrid bricks = brick_grid(v.dims, side);
+  std::vector<BrickErrors> all;
+  for (int p = 0; p < processes; ++p) {
+    const std::vector<std::byte> bytes =
+        pack_brick_errors(bisection_share_errors(bricks, p, processes, region_source(v), range, displacement));
+    for (BrickErrors& b : unpack_brick_errors(bytes)) {
+      EXPECT_EQ(b.brick % processes, p);
+      EXPECT_TRUE(seen->insert(b.brick).second) << "brick " << b.brick << " twice";
+      all.push_back(std::move(b));
+    }
+  }
+  return bisection_combine_bricks(bricks, std::move(all), range, displacement);
+}
+
+}  // namespace
+
+TEST(BrickShares, SharesPackedAndUnpackedCombineToTheWholeVolumesHierarchy) {
+  for (const Dims d : {Dims{23, 18, 29}, Dims{2, 17, 9}, Dims{33, 33, 5}}) {
+    const Volume v = noisy_sines(d, static_cast<unsigned>(d[0]));
+    for (bool displacement : {false, true}) {
+      const BisectionErrors whole = bisection_errors(v, value_range(v), displacement);
+      for (std::int64_t side : {2, 8, 64})
+        for (int processes : {1, 2, 3, 5}) {
+          std::set<std::int64_t> seen;
+          const BisectionErrors shared = over_processes(v, side, processes, displacement, &seen);
+          const std::string what =
+              fmt::format("{}x{}x{} side {} processes {} displacement {}", d[0], d[1], d[2], side, processes, displacement);
+          EXPECT_EQ(static_cast<std::int64_t>(seen.size()), brick_grid(d, side).size()) << what;
+          EXPECT_EQ(shared.code, whole.code) << what;
+          EXPECT_EQ(shared.displacement_code, whole.displacement_code) << what;
+          EXPECT_EQ(shared.codes.scale, whole.codes.scale) << what;
+          EXPECT_EQ(shared.displacement_codes.scale, whole.displacement_codes.scale) << what;
+        }
+    }
+  }
+}
+
+TEST(BrickShares, AProcessWithoutBricksHandsUpAnEmptyShare) {
+  const Volume v = noisy_sines({9, 9, 9}, 3);
+  const BrickGrid bricks = brick_grid(v.dims, 64);  // one brick
+  const auto share = bisection_share_errors(bricks, 3, 4, region_source(v), value_range(v));
+  EXPECT_TRUE(share.empty());
+  EXPECT_TRUE(unpack_brick_errors(pack_brick_errors(share)).empty());
+}
+
+TEST(BrickShares, BytesCutShortOrWithBytesLeftOverAreRefused) {
+  const Volume v = noisy_sines({17, 9, 12}, 4);
+  const BrickGrid bricks = brick_grid(v.dims, 4);
+  const std::vector<std::byte> bytes = pack_brick_errors(bisection_share_errors(bricks, 1, 2, region_source(v), value_range(v), true));
+  ASSERT_GT(bytes.size(), 100u);
+  for (std::size_t cut : {std::size_t{0}, std::size_t{7}, bytes.size() / 2, bytes.size() - 1})
+    EXPECT_THROW(unpack_brick_errors(std::span(bytes).first(cut)), InputError) << cut;
+  std::vector<std::byte> longer = bytes;
+  longer.push_back(std::byte{0});
+  EXPECT_THROW(unpack_brick_errors(longer), InputError);
+  // A length field claiming more elements than the bytes hold (the first brick's code array).
+  std::vector<std::byte> lying = bytes;
+  const std::uint64_t huge = std::uint64_t{1} << 60;
+  std::memcpy(lying.data() + 16, &huge, sizeof huge);
+  EXPECT_THROW(unpack_brick_errors(lying), InputError);
+}
+
+TEST(BrickShares, AProcessNumberOutsideTheJobIsRefused) {
+  const Volume v = noisy_sines({9, 9, 9}, 5);
+  const BrickGrid bricks = brick_grid(v.dims, 4);
+  for (auto [p, n] : {std::pair{2, 2}, std::pair{-1, 2}, std::pair{0, 0}})
+    EXPECT_THROW(bisection_share_errors(bricks, p, n, region_source(v), value_range(v)), InputError) << p << " of " << n;
+}
