@@ -312,6 +312,7 @@ struct Grid {
   std::shared_ptr<const PreparedGrid> grid;
   std::shared_ptr<const HierarchyQuery> query;  // bisection grids, made on first use
   std::mutex query_mutex;                       // two threads' first extract(max_error=...) make one query
+  std::optional<py::dict> bricks;               // prepared in bricks or over ranks: what they did (stats["bricks"])
 
   explicit Grid(std::shared_ptr<const PreparedGrid> g) : grid(std::move(g)) {}
 
@@ -628,8 +629,15 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
           },
           py::arg("path"), "save(path)\n\nWrites the grid (.adg); path: str, bytes or os.PathLike. OSError when it cannot be written.")
       .def_property_readonly(
-          "stats", [](py::handle self) { return json_object(to_json(grid_of(self).grid->stats)); },
-          "How the grid was made: the prepare statistics as a dict (the command line's --json)")
+          "stats",
+          [](py::handle self) {
+            const Grid& g = grid_of(self);
+            py::object stats = json_object(to_json(g.grid->stats));
+            if (g.bricks) stats["bricks"] = *g.bricks;
+            return stats;
+          },
+          "How the grid was made: the prepare statistics as a dict (the command line's --json; \"bricks\" when prepared in "
+          "bricks or over ranks)")
       .def_property_readonly(
           "vertex_count", [](py::handle self) { return grid_of(self).grid->grid.vertex_count(); }, "Vertices of the grid")
       .def_property_readonly(
@@ -723,7 +731,9 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
         }
         auto p = share.run_root<std::shared_ptr<const PreparedGrid>>(
             setup, [](const Volume& v, const PrepareOptions& o) { return std::make_shared<const PreparedGrid>(prepare(v, o)); });
-        return py::cast(std::make_unique<Grid>(std::move(p)));
+        auto g = std::make_unique<Grid>(std::move(p));
+        if (share.stats()) g->bricks = share.stats()->to_dict();
+        return py::cast(std::move(g));
       },
       py::arg("volume"), py::kw_only(), py::arg("grid") = "bisection", py::arg("max_error") = py::none(), py::arg("relative") = false,
       py::arg("max_displacement") = 0.0, py::arg("gradients") = "auto", py::arg("method") = "reconstruction", py::arg("threshold") = 0.0,
@@ -743,8 +753,9 @@ of two >= 2; the same grid, byte for byte). comm: an mpi4py communicator (e.g. M
 `mpirun -np N python3 -m mpi4py script.py`): every process calls prepare with its own Volume of the
 same dimensions (a memmap is read only in that process's bricks), the bricks (rank 0's side,
 default 128) are shared out over the processes, rank 0 returns the Grid (byte for byte the one a
-single process makes) and the others None. An error on any process raises on every process, the
-others' as ValueError "comm: rank R: ...".)");
+single process makes) and the others None; Grid.stats["bricks"] tells ranks, bricks per rank,
+bytes handed to rank 0 and each rank's peak memory. An error on any process raises on every
+process, the others' as ValueError "comm: rank R: ...".)");
 
   m.def(
       "prepare_file",
@@ -767,7 +778,9 @@ others' as ValueError "comm: rank R: ...".)");
         const PrepareStats stats = file_errors([&] {
           return share.run_root<PrepareStats>(setup, [&](const Volume& v, const PrepareOptions& o) { return prepare_to_file(v, o, p); });
         });
-        return json_object(to_json(stats));
+        py::object out = json_object(to_json(stats));
+        if (share.stats()) out["bricks"] = share.stats()->to_dict();
+        return out;
       },
       py::arg("volume"), py::arg("path"), py::kw_only(), py::arg("grid") = "bisection", py::arg("max_error") = py::none(),
       py::arg("relative") = false, py::arg("max_displacement") = 0.0, py::arg("gradients") = "auto", py::arg("method") = "reconstruction",

@@ -2,6 +2,7 @@
 #include "prepare_over_comm.hpp"
 
 #include <fmt/format.h>
+#include <pybind11/stl.h>
 
 #include <bit>
 #include <limits>
@@ -11,6 +12,7 @@
 
 #include "adaptiso/brick_shares.hpp"
 #include "adaptiso/error.hpp"
+#include "adaptiso/memory.hpp"
 
 namespace py = pybind11;
 
@@ -32,6 +34,17 @@ py::tuple go_message(const ValueRange& range, const Dims& dims, std::int64_t sid
 }
 
 }  // namespace
+
+py::dict BrickStats::to_dict() const {
+  py::dict d;
+  d["ranks"] = ranks, d["brick_side"] = brick_side, d["bricks"] = bricks, d["bricks_per_rank"] = bricks_per_rank;
+  d["bytes_exchanged"] = bytes_exchanged;
+  std::vector<std::uint64_t> peaks = peak_bytes_per_rank;
+  peaks.resize(static_cast<std::size_t>(ranks), 0);
+  peaks[0] = peak_resident_bytes();
+  d["peak_bytes_per_rank"] = peaks;
+  return d;
+}
 
 CommShare::CommShare(const py::object& comm, std::optional<std::int64_t> brick_side) : brick_side_(brick_side) {
   if (!comm.is_none()) {
@@ -56,14 +69,22 @@ void CommShare::share_hierarchy(PrepareOptions& options) {
   check_brick_side(side);
   if (options.grid != GridKind::bisection)
     throw size_ > 1 ? OptionError("comm", kBisectionOnly) : OptionError("brick_side", "applies to the bisection grid only");
+  stats_.emplace();
+  stats_->ranks = size_;
+  stats_->brick_side = side;
   if (size_ <= 1) {
-    options.error_hierarchy = [side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
-      return bisection_errors_bricked(v.dims, range, side, region_source(v), displacement, progress);
+    options.error_hierarchy = [this, side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+      stats_->bricks = brick_grid(v.dims, side).size();
+      stats_->bricks_per_rank = {stats_->bricks};
+      return bisection_errors_bricked(v.dims, range, side, region_source(v), displacement, progress, &stats_->bytes_exchanged);
     };
     return;
   }
   options.error_hierarchy = [this, side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
     const BrickGrid bricks = brick_grid(v.dims, side);
+    stats_->bricks = bricks.size();
+    stats_->bricks_per_rank.assign(static_cast<std::size_t>(size_), 0);
+    stats_->peak_bytes_per_rank.assign(static_cast<std::size_t>(size_), 0);
     {
       py::gil_scoped_acquire gil;
       tell_the_others(go_message(range, v.dims, side, displacement));
@@ -76,27 +97,30 @@ void CommShare::share_hierarchy(PrepareOptions& options) {
     } catch (...) {
       failed = std::current_exception();
     }
+    stats_->bricks_per_rank[0] = static_cast<std::int64_t>(results.size());
     std::vector<std::string> errors;
-    std::vector<std::vector<BrickErrors>> theirs;
     {
       py::gil_scoped_acquire gil;
-      const py::list all = comm_.attr("gather")(py::make_tuple("ok", py::bytes()), py::arg("root") = 0);
+      py::list all = comm_.attr("gather")(py::make_tuple("ok", py::bytes(), 0), py::arg("root") = 0);
       for (int r = 1; r < size_; ++r) {
-        const py::tuple m = all[static_cast<std::size_t>(r)].cast<py::tuple>();
-        const std::string status = m[0].cast<std::string>();
-        if (status != "ok") {
+        const auto at = static_cast<std::size_t>(r);
+        const py::tuple m = all[at].cast<py::tuple>();
+        if (m[0].cast<std::string>() != "ok") {
           errors.push_back(fmt::format("rank {}: {}", r, m[1].cast<std::string>()));
           continue;
         }
         if (failed || !errors.empty()) continue;
         const std::string_view bytes = m[1].cast<std::string_view>();
-        theirs.push_back(unpack_brick_errors(std::as_bytes(std::span(bytes.data(), bytes.size()))));
+        std::vector<BrickErrors> theirs = unpack_brick_errors(std::as_bytes(std::span(bytes.data(), bytes.size())));
+        stats_->bricks_per_rank[at] = static_cast<std::int64_t>(theirs.size());
+        stats_->peak_bytes_per_rank[at] = m[2].cast<std::uint64_t>();
+        stats_->bytes_exchanged += bytes.size();
+        for (auto& b : theirs) results.push_back(std::move(b));
+        all[at] = py::none();  // its bytes go as soon as they are unpacked
       }
     }
     if (failed) std::rethrow_exception(failed);
     if (!errors.empty()) throw OptionError("comm", errors.front());  // ValueError, whatever the call
-    for (auto& rank : theirs)
-      for (auto& b : rank) results.push_back(std::move(b));
     return bisection_combine_bricks(bricks, std::move(results), range, displacement, progress);
   };
 }
@@ -125,7 +149,7 @@ void CommShare::serve(const Setup& setup) {
       bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, region_source(*v), range, displacement));
     }
     check_message_size(bytes.size(), rank_);
-    reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
+    reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()), peak_resident_bytes());
   } catch (const std::exception& e) {  // the GIL is held again here
     comm_.attr("gather")(py::make_tuple("error", std::string(e.what())), py::arg("root") = 0);
     throw;

@@ -24,11 +24,22 @@
 #include <functional>
 #include <optional>
 #include <utility>
+#include <vector>
 
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/volume.hpp"
 
 namespace adaptiso::python {
+
+// What the bricks did, for the statistics' "bricks" entry (the command line's --json "bricks").
+struct BrickStats {
+  int ranks = 1;
+  std::int64_t brick_side = 0, bricks = 0;
+  std::vector<std::int64_t> bricks_per_rank;
+  std::vector<std::uint64_t> peak_bytes_per_rank;  // rank 0's when the statistics are read
+  std::uint64_t bytes_exchanged = 0;               // handed to rank 0 by the others (one process: across brick faces)
+  pybind11::dict to_dict() const;
+};
 
 class CommShare {
 public:
@@ -46,6 +57,8 @@ public:
   R run_root(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare);
   // Any other rank: its part of the protocol (a throw in `setup` reaches rank 0 too).
   void serve(const Setup& setup);
+  // Rank 0 after run_root: what the bricks did, when the hierarchy was bricked.
+  const std::optional<BrickStats>& stats() const { return stats_; }
 
 private:
   void share_hierarchy(PrepareOptions& options);
@@ -54,6 +67,7 @@ private:
   int rank_ = 0, size_ = 1;
   std::optional<std::int64_t> brick_side_;  // as given
   bool sent_ = false;                       // rank 0 has broadcast its message
+  std::optional<BrickStats> stats_;
 };
 
 template <class R>

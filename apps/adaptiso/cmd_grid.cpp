@@ -11,6 +11,7 @@
 #include "adaptiso/bisection_bricks.hpp"
 #include "adaptiso/brick_shares.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "adaptiso/memory.hpp"
 #include "adaptiso/point_cloud.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/prepare_to_file.hpp"

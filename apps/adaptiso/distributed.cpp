@@ -9,6 +9,7 @@
 
 #include "adaptiso/brick_shares.hpp"
 #include "adaptiso/error.hpp"
+#include "adaptiso/memory.hpp"
 
 namespace adaptiso::cli {
 namespace {

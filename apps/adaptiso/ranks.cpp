@@ -3,7 +3,6 @@
 #include "ranks.hpp"
 
 #include <fmt/format.h>
-#include <sys/resource.h>
 
 #include <cstdlib>
 #include <limits>
@@ -104,12 +103,6 @@ std::uint64_t Ranks::broadcast(std::uint64_t x) {
   }
 #endif
   return x;
-}
-
-std::uint64_t peak_resident_bytes() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return static_cast<std::uint64_t>(u.ru_maxrss) * 1024;
 }
 
 }  // namespace adaptiso::cli

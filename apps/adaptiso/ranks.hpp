@@ -47,7 +47,4 @@ private:
   std::uint64_t exchanged_ = 0;
 };
 
-// Peak resident memory of this process so far (bytes; getrusage).
-std::uint64_t peak_resident_bytes();
-
 }  // namespace adaptiso::cli

@@ -18,4 +18,7 @@ std::uint64_t memory_limit();
 // available; <advice>"), InputError when option is empty (no setting of the work can help).
 void require_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice);
 
+// This process's peak resident memory so far, in bytes (getrusage): what the ranks report.
+std::uint64_t peak_resident_bytes();
+
 }  // namespace adaptiso

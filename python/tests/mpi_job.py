@@ -2,7 +2,8 @@
 
 Every rank prepares from a memmap of the same .npy file (a rank given "other_shape" a different
 volume, one given "bad_option" a bad gradients name, to check that errors reach every rank) and
-rank 0 saves the grid. Each rank prints one line: "rank R: ok" or "rank R: ErrorType: message".
+rank 0 saves the grid. Each rank writes one line to OUTPUT.rank-R ("rank R: ok" or "rank R:
+ErrorType: message"): mpiexec may interleave the ranks' standard outputs within a line.
 """
 import json
 import sys
@@ -25,13 +26,20 @@ if rank == job.get("bad_option_rank", -1):
 volume = adaptiso.Volume(array, spacing=tuple(job["spacing"]))
 try:
     if job["route"] == "prepare_file":
-        out = adaptiso.prepare_file(volume, job["output"], brick_side=job["brick_side"], comm=comm, **options)
-        assert (out is None) == (rank != 0), out
+        stats = adaptiso.prepare_file(volume, job["output"], brick_side=job["brick_side"], comm=comm, **options)
+        assert (stats is None) == (rank != 0), stats
     else:
         grid = adaptiso.prepare(volume, brick_side=job["brick_side"], comm=comm, **options)
         assert (grid is None) == (rank != 0), grid
+        stats = None
         if grid is not None:
             grid.save(job["output"])
-    print(f"rank {rank}: ok", flush=True)
+            stats = grid.stats
+    if stats is not None:
+        with open(job["output"] + ".bricks.json", "w", encoding="utf-8") as f:
+            json.dump(stats["bricks"], f)
+    outcome = "ok"
 except Exception as e:  # reported for the test to read; the job itself ends normally
-    print(f"rank {rank}: {type(e).__name__}: {e}", flush=True)
+    outcome = f"{type(e).__name__}: {e}"
+with open(f"{job['output']}.rank-{rank}", "w", encoding="utf-8") as f:
+    f.write(f"rank {rank}: {outcome}\n")

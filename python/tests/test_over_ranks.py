@@ -51,8 +51,11 @@ def mpi_run(tmp_path, ranks, job):
     out = subprocess.run([MPIEXEC, "-n", str(ranks), sys.executable, "-m", "mpi4py", os.path.join(HERE, "mpi_job.py"), str(job_path)],
                          capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
-    lines = sorted(line for line in out.stdout.splitlines() if line.startswith("rank "))
-    assert len(lines) == ranks, out.stdout + out.stderr
+    lines = []
+    for r in range(ranks):
+        path = f"{job['output']}.rank-{r}"
+        assert os.path.exists(path), out.stdout + out.stderr
+        lines.append(open(path, encoding="utf-8").read().rstrip("\n"))
     return lines
 
 
@@ -73,6 +76,10 @@ def test_prepare_over_mpi_ranks_writes_the_one_process_grid_from_memmaps(tmp_pat
                                       "brick_side": 8, "output": str(out)})
     assert lines == [f"rank {r}: ok" for r in range(ranks)]
     assert out.read_bytes() == expected
+    bricks = json.loads((tmp_path / "ranks.adg.bricks.json").read_text())
+    assert bricks["ranks"] == ranks and bricks["brick_side"] == 8 and bricks["bricks"] == 5 * 4 * 3
+    assert bricks["bricks_per_rank"] == [len(range(r, 60, ranks)) for r in range(ranks)]
+    assert bricks["bytes_exchanged"] > 0 and all(p > 10_000_000 for p in bricks["peak_bytes_per_rank"]), bricks
 
 
 @needs_mpi
@@ -124,6 +131,10 @@ def test_bricks_in_one_process_and_a_communicator_of_one_make_the_same_grid(tmp_
     stats = adaptiso.prepare_file(adaptiso.Volume(array), tmp_path / "f.adg", brick_side=8, comm=OneProcess())
     assert stats["tetrahedra"] > 0
     assert (tmp_path / "f.adg").read_bytes() == expected
+    assert stats["bricks"]["ranks"] == 1 and stats["bricks"]["bricks"] == 4 * 3 * 2 and stats["bricks"]["bricks_per_rank"] == [24]
+    assert stats["bricks"]["bytes_exchanged"] > 0  # across the brick faces
+    assert "bricks" not in adaptiso.prepare(adaptiso.Volume(array)).stats
+    assert adaptiso.prepare(adaptiso.Volume(array), brick_side=64).stats["bricks"]["bricks"] == 1
 
 
 def test_bad_bricks_and_communicators_are_refused():

@@ -128,4 +128,11 @@ std::uint64_t memory_limit() {
 void require_memory(std::uint64_t bytes, const std::string& what, const std::string& option, const std::string& advice) {
   detail::check_memory(bytes, what, option, advice);
 }
+
+std::uint64_t peak_resident_bytes() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<std::uint64_t>(u.ru_maxrss) * 1024;  // Linux: kilobytes
+}
+
 }  // namespace adaptiso
