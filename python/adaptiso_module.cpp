@@ -44,6 +44,7 @@
 #include "adaptiso/simplify.hpp"
 #include "adaptiso/version.hpp"
 #include "adaptiso/volume_io.hpp"
+#include "file_errors.hpp"
 #include "prepare_over_comm.hpp"
 
 namespace py = pybind11;
@@ -51,20 +52,9 @@ using namespace adaptiso;
 
 namespace {
 
-// Runs f; InputError becomes OSError (file operations), OptionError stays a ValueError.
-template <class F>
-auto file_errors(F&& f) {
-  try {
-    return f();
-  } catch (const OptionError&) {
-    throw;
-  } catch (const InputError& e) {  // with the GIL held
-    PyErr_SetString(PyExc_OSError, e.what());
-    throw py::error_already_set();
-  }
-}
+using python::file_errors;
 
-// The same with the GIL released while f runs.
+// Runs f with the GIL released; InputError becomes OSError (file operations, file_errors.hpp).
 template <class F>
 auto file_call(F&& f) {
   return file_errors([&] {
@@ -351,6 +341,17 @@ Grid& grid_of(py::handle h) { return initialised<Grid>(h, "Grid", "get one from 
 PyExtractor& extractor_of(py::handle h) { return initialised<PyExtractor>(h, "Extractor", "get one from Grid.extractor()"); }
 const Volume& volume_of(py::handle h) { return initialised<Volume>(h, "Volume", "make one with adaptiso.Volume(array) or adaptiso.read"); }
 
+// prepare's volume: a Volume, or a file's path (str, bytes or os.PathLike).
+python::PrepareInput prepare_input(py::handle volume, PrepareOptions options) {
+  python::PrepareInput in;
+  if (py::isinstance<py::str>(volume) || py::isinstance<py::bytes>(volume) || py::hasattr(volume, "__fspath__"))
+    in.path = path_arg(volume, "volume");
+  else
+    in.volume = &volume_of(volume);
+  in.options = std::move(options);
+  return in;
+}
+
 GridKind grid_kind(const std::string& s) {
   if (s == "bisection") return GridKind::bisection;
   if (s == "delaunay") return GridKind::delaunay;
@@ -481,6 +482,8 @@ PYBIND11_MODULE(_core, m) {
       if (p) std::rethrow_exception(p);
     } catch (const InputError& e) {  // OptionError included
       PyErr_SetString(PyExc_ValueError, e.what());
+    } catch (const python::FileError& e) {  // prepare's volume file
+      PyErr_SetString(PyExc_OSError, e.what());
     }
   });
 
@@ -720,9 +723,8 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
           int kernel, std::uint32_t tree_depth, bool verify, bool parallel_delaunay, std::optional<std::int64_t> brick_side,
           const py::object& comm) -> py::object {
         const auto setup = [&] {
-          return std::pair<const Volume*, PrepareOptions>(
-              &volume_of(volume), prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
-                                                  structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
+          return prepare_input(volume, prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
+                                                       structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
         };
         python::CommShare share(comm, brick_side);
         if (!share.root()) {
@@ -742,6 +744,7 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
       R"(prepare(volume, *, grid="bisection", max_error=None, relative=False, ...) -> Grid
 
 Prepares a grid for extraction (the command line's `prepare`; the same option names).
+volume: a Volume, or a volume file's path, read as adaptiso.read reads it (OSError when it cannot be).
 grid: "bisection" (error guaranteed; default) or "delaunay" (the paper's). max_error: max-norm bound,
 data units or a fraction of the value range with relative=True; None: DEFAULT_RELATIVE_ERROR of
 the range. max_displacement (bisection): voxels an iso-surface may move, to first order.
@@ -751,11 +754,12 @@ Delaunay grid's reduction. verify: measure the error voxel by voxel. ValueError 
 brick_side (bisection): compute the error hierarchy in bricks of this many voxels a side (a power
 of two >= 2; the same grid, byte for byte). comm: an mpi4py communicator (e.g. MPI.COMM_WORLD under
 `mpirun -np N python3 -m mpi4py script.py`): every process calls prepare with its own Volume of the
-same dimensions (a memmap is read only in that process's bricks), the bricks (rank 0's side,
-default 128) are shared out over the processes, rank 0 returns the Grid (byte for byte the one a
-single process makes) and the others None; Grid.stats["bricks"] tells ranks, bricks per rank,
-bytes handed to rank 0 and each rank's peak memory. An error on any process raises on every
-process, the others' as ValueError "comm: rank R: ...".)");
+same dimensions (a memmap is read only in that process's bricks) or the same file's path (rank 0
+reads it whole, the others only their bricks where its format allows, as `mpirun adaptiso prepare`
+does); the bricks (rank 0's side, default 128) are shared out over the processes, rank 0 returns
+the Grid (byte for byte the one a single process makes) and the others None; Grid.stats["bricks"]
+tells ranks, bricks per rank, bytes handed to rank 0 and each rank's peak memory. An error on any
+process raises on every process, the others' as ValueError "comm: rank R: ...".)");
 
   m.def(
       "prepare_file",
@@ -766,9 +770,8 @@ process, the others' as ValueError "comm: rank R: ...".)");
         std::string p;
         const auto setup = [&] {
           p = path_arg(path);
-          return std::pair<const Volume*, PrepareOptions>(
-              &volume_of(volume), prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
-                                                  structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
+          return prepare_input(volume, prepare_options(grid, max_error, relative, max_displacement, gradients, method, threshold,
+                                                       structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
         };
         python::CommShare share(comm, brick_side);
         if (!share.root()) {

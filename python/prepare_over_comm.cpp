@@ -13,6 +13,9 @@
 #include "adaptiso/brick_shares.hpp"
 #include "adaptiso/error.hpp"
 #include "adaptiso/memory.hpp"
+#include "adaptiso/volume_io.hpp"
+#include "adaptiso/volume_regions.hpp"
+#include "file_errors.hpp"
 
 namespace py = pybind11;
 
@@ -33,12 +36,21 @@ py::tuple go_message(const ValueRange& range, const Dims& dims, std::int64_t sid
   return py::make_tuple("go", range.min, range.max, py::make_tuple(dims[0], dims[1], dims[2]), side, displacement);
 }
 
+RegionReader open_file(const std::string& path) {
+  return file_errors([&] { return RegionReader(path); });
+}
+
 }  // namespace
+
+Volume CommShare::read_file(const std::string& path) {
+  return file_errors([&] { return read_volume(path); });
+}
 
 py::dict BrickStats::to_dict() const {
   py::dict d;
   d["ranks"] = ranks, d["brick_side"] = brick_side, d["bricks"] = bricks, d["bricks_per_rank"] = bricks_per_rank;
   d["bytes_exchanged"] = bytes_exchanged;
+  if (!ranks_read.empty()) d["ranks_read"] = ranks_read;
   std::vector<std::uint64_t> peaks = peak_bytes_per_rank;
   peaks.resize(static_cast<std::size_t>(ranks), 0);
   peaks[0] = peak_resident_bytes();
@@ -114,6 +126,7 @@ void CommShare::share_hierarchy(PrepareOptions& options) {
         std::vector<BrickErrors> theirs = unpack_brick_errors(std::as_bytes(std::span(bytes.data(), bytes.size())));
         stats_->bricks_per_rank[at] = static_cast<std::int64_t>(theirs.size());
         stats_->peak_bytes_per_rank[at] = m[2].cast<std::uint64_t>();
+        if (r == 1) stats_->ranks_read = m[3].cast<std::string>();
         stats_->bytes_exchanged += bytes.size();
         for (auto& b : theirs) results.push_back(std::move(b));
         all[at] = py::none();  // its bytes go as soon as they are unpacked
@@ -138,18 +151,25 @@ void CommShare::serve(const Setup& setup) {
     const Dims dims{d[0].cast<std::int64_t>(), d[1].cast<std::int64_t>(), d[2].cast<std::int64_t>()};
     const std::int64_t side = m[4].cast<std::int64_t>();
     const bool displacement = m[5].cast<bool>();
-    const auto [v, options] = setup();
-    if (options.grid != GridKind::bisection) throw OptionError("comm", kBisectionOnly);
-    if (v->dims != dims)
-      throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, {}×{}×{} on rank 0", v->dims[0], v->dims[1], v->dims[2],
-                                   rank_, dims[0], dims[1], dims[2]));
+    const PrepareInput in = setup();
+    if (in.options.grid != GridKind::bisection) throw OptionError("comm", kBisectionOnly);
     std::vector<std::byte> bytes;
+    std::string route = "volume in memory";
     {
       py::gil_scoped_release release;
-      bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, region_source(*v), range, displacement));
+      std::optional<RegionReader> reader;
+      if (!in.volume) route = reader.emplace(open_file(in.path)).route();
+      const Dims& d = in.volume ? in.volume->dims : reader->header().dims;
+      if (d != dims)
+        throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, {}×{}×{} on rank 0", d[0], d[1], d[2], rank_, dims[0],
+                                     dims[1], dims[2]));
+      const RegionSource source = in.volume ? region_source(*in.volume) : [&](const VoxelBox& box) { return reader->read(box); };
+      HoldSlices hold;
+      if (reader && reader->streams()) hold = [&](std::int64_t z0, std::int64_t z1) { reader->hold(z0, z1); };
+      bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, source, range, displacement, hold));
     }
     check_message_size(bytes.size(), rank_);
-    reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()), peak_resident_bytes());
+    reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()), peak_resident_bytes(), route);
   } catch (const std::exception& e) {  // the GIL is held again here
     comm_.attr("gather")(py::make_tuple("error", std::string(e.what())), py::arg("root") = 0);
     throw;

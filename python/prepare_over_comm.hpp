@@ -23,13 +23,21 @@
 #include <cstdint>
 #include <functional>
 #include <optional>
-#include <utility>
+#include <string>
 #include <vector>
 
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/volume.hpp"
 
 namespace adaptiso::python {
+
+// What prepare is given: a volume in memory, or a file's path (rank 0 reads it whole, as
+// adaptiso.read does; the other ranks read their bricks from it by RegionReader's route).
+struct PrepareInput {
+  const Volume* volume = nullptr;
+  std::string path;
+  PrepareOptions options;
+};
 
 // What the bricks did, for the statistics' "bricks" entry (the command line's --json "bricks").
 struct BrickStats {
@@ -38,6 +46,7 @@ struct BrickStats {
   std::vector<std::int64_t> bricks_per_rank;
   std::vector<std::uint64_t> peak_bytes_per_rank;  // rank 0's when the statistics are read
   std::uint64_t bytes_exchanged = 0;               // handed to rank 0 by the others (one process: across brick faces)
+  std::string ranks_read;                          // how rank 1 read its bricks: RegionReader::route() or "volume in memory"
   pybind11::dict to_dict() const;
 };
 
@@ -49,7 +58,7 @@ public:
   bool root() const { return rank_ == 0; }
 
   // Finds the volume and checks the options (Python's arguments; the GIL held).
-  using Setup = std::function<std::pair<const Volume*, PrepareOptions>()>;
+  using Setup = std::function<PrepareInput()>;
   // Rank 0 (or one process): `setup`, then `prepare` with the GIL released, which calls
   // options.error_hierarchy, set here when the hierarchy is bricked or shared. The protocol
   // completes whether either succeeds or throws.
@@ -61,6 +70,7 @@ public:
   const std::optional<BrickStats>& stats() const { return stats_; }
 
 private:
+  static Volume read_file(const std::string& path);  // FileError when it cannot be read
   void share_hierarchy(PrepareOptions& options);
   void tell_the_others(const pybind11::object& message);
   pybind11::object comm_;
@@ -74,10 +84,15 @@ template <class R>
 R CommShare::run_root(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare) {
   std::optional<R> r;
   try {
-    auto [volume, options] = setup();
-    share_hierarchy(options);
+    PrepareInput in = setup();
+    share_hierarchy(in.options);
     pybind11::gil_scoped_release release;
-    r.emplace(prepare(*volume, options));
+    if (in.volume) {
+      r.emplace(prepare(*in.volume, in.options));
+    } else {
+      const Volume v = read_file(in.path);
+      r.emplace(prepare(v, in.options));
+    }
   } catch (const std::exception& e) {  // the GIL is held again here (pybind11's errors too)
     if (!sent_) tell_the_others(pybind11::make_tuple("failed", std::string(e.what())));
     throw;

@@ -23,43 +23,15 @@
 namespace adaptiso::cli {
 namespace {
 
-// How a rank other than 0 reads its bricks: straight from the file where it can be (seeking in
-// uncompressed samples, slab by slab from a compressed stream), else from the whole volume.
-struct RankReader {
-  std::optional<VolumeRegions> regions;
-  std::optional<VolumeStream> stream;
-  const char* route() const {
-    if (regions) return "regions";
-    if (stream) return stream->slice_files() ? "slabs of the slice files" : "slabs of the stream";
-    return "whole volume";
-  }
-};
-RankReader open_rank_reader(const VolumeInput& in) {
-  RankReader r;
-  r.regions = open_regions(in.path, in.read_options());
-  if (!r.regions) r.stream = open_stream(in.path, in.read_options());
-  return r;
-}
-
-// A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, handed to
-// rank 0; it writes nothing.
+// A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, read
+// straight from the file where it can be (RegionReader), handed to rank 0; it writes nothing.
 void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
-  const bool displacement = options.max_displacement > 0;
-  RankReader reader = open_rank_reader(in);
-  if (const auto& regions = reader.regions) {
-    const RegionSource source = [&](const VoxelBox& box) { return regions->read(box); };
-    distributed_errors(ranks, regions->header.dims, source, {}, brick_side, displacement, {}, ignored);
-    return;
-  }
-  if (auto& stream = reader.stream) {
-    const RegionSource source = [&](const VoxelBox& box) { return stream->read(box); };
-    const HoldSlices hold = [&](std::int64_t z0, std::int64_t z1) { stream->hold(z0, z1); };
-    distributed_errors(ranks, stream->header().dims, source, {}, brick_side, displacement, {}, ignored, hold);
-    return;
-  }
-  const Volume v = in.load();
-  distributed_errors(ranks, v.dims, region_source(v), {}, brick_side, displacement, {}, ignored);
+  RegionReader reader(in.path, in.read_options());
+  const RegionSource source = [&](const VoxelBox& box) { return reader.read(box); };
+  HoldSlices hold;
+  if (reader.streams()) hold = [&](std::int64_t z0, std::int64_t z1) { reader.hold(z0, z1); };
+  distributed_errors(ranks, reader.header().dims, source, {}, brick_side, options.max_displacement > 0, {}, ignored, hold);
 }
 
 // The error hierarchy in bricks of `side`: over the ranks under mpirun, else on this process. The
@@ -119,7 +91,7 @@ void add_prepare(CLI::App& app) {
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
     DistributedStats dist;
-    if (ranks.distributed()) dist.ranks_read = open_rank_reader(*in).route();  // the readers' headers only
+    if (ranks.distributed()) dist.ranks_read = RegionReader::route_of(in->path, in->read_options());  // the headers only
     if (bricked) options.error_hierarchy = bricked_errors(ranks, side, dist);
     TerminalProgress tp(!out->quiet && !out->json);
     // Written as it is made: the voxels go before the index, the grid's positions and gradients

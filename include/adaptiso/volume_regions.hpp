@@ -80,4 +80,27 @@ private:
 
 std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptions& options = {});
 
+// A file's boxes by the cheapest route its format allows: by seeking (open_regions), slab by slab
+// (open_stream), else from the whole volume, read once (read_volume). What a process that computes
+// only some bricks reads them with (the MPI ranks other than 0, Python's ranks given a path).
+// read(box) gives the box as VolumeRegions::read does; with a stream (streams()), hold() the slices
+// first, front to back. Throws what open_regions, open_stream and read_volume throw.
+class RegionReader {
+public:
+  explicit RegionReader(const std::string& path, const ReadOptions& options = {});
+  const Volume& header() const;  // dims, type, geometry (the whole volume's samples only on the "whole volume" route)
+  Volume read(const VoxelBox& box) const;
+  bool streams() const { return stream_.has_value(); }
+  void hold(std::int64_t z0, std::int64_t z1);  // a stream's slices z0..z1; nothing on the other routes
+  // "regions", "slabs of the stream", "slabs of the slice files" or "whole volume" (--json's "ranks_read").
+  const char* route() const;
+  // The route a reader of `path` would take, from the file's headers alone.
+  static const char* route_of(const std::string& path, const ReadOptions& options = {});
+
+private:
+  std::optional<VolumeRegions> regions_;
+  std::optional<VolumeStream> stream_;
+  std::optional<Volume> whole_;
+};
+
 }  // namespace adaptiso

@@ -92,7 +92,7 @@ def set_memory_limit(bytes: float) -> None: ...
 def memory_limit() -> int: ...
 @overload
 def prepare(
-    volume: Volume,
+    volume: Union[Volume, _Path],
     *,
     grid: Literal["bisection", "delaunay"] = ...,
     max_error: Optional[float] = ...,
@@ -112,7 +112,7 @@ def prepare(
 ) -> Grid: ...
 @overload
 def prepare(
-    volume: Volume,
+    volume: Union[Volume, _Path],
     *,
     grid: Literal["bisection", "delaunay"] = ...,
     max_error: Optional[float] = ...,
@@ -132,7 +132,7 @@ def prepare(
 ) -> Optional[Grid]: ...
 @overload
 def prepare_file(
-    volume: Volume,
+    volume: Union[Volume, _Path],
     path: _Path,
     *,
     grid: Literal["bisection", "delaunay"] = ...,
@@ -153,7 +153,7 @@ def prepare_file(
 ) -> dict: ...
 @overload
 def prepare_file(
-    volume: Volume,
+    volume: Union[Volume, _Path],
     path: _Path,
     *,
     grid: Literal["bisection", "delaunay"] = ...,

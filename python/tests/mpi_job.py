@@ -1,8 +1,8 @@
 """One rank's part of test_over_ranks.py, run as `mpiexec -n N python -m mpi4py mpi_job.py ARGS.json`.
 
-Every rank prepares from a memmap of the same .npy file (a rank given "other_shape" a different
-volume, one given "bad_option" a bad gradients name, to check that errors reach every rank) and
-rank 0 saves the grid. Each rank writes one line to OUTPUT.rank-R ("rank R: ok" or "rank R:
+Every rank prepares from a memmap of the same .npy file, or from the same volume file's path (a
+rank given "other_shape" a different volume, one given "bad_option" a bad gradients name, to check
+that errors reach every rank) and rank 0 saves the grid. Each rank writes one line to OUTPUT.rank-R ("rank R: ok" or "rank R:
 ErrorType: message"): mpiexec may interleave the ranks' standard outputs within a line.
 """
 import json
@@ -16,14 +16,17 @@ import adaptiso
 comm = MPI.COMM_WORLD
 rank = comm.Get_rank()
 job = json.load(open(sys.argv[1], encoding="utf-8"))
-array = np.load(job["npy"], mmap_mode="r")
-if rank == job.get("other_shape_rank", -1):
-    array = np.zeros((3, 4, 5), dtype=array.dtype)
-    array[1, 1, 1] = 1
 options = dict(job["options"])
 if rank == job.get("bad_option_rank", -1):
     options["gradients"] = "no such method"
-volume = adaptiso.Volume(array, spacing=tuple(job["spacing"]))
+if "path" in job:  # the file's path on every rank: rank 0 reads it whole, the others their bricks
+    volume = job["path"]
+else:
+    array = np.load(job["npy"], mmap_mode="r")
+    if rank == job.get("other_shape_rank", -1):
+        array = np.zeros((3, 4, 5), dtype=array.dtype)
+        array[1, 1, 1] = 1
+    volume = adaptiso.Volume(array, spacing=tuple(job["spacing"]))
 try:
     if job["route"] == "prepare_file":
         stats = adaptiso.prepare_file(volume, job["output"], brick_side=job["brick_side"], comm=comm, **options)

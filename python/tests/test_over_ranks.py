@@ -2,6 +2,7 @@
 3 processes, each reading a memmap, the grid file is byte for byte the one a single process writes;
 an error on any rank raises on every rank instead of leaving the others waiting. The in-process
 tests need neither MPI nor mpi4py."""
+import gzip
 import json
 import os
 import shutil
@@ -80,6 +81,35 @@ def test_prepare_over_mpi_ranks_writes_the_one_process_grid_from_memmaps(tmp_pat
     assert bricks["ranks"] == ranks and bricks["brick_side"] == 8 and bricks["bricks"] == 5 * 4 * 3
     assert bricks["bricks_per_rank"] == [len(range(r, 60, ranks)) for r in range(ranks)]
     assert bricks["bytes_exchanged"] > 0 and all(p > 10_000_000 for p in bricks["peak_bytes_per_rank"]), bricks
+    assert bricks["ranks_read"] == "volume in memory"
+
+
+def write_nrrd(path, array, encoding):
+    """array[z, y, x] float32 as an attached NRRD, raw or gzip."""
+    z, y, x = array.shape
+    data = array.astype("<f4").tobytes()
+    if encoding == "gzip":
+        data = gzip.compress(data)
+    header = f"NRRD0004\ntype: float\ndimension: 3\nsizes: {x} {y} {z}\nspacings: 1 0.8 1.5\nencoding: {encoding}\nendian: little\n\n"
+    with open(path, "wb") as f:
+        f.write(header.encode() + data)
+
+
+@needs_mpi
+@pytest.mark.parametrize("encoding", ["raw", "gzip"])
+def test_prepare_over_mpi_ranks_from_a_path_writes_the_one_process_grid(tmp_path, encoding):
+    # Raw: the other ranks seek their bricks; gzip: they read slabs of the stream.
+    path = tmp_path / "f.nrrd"
+    write_nrrd(path, field(), encoding)
+    one = tmp_path / "one.adg"
+    adaptiso.prepare(str(path), max_error=0.05).save(one)
+    out = tmp_path / "ranks.adg"
+    lines = mpi_run(tmp_path, 3, {"path": str(path), "options": {"max_error": 0.05}, "route": "prepare_file", "brick_side": 8,
+                                  "output": str(out)})
+    assert lines == [f"rank {r}: ok" for r in range(3)]
+    assert out.read_bytes() == one.read_bytes()
+    bricks = json.loads((tmp_path / "ranks.adg.bricks.json").read_text())
+    assert bricks["ranks_read"] == ("regions" if encoding == "raw" else "slabs of the stream")
 
 
 @needs_mpi
@@ -135,6 +165,20 @@ def test_bricks_in_one_process_and_a_communicator_of_one_make_the_same_grid(tmp_
     assert stats["bricks"]["bytes_exchanged"] > 0  # across the brick faces
     assert "bricks" not in adaptiso.prepare(adaptiso.Volume(array)).stats
     assert adaptiso.prepare(adaptiso.Volume(array), brick_side=64).stats["bricks"]["bricks"] == 1
+
+
+def test_a_path_is_read_as_adaptiso_read_reads_it(tmp_path):
+    path = tmp_path / "f.nrrd"
+    write_nrrd(path, field((9, 10, 11)), "gzip")
+    a, b = tmp_path / "a.adg", tmp_path / "b.adg"
+    adaptiso.prepare(path, brick_side=4).save(a)  # os.PathLike
+    adaptiso.prepare(adaptiso.read(str(path))).save(b)
+    assert a.read_bytes() == b.read_bytes()
+    with pytest.raises(OSError, match="no_such.nrrd"):
+        adaptiso.prepare(str(tmp_path / "no_such.nrrd"))
+    with pytest.raises(OSError, match="no_such.nrrd"):
+        adaptiso.prepare_file(tmp_path / "no_such.nrrd", tmp_path / "c.adg", comm=OneProcess())
+    assert not (tmp_path / "c.adg").exists()
 
 
 def test_bad_bricks_and_communicators_are_refused():

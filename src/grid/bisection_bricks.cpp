@@ -22,6 +22,7 @@
 #include "adaptiso/error.hpp"
 #include "grid/error_hierarchy.hpp"
 #include "grid/traversal.hpp"
+#include "volume/boxes.hpp"
 
 namespace adaptiso {
 
@@ -34,18 +35,6 @@ Coord coord_of(std::int64_t voxel, const Lattice& lat) {
 }
 Coord to_coord(const Dims& d) {
   return {static_cast<std::int32_t>(d[0]), static_cast<std::int32_t>(d[1]), static_cast<std::int32_t>(d[2])};
-}
-
-// Copies the box `from` (inclusive, within a volume of dims `dims`) of a byte array of `size`-byte
-// elements into a dense array.
-void copy_box(const std::uint8_t* src, const Dims& dims, const VoxelBox& from, std::size_t size, std::uint8_t* dst) {
-  const Dims n = from.dims();
-  const auto row = static_cast<std::size_t>(n[0]) * size;
-  for (std::int64_t z = 0; z < n[2]; ++z)
-    for (std::int64_t y = 0; y < n[1]; ++y) {
-      const std::int64_t at = from.lo[0] + dims[0] * ((from.lo[1] + y) + dims[1] * (from.lo[2] + z));
-      std::memcpy(dst + static_cast<std::size_t>(y + n[1] * z) * row, src + static_cast<std::size_t>(at) * size, row);
-    }
 }
 
 // The combine step's records: one per diamond it evaluates.

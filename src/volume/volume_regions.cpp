@@ -12,6 +12,7 @@
 #include <cstring>
 #include <stdexcept>
 
+#include "boxes.hpp"
 #include "dicom_series.hpp"
 #include "io_util.hpp"
 #include "layout.hpp"
@@ -68,6 +69,20 @@ void finish(Volume& r, bool swap, const std::optional<VolumeRegions::Scaling>& s
 }
 
 }  // namespace
+
+namespace detail {
+
+void copy_box(const std::uint8_t* src, const Dims& dims, const VoxelBox& from, std::size_t size, std::uint8_t* dst) {
+  const Dims n = from.dims();
+  const auto row = static_cast<std::size_t>(n[0]) * size;
+  for (std::int64_t z = 0; z < n[2]; ++z)
+    for (std::int64_t y = 0; y < n[1]; ++y) {
+      const std::int64_t at = from.lo[0] + dims[0] * ((from.lo[1] + y) + dims[1] * (from.lo[2] + z));
+      std::memcpy(dst + static_cast<std::size_t>(y + n[1] * z) * row, src + static_cast<std::size_t>(at) * size, row);
+    }
+}
+
+}  // namespace detail
 
 Volume VolumeRegions::read(const VoxelBox& box) const {
   const Dims& d = header.dims;
@@ -403,6 +418,43 @@ std::optional<VolumeStream> open_stream(const std::string& path, const ReadOptio
   if (s->fd < 0) throw InputError(fmt::format("{}: cannot open: {}", s->file, std::strerror(errno)));
   s->in.resize(1 << 20);
   return VolumeStream(std::move(s));
+}
+
+RegionReader::RegionReader(const std::string& path, const ReadOptions& options) {
+  regions_ = open_regions(path, options);
+  if (!regions_) stream_ = open_stream(path, options);
+  if (!regions_ && !stream_) whole_ = read_volume(path, options);
+}
+
+const Volume& RegionReader::header() const { return regions_ ? regions_->header : stream_ ? stream_->header() : *whole_; }
+
+Volume RegionReader::read(const VoxelBox& box) const {
+  if (regions_) return regions_->read(box);
+  if (stream_) return stream_->read(box);
+  check_inside("RegionReader::read", box, whole_->dims);
+  Volume r = stored_box(*whole_, box, std::nullopt);
+  detail::copy_box(reinterpret_cast<const std::uint8_t*>(whole_->bytes.data()), whole_->dims, box, scalar_size(r.type),
+                   reinterpret_cast<std::uint8_t*>(r.bytes.data()));
+  return r;
+}
+
+void RegionReader::hold(std::int64_t z0, std::int64_t z1) {
+  if (stream_) stream_->hold(z0, z1);
+}
+
+namespace {
+const char* route_name(bool regions, const std::optional<VolumeStream>& stream) {
+  if (regions) return "regions";
+  if (stream) return stream->slice_files() ? "slabs of the slice files" : "slabs of the stream";
+  return "whole volume";
+}
+}  // namespace
+
+const char* RegionReader::route() const { return route_name(regions_.has_value(), stream_); }
+
+const char* RegionReader::route_of(const std::string& path, const ReadOptions& options) {
+  if (open_regions(path, options)) return route_name(true, std::nullopt);
+  return route_name(false, open_stream(path, options));
 }
 
 }  // namespace adaptiso

@@ -23,7 +23,8 @@ using testutil::TempDir;
 namespace {
 
 // Every voxel of the box read from the file is the whole volume's, bit for bit.
-void expect_crop(const VolumeRegions& r, const Volume& whole, const VoxelBox& box) {
+template <class Reader>
+void expect_crop(const Reader& r, const Volume& whole, const VoxelBox& box) {
   const Volume part = r.read(box);
   ASSERT_EQ(part.dims, box.dims());
   ASSERT_EQ(part.type, whole.type);
@@ -468,5 +469,36 @@ TEST(VolumeStream, RealDicomSeriesSlabsMatchTheWholeRead) {
     ASSERT_EQ(part.bytes.size(), (z1 - z0 + 1) * slice);
     EXPECT_EQ(0, std::memcmp(part.bytes.data(), whole.bytes.data() + z0 * slice, part.bytes.size())) << z0 << ".." << z1;
     EXPECT_EQ(part.origin, whole.voxel_to_world(0, 0, z0));
+  }
+}
+
+TEST(RegionReader, EveryRouteReadsTheBoxesReadVolumeHolds) {
+  TempDir t("reader");
+  const Dims dims{6, 5, 4};
+  const Volume ref = testutil::pattern_volume(dims, ScalarType::u8);
+  write_nrrd(ref, t / "raw.nrrd", false);
+  write_nrrd(ref, t / "gz.nrrd", true);
+  std::string text;
+  for (std::int64_t i = 0; i < ref.voxel_count(); ++i) text += fmt::format("{} ", static_cast<int>(ref.at(i)));
+  testutil::write_bytes(t / "text.nrrd",
+                        "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 6 5 4\nspacings: 0.5 1 2\nencoding: ascii\n\n" + text);
+  for (const auto& [name, route] :
+       {std::pair{"raw.nrrd", "regions"}, std::pair{"gz.nrrd", "slabs of the stream"}, std::pair{"text.nrrd", "whole volume"}}) {
+    SCOPED_TRACE(name);
+    const Volume whole = read_volume(t / name);
+    ASSERT_EQ(whole.bytes, ref.bytes);
+    RegionReader r(t / name);
+    EXPECT_STREQ(r.route(), route);
+    EXPECT_STREQ(RegionReader::route_of(t / name), route);
+    EXPECT_EQ(r.streams(), std::string(route) == "slabs of the stream");
+    EXPECT_EQ(r.header().dims, dims);
+    for (const VoxelBox& box : boxes(dims)) {
+      r.hold(box.lo[2], box.hi[2]);
+      expect_crop(r, whole, box);
+      const Volume part = r.read(box);
+      EXPECT_EQ(part.origin, whole.voxel_to_world(double(box.lo[0]), double(box.lo[1]), double(box.lo[2])));
+      EXPECT_EQ(part.spacing, whole.spacing);
+    }
+    EXPECT_THROW(r.read({{0, 0, 0}, {dims[0], 0, 0}}), std::invalid_argument);
   }
 }
