@@ -344,11 +344,11 @@ const Volume& volume_of(py::handle h) { return initialised<Volume>(h, "Volume", 
 // prepare's volume: a Volume, or a file's path (str, bytes or os.PathLike).
 python::PrepareInput prepare_input(py::handle volume, PrepareOptions options) {
   python::PrepareInput in;
+  in.options = std::move(options);
   if (py::isinstance<py::str>(volume) || py::isinstance<py::bytes>(volume) || py::hasattr(volume, "__fspath__"))
-    in.path = path_arg(volume, "volume");
+    in.options.source_name = in.path = path_arg(volume, "volume");  // recorded in the grid, as the command line does
   else
     in.volume = &volume_of(volume);
-  in.options = std::move(options);
   return in;
 }
 

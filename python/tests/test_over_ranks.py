@@ -171,9 +171,16 @@ def test_a_path_is_read_as_adaptiso_read_reads_it(tmp_path):
     path = tmp_path / "f.nrrd"
     write_nrrd(path, field((9, 10, 11)), "gzip")
     a, b = tmp_path / "a.adg", tmp_path / "b.adg"
-    adaptiso.prepare(path, brick_side=4).save(a)  # os.PathLike
-    adaptiso.prepare(adaptiso.read(str(path))).save(b)
-    assert a.read_bytes() == b.read_bytes()
+    grid = adaptiso.prepare(path, brick_side=4)  # os.PathLike
+    grid.save(a)
+    other = adaptiso.prepare(adaptiso.read(str(path)))
+    other.save(b)
+    # The same grid; its file also records the source's name, as the command line's does.
+    assert grid.stats["bricks"]["bricks"] == 3 * 3 * 2
+    assert b'"file":"f.nrrd"' in a.read_bytes() and b'"file":"f.nrrd"' not in b.read_bytes()
+    assert (grid.vertex_count, grid.tetrahedron_count) == (other.vertex_count, other.tetrahedron_count)
+    for x, y in zip(grid.extract(0.3), other.extract(0.3)):
+        assert np.array_equal(x, y)
     with pytest.raises(OSError, match="no_such.nrrd"):
         adaptiso.prepare(str(tmp_path / "no_such.nrrd"))
     with pytest.raises(OSError, match="no_such.nrrd"):
