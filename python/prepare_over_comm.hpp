@@ -5,16 +5,17 @@
 // The communicator is used through its Python methods alone (Get_rank, Get_size, bcast, gather),
 // so the module links no MPI and imports no mpi4py: any object with those methods will do.
 //
-// Every process calls prepare with its own Volume of the same dimensions: a numpy.memmap, or a
-// Volume over one, is read only in the process's bricks. Rank 0 makes the grid; the others
+// Every process calls prepare with its own Volume of the same dimensions (a numpy.memmap, or a
+// Volume over one, is read only in the process's bricks) or the same file's path (rank 0 reads it
+// whole; the others read their bricks by RegionReader's route). Rank 0 makes the grid; the others
 // compute their bricks, hand them to rank 0 and return None. The protocol always completes, so an
-// error on any process (a bad option, a volume of other dimensions, memory refused) raises on
-// every process, naming the rank, instead of leaving the others waiting:
+// error on any process (a bad option, a volume of other dimensions, a file it cannot read, memory
+// refused) raises on every process, naming the rank, instead of leaving the others waiting:
 //   1. rank 0 broadcasts ("go", range min, range max, dims, brick side, displacement) when its
 //      preparation reaches the error hierarchy, or ("failed", message) / ("done",) when it fails
 //      or finishes before it;
 //   2. every other rank computes its bricks with rank 0's range, side and criterion, and every
-//      rank gathers to rank 0 ("ok", bytes) or ("error", message).
+//      rank gathers to rank 0 ("ok", bytes, peak resident bytes, how it read) or ("error", message).
 // A process that dies outright still leaves the others waiting, as with any MPI program: run
 // under `python3 -m mpi4py script.py`, which aborts the job on an uncaught exception.
 #pragma once
