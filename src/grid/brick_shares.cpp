@@ -48,7 +48,7 @@ public:
     get(n);
     if (n > (bytes_.size() - at_) / sizeof(T)) truncated();
     v.resize(n);
-    std::memcpy(v.data(), bytes_.data() + at_, n * sizeof(T));
+    if (n > 0) std::memcpy(v.data(), bytes_.data() + at_, n * sizeof(T));  // an empty vector's data() may be null
     at_ += n * sizeof(T);
   }
   bool done() const { return at_ == bytes_.size(); }

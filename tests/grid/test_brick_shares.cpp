@@ -100,3 +100,15 @@ TEST(BrickShares, AProcessNumberOutsideTheJobIsRefused) {
   for (auto [p, n] : {std::pair{2, 2}, std::pair{-1, 2}, std::pair{0, 0}})
     EXPECT_THROW(bisection_share_errors(bricks, p, n, region_source(v), value_range(v)), InputError) << p << " of " << n;
 }
+
+// UBSan caught memcpy from an empty vector's null data() when a brick handed up no seams.
+TEST(BrickShares, EmptyArraysRoundTripWithoutACopyFromNull) {
+  std::vector<BrickErrors> bricks(2);
+  bricks[1].brick = 7;
+  bricks[1].code = {1, 2, 3};
+  const std::vector<BrickErrors> back = unpack_brick_errors(pack_brick_errors(bricks));
+  ASSERT_EQ(back.size(), 2u);
+  EXPECT_TRUE(back[0].code.empty() && back[0].seam_voxel.empty() && back[0].coarse_value.empty());
+  EXPECT_EQ(back[1].brick, 7);
+  EXPECT_EQ(back[1].code, (std::vector<std::uint8_t>{1, 2, 3}));
+}
