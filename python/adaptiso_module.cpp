@@ -727,13 +727,10 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
                                                        structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
         };
         python::CommShare share(comm, brick_side);
-        if (!share.root()) {
-          share.serve(setup);
-          return py::none();
-        }
-        auto p = share.run_root<std::shared_ptr<const PreparedGrid>>(
+        auto p = share.run<std::shared_ptr<const PreparedGrid>>(
             setup, [](const Volume& v, const PrepareOptions& o) { return std::make_shared<const PreparedGrid>(prepare(v, o)); });
-        auto g = std::make_unique<Grid>(std::move(p));
+        if (!p) return py::none();  // a rank other than 0
+        auto g = std::make_unique<Grid>(std::move(*p));
         if (share.stats()) g->bricks = share.stats()->to_dict();
         return py::cast(std::move(g));
       },
@@ -774,14 +771,10 @@ process raises on every process, the others' as ValueError "comm: rank R: ...".)
                                                        structural_gradient, sigma, kernel, tree_depth, verify, parallel_delaunay));
         };
         python::CommShare share(comm, brick_side);
-        if (!share.root()) {
-          share.serve(setup);
-          return py::none();
-        }
-        const PrepareStats stats = file_errors([&] {
-          return share.run_root<PrepareStats>(setup, [&](const Volume& v, const PrepareOptions& o) { return prepare_to_file(v, o, p); });
-        });
-        py::object out = json_object(to_json(stats));
+        const std::optional<PrepareStats> stats = share.run<PrepareStats>(
+            setup, [&](const Volume& v, const PrepareOptions& o) { return file_errors([&] { return prepare_to_file(v, o, p); }); });
+        if (!stats) return py::none();  // a rank other than 0
+        py::object out = json_object(to_json(*stats));
         if (share.stats()) out["bricks"] = share.stats()->to_dict();
         return out;
       },

@@ -56,21 +56,20 @@ public:
   // comm: None or an mpi4py communicator (TypeError for another object); brick_side: None for the
   // default (one process: no bricks; several: brick_shares.hpp's kDefaultShareBrickSide).
   CommShare(const pybind11::object& comm, std::optional<std::int64_t> brick_side);
-  bool root() const { return rank_ == 0; }
 
   // Finds the volume and checks the options (Python's arguments; the GIL held).
   using Setup = std::function<PrepareInput()>;
-  // Rank 0 (or one process): `setup`, then `prepare` with the GIL released, which calls
-  // options.error_hierarchy, set here when the hierarchy is bricked or shared. The protocol
-  // completes whether either succeeds or throws.
+  // This process's part. Rank 0 (or one process): `setup`, then `prepare` with the GIL released,
+  // which calls options.error_hierarchy, set here when the hierarchy is bricked or shared; returns
+  // its result. Any other rank: its bricks, handed to rank 0 (a throw in `setup` reaches rank 0
+  // too); returns nullopt. The protocol completes whether either succeeds or throws.
   template <class R>
-  R run_root(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare);
-  // Any other rank: its part of the protocol (a throw in `setup` reaches rank 0 too).
-  void serve(const Setup& setup);
-  // Rank 0 after run_root: what the bricks did, when the hierarchy was bricked.
+  std::optional<R> run(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare);
+  // Rank 0 after run: what the bricks did, when the hierarchy was bricked.
   const std::optional<BrickStats>& stats() const { return stats_; }
 
 private:
+  void serve(const Setup& setup);
   static Volume read_file(const std::string& path);  // FileError when it cannot be read
   void share_hierarchy(PrepareOptions& options);
   void tell_the_others(const pybind11::object& message);
@@ -82,7 +81,11 @@ private:
 };
 
 template <class R>
-R CommShare::run_root(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare) {
+std::optional<R> CommShare::run(const Setup& setup, const std::function<R(const Volume&, const PrepareOptions&)>& prepare) {
+  if (rank_ != 0) {
+    serve(setup);
+    return std::nullopt;
+  }
   std::optional<R> r;
   try {
     PrepareInput in = setup();
@@ -99,7 +102,7 @@ R CommShare::run_root(const Setup& setup, const std::function<R(const Volume&, c
     throw;
   }
   if (!sent_) tell_the_others(pybind11::make_tuple("done"));
-  return std::move(*r);
+  return r;
 }
 
 }  // namespace adaptiso::python
