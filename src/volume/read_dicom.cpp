@@ -151,16 +151,18 @@ public:
   explicit SliceImage(const std::string& file) : file_(file) {
     // The walk reads the file; GDCM then reads it again from the page cache, or, when zero padding
     // follows the data set, from a copy of the data set alone (dropped once parsed).
+    bool padded = false;
     {
       const std::vector<unsigned char> bytes = detail::read_bytes(file, 0, detail::file_size_or_throw(file));
       const detail::DicomSummary summary = detail::check_dicom_bytes(bytes, file);
       if (!summary.has_pixels) throw InputError(fmt::format("{}: holds no DICOM image", file));
-      if (summary.padded_from > 0) data_.str(std::string(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(summary.padded_from)));
+      padded = summary.padded_from > 0;
+      if (padded) data_.str(std::string(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(summary.padded_from)));
     }
-    if (data_.str().empty())
-      reader_.SetFileName(file.c_str());
-    else
+    if (padded)
       reader_.SetStream(data_);
+    else
+      reader_.SetFileName(file.c_str());
     const bool read = reader_.Read();
     data_.str(std::string{});
     if (!read) throw InputError(fmt::format("{}: cannot read the DICOM image", file));
