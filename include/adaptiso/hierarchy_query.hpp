@@ -76,7 +76,8 @@ public:
   // surface may cross is split while a test finds it too coarse (a triangle's centre farther than
   // the distance from the grid's surface, or a cut point its split adds farther than the distance
   // from its triangles, or a surface hidden beneath it while its longest edge exceeds
-  // 2·distance); the splits are then closed under their parents, so the mesh stays conforming.
+  // 2·distance, kept only when the surface shows beneath it); the splits are then closed under
+  // their parents, so the mesh stays conforming.
   // Guaranteed: every mesh vertex is a vertex of the grid's own surface, bit for bit (the cut of a
   // coarse edge is placed on the grid's cut edge inside it); the surface is watertight and
   // 2-manifold where the grid's is, oriented, free of self-intersections (each triangle lies in

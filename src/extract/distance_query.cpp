@@ -20,8 +20,10 @@
 //   corners) farther than the distance from its triangles;
 // - or a surface hides beneath and its longest edge exceeds 2·distance: no corner shows it, or
 //   the midpoint differs from both ends of the refinement edge.
-// Smaller hidden parts are left out. Tetrahedra whose longest edge is within the distance are not
-// probed: every point of their triangles lies within it of a cut point.
+// Smaller hidden parts are left out, and so are the splits made to look for them: a split for a
+// hidden surface is kept only when some tetrahedron beneath it shows the surface at its corners,
+// so a part left out costs its neighbours no closure. Tetrahedra whose longest edge is within the
+// distance are not probed: every point of their triangles lies within it of a cut point.
 //
 // Three passes:
 // 1. Refine (parallel, top-down), each tetrahedron carrying its corners and its edges' cut points
@@ -342,7 +344,8 @@ public:
       for (int a = 0; a < 4; ++a)
         for (int b = a + 1; b < 4; ++b)
           if (q_.above(n.c[a].value) != q_.above(n.c[b].value)) n.cut[kEdgeOf[a][b]] = q_.cut(n.c[a], n.c[b]).p;
-      return decide(n, m, i, j, id, depth);
+      decide(n, m, i, j, id, depth);
+      return;
     }
     // Across the box's far faces: split when the grid splits it, unless nothing beneath matters.
     if (q_.lat.in_box(m) ? !q_.numbers.used(q_.lat.index(m)) : !placement(classify(m, q_.lat.k), q_.lat).forced) return;
@@ -373,14 +376,25 @@ private:
     return q_.may_cut(id);
   }
 
-  void node(const Node& n, int depth) const {
+  // Does the surface show in this tetrahedron or beneath it, as the refinement leaves it?
+  bool node(const Node& n, int depth) const {
     Coord m;
     int i, j;
     std::uint32_t id;
-    if (refinement(n.t, n.order, m, i, j) && worth_deciding(m, id)) decide(n, m, i, j, id, depth);
+    if (refinement(n.t, n.order, m, i, j) && worth_deciding(m, id)) return decide(n, m, i, j, id, depth);
+    return shows_surface(n);
+  }
+  bool shows_surface(const Node& n) const {
+    const bool first = q_.above(n.c[0].value);
+    return q_.above(n.c[1].value) != first || q_.above(n.c[2].value) != first || q_.above(n.c[3].value) != first;
   }
 
-  void decide(const Node& n, const Coord& m, int i, int j, std::uint32_t id, int depth) const {
+  // Splits the tetrahedron when a test says so, and its halves in turn. A split made only to look
+  // for a surface hidden beneath (no corner shows one) is kept only when the halves' refinement
+  // finds it; otherwise the part is one the distance leaves out, and marking the splits that
+  // looked for it would only refine its neighbours for the closure. Returns whether the surface
+  // shows in this tetrahedron or beneath it.
+  bool decide(const Node& n, const Coord& m, int i, int j, std::uint32_t id, int depth) const {
     const Corner mid{m, id, q_.g.values[id]};
     // The other two corners, and the cut points the split adds on the edges from m to them.
     int others[2], n_others = 0;
@@ -392,8 +406,8 @@ private:
       cut[s] = q_.above(mid.value) != q_.above(n.c[others[s]].value);
       if (cut[s]) added[s] = q_.cut(mid, n.c[others[s]]).p;
     }
-    if (!(q_.forced(id) || q_.everything || splits(n, mid, i, j, others, added, cut))) return;
-    if (!q_.forced(id) && q_.split.mark(q_.lat.index(m))) q_.marked.local().push_back(q_.lat.index(m));
+    const bool shows = shows_surface(n);
+    if (!(q_.forced(id) || q_.everything || splits(n, mid, i, j, others, added, cut))) return shows;
     const auto& e = order_table::kTable[n.order];
     Node a = n, b = n;  // a: the midpoint in slot j; b: in slot i
     a.parent = b.parent = &n;
@@ -410,8 +424,12 @@ private:
       a.cut[kEdgeOf[i][j]] = q_.cut(n.c[i], mid).p;
       b.cut[kEdgeOf[i][j]] = q_.cut(mid, n.c[j]).p;
     }
+    bool found[2] = {false, false};
     both(
-        depth, [&] { node(a, depth + 1); }, [&] { node(b, depth + 1); });
+        depth, [&] { found[0] = node(a, depth + 1); }, [&] { found[1] = node(b, depth + 1); });
+    const bool keep = shows || found[0] || found[1];
+    if (keep && !q_.forced(id) && q_.split.mark(q_.lat.index(m))) q_.marked.local().push_back(q_.lat.index(m));
+    return keep;
   }
 
   // The tests of the top of this file.
