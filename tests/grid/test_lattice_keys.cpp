@@ -40,7 +40,9 @@ TEST(LatticeKeys, GridVerticesAscendInTheirKeysAndMatchTheVolume) {
   for (std::uint32_t i = 0; i < g.vertex_count(); ++i) {
     const auto& c = g.ijk[i];
     EXPECT_EQ(g.lattice_key(i), static_cast<LatticeKey>(v.index(c[0], c[1], c[2])));
-    if (i > 0) EXPECT_LT(g.lattice_key(i - 1), g.lattice_key(i));
+    if (i > 0) {
+      EXPECT_LT(g.lattice_key(i - 1), g.lattice_key(i));
+    }
   }
 }
 

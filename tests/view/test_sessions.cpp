@@ -399,7 +399,9 @@ TEST(MemoryBudget, TheDefaultIsAtMostHalfTheMachineAndSizesReadAsText) {
   EXPECT_GT(budget, 0u);
   EXPECT_GT(detail::resident_bytes(), 0u);
   const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-  if (pages > 0 && page > 0) EXPECT_LE(budget, static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page) / 2);
+  if (pages > 0 && page > 0) {
+    EXPECT_LE(budget, static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page) / 2);
+  }
   EXPECT_EQ(detail::byte_size_text(1'200'000'000), "1.2 GB");
   EXPECT_EQ(detail::byte_size_text(340'000'000), "340 MB");
   EXPECT_EQ(detail::byte_size_text(12'000), "12 kB");
