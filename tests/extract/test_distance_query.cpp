@@ -262,9 +262,9 @@ TEST(DistanceQuery, FewerTrianglesAtLargerDistancesAndRefusals) {
 TEST(DistanceQuery, APartTheDistanceLeavesOutRefinesNothingAroundIt) {
   // Specks of one voxel beside a sphere: smaller than 2·distance and shown by no corner above the
   // finest levels, so the query at distance 2 leaves them out, and the splits made looking for them
-  // must not be kept (their closure refined the sphere's tetrahedra nearby: 30 % more triangles on
-  // the CT bunny). Prepared at error 0, both grids split every curved diamond alike; at distance
-  // 0.5 the specks are found.
+  // must not be kept (their closure refined the sphere's tetrahedra nearby: 1.4–1.5× the triangles
+  // on the CT bunny). Prepared at error 0, the grids differ only around the specks; at distance 0.5
+  // the specks are found.
   auto sphere = [](double x, double y, double z) {
     return std::sqrt((x - 24) * (x - 24) + (y - 24) * (y - 24) + (z - 24) * (z - 24)) - 12;
   };
