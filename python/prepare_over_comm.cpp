@@ -163,10 +163,8 @@ void CommShare::serve(const Setup& setup) {
       if (d != dims)
         throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, {}×{}×{} on rank 0", d[0], d[1], d[2], rank_, dims[0],
                                      dims[1], dims[2]));
-      const RegionSource source = in.volume ? region_source(*in.volume) : [&](const VoxelBox& box) { return reader->read(box); };
-      HoldSlices hold;
-      if (reader && reader->streams()) hold = [&](std::int64_t z0, std::int64_t z1) { reader->hold(z0, z1); };
-      bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, source, range, displacement, hold));
+      const ReaderSource read = reader ? reader_source(*reader) : ReaderSource{region_source(*in.volume), {}};
+      bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, read.source, range, displacement, read.hold));
     }
     check_message_size(bytes.size(), rank_);
     reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()), peak_resident_bytes(), route);

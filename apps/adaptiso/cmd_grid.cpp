@@ -28,10 +28,8 @@ namespace {
 void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
   RegionReader reader(in.path, in.read_options());
-  const RegionSource source = [&](const VoxelBox& box) { return reader.read(box); };
-  HoldSlices hold;
-  if (reader.streams()) hold = [&](std::int64_t z0, std::int64_t z1) { reader.hold(z0, z1); };
-  distributed_errors(ranks, reader.header().dims, source, {}, brick_side, options.max_displacement > 0, {}, ignored, hold);
+  const ReaderSource read = reader_source(reader);
+  distributed_errors(ranks, reader.header().dims, read.source, {}, brick_side, options.max_displacement > 0, {}, ignored, read.hold);
 }
 
 // The error hierarchy in bricks of `side`: over the ranks under mpirun, else on this process. The

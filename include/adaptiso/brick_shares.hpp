@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "adaptiso/bisection_bricks.hpp"
+#include "adaptiso/volume_regions.hpp"
 
 namespace adaptiso {
 
@@ -42,6 +43,14 @@ using HoldSlices = std::function<void(std::int64_t z0, std::int64_t z1)>;
 // per owned voxel until they are handed up, and per thread one brick at work.
 std::vector<BrickErrors> bisection_share_errors(const BrickGrid& bricks, int process, int processes, const RegionSource& source,
                                                 const ValueRange& range, bool displacement = false, const HoldSlices& hold = {});
+
+// Bricks read from a file by `reader`'s route: the source, and with a stream the hold that reads
+// it slab by slab (both refer to `reader`, which must outlive them).
+struct ReaderSource {
+  RegionSource source;
+  HoldSlices hold;
+};
+ReaderSource reader_source(RegionReader& reader);
 
 // A process's results as one flat message, and back.
 std::vector<std::byte> pack_brick_errors(const std::vector<BrickErrors>& bricks);

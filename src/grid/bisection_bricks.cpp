@@ -346,10 +346,7 @@ RegionSource region_source(const Volume& v) {
     for (int a = 0; a < 3; ++a)
       if (box.lo[a] < 0 || box.hi[a] >= v.dims[a] || box.lo[a] > box.hi[a])
         throw InputError(fmt::format("a region [{}, {}] outside the volume's {} voxels along axis {}", box.lo[a], box.hi[a], v.dims[a], a));
-    Volume r = make_volume(box.dims(), v.type);
-    detail::copy_box(reinterpret_cast<const std::uint8_t*>(v.bytes.data()), v.dims, box, scalar_size(v.type),
-                     reinterpret_cast<std::uint8_t*>(r.bytes.data()));
-    return r;
+    return detail::copy_box(v, box);
   };
 }
 

@@ -125,6 +125,12 @@ std::vector<BrickErrors> bisection_share_errors(const BrickGrid& bricks, int pro
   return out;
 }
 
+ReaderSource reader_source(RegionReader& reader) {
+  ReaderSource r{[&reader](const VoxelBox& box) { return reader.read(box); }, {}};
+  if (reader.streams()) r.hold = [&reader](std::int64_t z0, std::int64_t z1) { reader.hold(z0, z1); };
+  return r;
+}
+
 std::vector<std::byte> pack_brick_errors(const std::vector<BrickErrors>& bricks) {
   Writer w;
   w.put(static_cast<std::uint64_t>(bricks.size()));

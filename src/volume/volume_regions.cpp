@@ -82,6 +82,13 @@ void copy_box(const std::uint8_t* src, const Dims& dims, const VoxelBox& from, s
     }
 }
 
+Volume copy_box(const Volume& v, const VoxelBox& box) {
+  Volume r = stored_box(v, box, std::nullopt);
+  copy_box(reinterpret_cast<const std::uint8_t*>(v.bytes.data()), v.dims, box, scalar_size(v.type),
+           reinterpret_cast<std::uint8_t*>(r.bytes.data()));
+  return r;
+}
+
 }  // namespace detail
 
 Volume VolumeRegions::read(const VoxelBox& box) const {
@@ -432,10 +439,7 @@ Volume RegionReader::read(const VoxelBox& box) const {
   if (regions_) return regions_->read(box);
   if (stream_) return stream_->read(box);
   check_inside("RegionReader::read", box, whole_->dims);
-  Volume r = stored_box(*whole_, box, std::nullopt);
-  detail::copy_box(reinterpret_cast<const std::uint8_t*>(whole_->bytes.data()), whole_->dims, box, scalar_size(r.type),
-                   reinterpret_cast<std::uint8_t*>(r.bytes.data()));
-  return r;
+  return detail::copy_box(*whole_, box);
 }
 
 void RegionReader::hold(std::int64_t z0, std::int64_t z1) {
