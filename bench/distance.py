@@ -20,7 +20,7 @@ loaded grid costs adaptiso the query alone; the query's one-time set-up per load
 beside the grid. The peers need `peer_bench` and `bench_simplify` (scripts/bench.sh builds them into
 build/peers, -DADAPTISO_BUILD_PEERS=ON); without them their rows are left out with a message.
 
-Usage: bench/distance.py --build BUILD [--data DIR] [--work DIR] [--distances 0.5,1,2]
+Usage: bench/distance.py --build BUILD [--data DIR] [--work DIR] [--distances 0.5,1,2] [--query-only]
                          [--repeat 3] [--out RECORDS.json] [DATASET[:ISO,...] ...]
 """
 import argparse
@@ -60,6 +60,8 @@ def main():
     ap.add_argument("--work", default="build/distance-work")
     ap.add_argument("--distances", default="0.5,1,2")
     ap.add_argument("--repeat", type=int, default=3, help="runs per timing (fastest kept)")
+    ap.add_argument("--query-only", action="store_true",
+                    help="only flying edges, the grid's surface, the query at each D and OpenVDB (no simplification rows: minutes less on large volumes)")
     ap.add_argument("--out")
     ap.add_argument("datasets", nargs="*")
     a = ap.parse_args()
@@ -121,6 +123,8 @@ def main():
                 s = fastest([exe, "extract", grid, "--iso", f"{iso:g}", "--distance", f"{d:g}", "-o", mesh, "--json", "--quiet"], a.repeat,
                             lambda r: r["surfaces"][0]["seconds"])["surfaces"][0]
                 record("adaptiso --distance", d, mesh, s["triangles"], s["seconds"], True)
+                if a.query_only:
+                    continue
                 # Tandem: half the distance to the query, half to a simplification of its surface,
                 # meshoptimizer's estimate alone and checked (simplify.hpp).
                 for checked in ([], ["--checked"]):
