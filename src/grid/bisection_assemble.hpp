@@ -88,24 +88,21 @@ struct FlooredSplits {
 // halves, and of every descendant that contains it, so of the leaves that cover it; and every
 // vertex of a leaf is a root corner or the midpoint of an ancestor's split.
 template <class Rule>
-std::vector<std::uint64_t> split_centres(const Lattice& lat, const Rule& rule, std::size_t voxels) {
-  std::vector<std::uint64_t> bits;
-  assign_big(bits, (voxels + 63) / 64, std::uint64_t{0});
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bits.size(), 4096), [&](const auto& r) {
+void split_centres(const Lattice& lat, const Rule& rule, std::size_t voxels, VertexNumbers& numbers) {
+  numbers.reset(voxels);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.words.size(), 4096), [&](const auto& r) {
     for (std::size_t w = r.begin(); w < r.end(); ++w) {
       std::uint64_t word = 0;
       const std::size_t n = std::min<std::size_t>(64, voxels - w * 64);
       for (std::size_t b = 0; b < n; ++b) word |= std::uint64_t{rule.split(static_cast<std::int64_t>(w * 64 + b))} << b;
-      bits[w] = word;
+      numbers.words[w].bits = word;
     }
   });
   for (int corner = 0; corner < 8; ++corner) {
     const Coord c{corner & 1 ? lat.S : 0, corner & 2 ? lat.S : 0, corner & 4 ? lat.S : 0};
     if (!lat.in_box(c)) continue;
-    const auto v = static_cast<std::size_t>(lat.index(c));
-    bits[v >> 6] |= std::uint64_t{1} << (v & 63);
+    numbers.set(static_cast<std::uint64_t>(lat.index(c)));
   }
-  return bits;
 }
 
 // The grid of a traversal's leaves inside the box. A first walk counts the leaves of each subtree.
@@ -148,21 +145,21 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   });
   VertexNumbers numbers;  // over the voxels
   if constexpr (kMarked) {
-    numbers.bits.assign((used.size() + 63) / 64, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 4096), [&](const auto& r) {
+    numbers.reset(used.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.words.size(), 4096), [&](const auto& r) {
       for (std::size_t w = r.begin(); w < r.end(); ++w) {
         std::uint64_t bits = 0;
         for (std::size_t b = 0; b < 64 && w * 64 + b < used.size(); ++b) bits |= std::uint64_t{used[w * 64 + b]} << b;
-        numbers.bits[w] = bits;
+        numbers.words[w].bits = bits;
       }
     });
     std::vector<std::uint8_t>().swap(used);
   } else {
-    numbers.bits = split_centres(lat, rule, voxels);
+    split_centres(lat, rule, voxels, numbers);
   }
   for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
   numbers.count();
-  const std::uint64_t vertices = numbers.before.back(), tets = leaves.back();
+  const std::uint64_t vertices = numbers.total(), tets = leaves.back();
   // The grid and the rest of the preparation: tetrahedra (16 bytes), their index (8 bytes, and
   // while built 16 more for each entry of the two nodes being sorted: about 8 a tetrahedron on the
   // noisiest scan here, the MR head, whose two largest nodes hold 39 M of 84 M entries), vertices
@@ -173,10 +170,10 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   report(progress, "select", 0.5);
   TetGrid& g = out.grid;
   size(vertices);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.bits.size(), 1024), [&](const auto& r) {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.words.size(), 1024), [&](const auto& r) {
     for (std::size_t w = r.begin(); w < r.end(); ++w) {
-      std::uint64_t id = numbers.before[w];
-      for (std::uint64_t b = numbers.bits[w]; b; b &= b - 1) fill(w * 64 + static_cast<std::size_t>(std::countr_zero(b)), id++);
+      std::uint64_t id = numbers.words[w].before;
+      for (std::uint64_t b = numbers.words[w].bits; b; b &= b - 1) fill(w * 64 + static_cast<std::size_t>(std::countr_zero(b)), id++);
     }
   });
   resize_big(g.tets, tets);

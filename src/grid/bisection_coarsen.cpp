@@ -35,11 +35,8 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
   };
   // The fine grid's vertices by voxel: its vertices are numbered in ascending voxel order.
   VertexNumbers fine_numbers;
-  assign_big(fine_numbers.bits, static_cast<std::size_t>((lat.nxy * (lat.X[2] + 1) + 63) / 64), std::uint64_t{0});
-  for (const auto& p : fine.ijk) {
-    const std::size_t i = voxel_of(p);
-    fine_numbers.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
-  }
+  fine_numbers.reset(static_cast<std::uint64_t>(lat.nxy * (lat.X[2] + 1)));
+  for (const auto& p : fine.ijk) fine_numbers.set(voxel_of(p));
   fine_numbers.count();
   // The selection below numbers the root cube's corners by their rank among the fine vertices
   // without asking whether they are vertices (load_grid refuses a file without them; a grid made

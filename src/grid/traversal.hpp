@@ -187,23 +187,34 @@ inline int bit_count(std::uint64_t x) {
 }
 
 // Vertex numbers from a bitmap of used voxels: the rank of a voxel among the used ones (ascending
-// linear index, the grid's vertex order).
+// linear index, the grid's vertex order). Set the bits (reset, set), then count.
 struct VertexNumbers {
   static constexpr std::uint32_t kNone = ~std::uint32_t{0};
-  std::vector<std::uint64_t> bits;
-  std::vector<std::uint64_t> before;  // used voxels in the words before each word
-  std::uint32_t id(std::int64_t voxel) const {
-    const std::size_t w = static_cast<std::size_t>(voxel) >> 6;
-    const std::uint64_t below = bits[w] & ((std::uint64_t{1} << (voxel & 63)) - 1);
-    return static_cast<std::uint32_t>(before[w] + static_cast<std::uint64_t>(bit_count(below)));
+  // Per 64 voxels, side by side: which are vertices, and how many vertices the words before hold.
+  // The walks look up scattered voxels, several per tetrahedron (the distance query's probes one
+  // per level): one cache line per lookup instead of two (3–6 % of the distance query's
+  // refinement on the CT bunny, none measurable on the smaller chest CT, whose bitmap stays cached).
+  struct Word {
+    std::uint64_t bits = 0, before = 0;
+  };
+  std::vector<Word> words;
+
+  void reset(std::uint64_t voxels) { assign_big(words, static_cast<std::size_t>((voxels + 63) / 64), Word{}); }
+  void set(std::uint64_t voxel) { words[static_cast<std::size_t>(voxel >> 6)].bits |= std::uint64_t{1} << (voxel & 63); }
+  void count() {
+    std::uint64_t n = 0;
+    for (Word& w : words) w.before = n, n += static_cast<std::uint64_t>(bit_count(w.bits));
   }
-  bool used(std::int64_t voxel) const { return (bits[static_cast<std::size_t>(voxel) >> 6] >> (voxel & 63)) & 1; }
+  std::uint64_t total() const { return words.empty() ? 0 : words.back().before + static_cast<std::uint64_t>(bit_count(words.back().bits)); }
+
+  std::uint32_t id(std::int64_t voxel) const {
+    const Word& w = words[static_cast<std::size_t>(voxel) >> 6];
+    const std::uint64_t below = w.bits & ((std::uint64_t{1} << (voxel & 63)) - 1);
+    return static_cast<std::uint32_t>(w.before + static_cast<std::uint64_t>(bit_count(below)));
+  }
+  bool used(std::int64_t voxel) const { return (words[static_cast<std::size_t>(voxel) >> 6].bits >> (voxel & 63)) & 1; }
   // kNone for a voxel that is no vertex.
   std::uint32_t find(std::int64_t voxel) const { return used(voxel) ? id(voxel) : kNone; }
-  void count() {
-    assign_big(before, bits.size() + 1, std::uint64_t{0});
-    for (std::size_t w = 0; w < bits.size(); ++w) before[w + 1] = before[w] + static_cast<std::uint64_t>(bit_count(bits[w]));
-  }
 };
 
 // A numbered walk's tetrahedron: its vertices' numbers and values, in the slots of its corners.

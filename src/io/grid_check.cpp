@@ -253,11 +253,8 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path) {
   // the value spans reached.
   check_memory(voxels / 4 + n * 2, fmt::format("checking the hierarchy of a grid over {} voxels", voxels), "", "");
   VertexNumbers numbers;
-  assign_big(numbers.bits, static_cast<std::size_t>((voxels + 63) / 64), std::uint64_t{0});
-  for (const auto& v : g.ijk) {
-    const std::uint64_t i = voxel_of(v, g.source.dims);
-    numbers.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
-  }
+  numbers.reset(voxels);
+  for (const auto& v : g.ijk) numbers.set(voxel_of(v, g.source.dims));
   numbers.count();
   // The walks number a tetrahedron's corners from the bitmap without asking whether they are
   // vertices: the root cube's corners, and the centres of the diamonds split above them.
