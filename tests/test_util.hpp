@@ -161,6 +161,25 @@ inline RunResult run_cli(const std::string& args) {
 }
 #endif
 
+// A random subset of the voxels (about one in `every`) plus the 8 corners, sorted.
+inline std::vector<std::int64_t> random_kept(const adaptiso::Volume& v, std::mt19937& rng, unsigned every) {
+  std::vector<std::int64_t> kept;
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
+    if (rng() % every == 0) kept.push_back(i);
+  auto c = adaptiso::volume_corners(v);
+  std::vector<std::int64_t> k;
+  std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
+  return k;
+}
+
+// A bisection grid prepared at an error bound (data units, or relative to the value range).
+inline std::shared_ptr<const adaptiso::PreparedGrid> prepared_at(const adaptiso::Volume& v, double max_error, bool relative) {
+  adaptiso::PrepareOptions o;
+  o.max_error = max_error;
+  o.relative = relative;
+  return std::make_shared<const adaptiso::PreparedGrid>(adaptiso::prepare(v, o));
+}
+
 // The Delaunay grid of a volume's kept voxels with least-squares gradients (the paper's grid, as
 // prepare builds it, minus the reduction).
 inline adaptiso::TetGrid build_grid(const adaptiso::Volume& v, const std::vector<std::int64_t>& kept) {

@@ -23,13 +23,6 @@ using namespace adaptiso;
 
 namespace {
 
-std::shared_ptr<const PreparedGrid> prepared_at(const Volume& v, double relative_error) {
-  PrepareOptions o;
-  o.max_error = relative_error;
-  o.relative = true;
-  return std::make_shared<const PreparedGrid>(prepare(v, o));
-}
-
 // A field over a box from a function of the voxel's grid-frame position (index ⊙ spacing).
 template <class F>
 Volume field(Dims d, Vec3 spacing, F&& f) {
@@ -50,7 +43,7 @@ TEST(DistanceQuery, DistanceZeroGivesTheGridsOwnSurfaceExactly) {
   for (Dims d : {Dims{17, 17, 17}, Dims{23, 14, 9}, Dims{9, 30, 12}}) {
     Volume v = make_volume(d, ScalarType::f32);
     for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, std::sin(0.07 * double(i)) + 0.3 * double(rng() % 100) / 100);
-    const auto grid = prepared_at(v, 0.02);
+    const auto grid = testutil::prepared_at(v, 0.02, true);
     const HierarchyQuery query(grid);
     const ValueRange r = value_range(v);
     for (double f : {0.3, 0.5, 0.7}) {
@@ -68,7 +61,7 @@ TEST(DistanceQuery, EveryVertexIsAVertexOfTheGridsSurfaceBitForBit) {
   for (const char* name : {"sphere", "marschner-lobb", "torus"}) {
     Volume v = make_synthetic(name, 41, ScalarType::f32);
     v.spacing = {1.0, 0.8, 1.3};
-    const auto grid = prepared_at(v, 0.01);
+    const auto grid = testutil::prepared_at(v, 0.01, true);
     const HierarchyQuery query(grid);
     const ValueRange r = value_range(v);
     const double iso = r.min + 0.55 * (r.max - r.min);
@@ -99,7 +92,7 @@ TEST(DistanceQuery, SurfacesStayWithinTheDistanceOfTheGridsSurface) {
     for (Vec3 spacing : {Vec3{1, 1, 1}, Vec3{1.0, 0.7, 1.6}}) {
       Volume v = make_synthetic(name, 49, ScalarType::f32);
       v.spacing = spacing;
-      const auto grid = prepared_at(v, 0.01);
+      const auto grid = testutil::prepared_at(v, 0.01, true);
       const HierarchyQuery query(grid);
       const ValueRange r = value_range(v);
       for (double f : {0.45, 0.7}) {
@@ -154,7 +147,7 @@ TEST(DistanceQuery, ClosedManifoldOrientedWithTheRightEulerCharacteristic) {
   };
   for (const Case& c : cases) {
     const Volume v = field(c.dims, c.spacing, c.f);
-    const auto grid = prepared_at(v, 0.005);
+    const auto grid = testutil::prepared_at(v, 0.005, true);
     const HierarchyQuery query(grid);
     const Mesh own = query.extract(0.5, 0);
     const double own_volume = mesh_volume(own), own_area = mesh_area(own);
@@ -185,7 +178,7 @@ TEST(DistanceQuery, CutsOfTheBoxFacesStayOnThem) {
       const Volume v = field(d, spacing, [&](double x, double y, double z) {
         return which == 0 ? 0.3 * x + 0.5 * y + 0.2 * z + 0.3 * std::sin(0.3 * z) : std::hypot(x, y - 8, z - 6);
       });
-      const auto grid = prepared_at(v, 0.01);
+      const auto grid = testutil::prepared_at(v, 0.01, true);
       const HierarchyQuery query(grid);
       const ValueRange r = value_range(v);
       for (double distance : {0.5, 2.0, 6.0}) {
@@ -202,7 +195,7 @@ TEST(DistanceQuery, CutsOfTheBoxFacesStayOnThem) {
 
 TEST(DistanceQuery, SameMeshForAnyThreadCount) {
   const Volume v = make_synthetic("marschner-lobb", 65, ScalarType::f32);
-  const auto grid = prepared_at(v, 0.005);
+  const auto grid = testutil::prepared_at(v, 0.005, true);
   const HierarchyQuery query(grid);
   for (double distance : {0.5, 2.0}) {
     Mesh one, two, four;
@@ -220,7 +213,7 @@ TEST(DistanceQuery, SameMeshForAnyThreadCount) {
 TEST(DistanceQuery, ConcurrentQueriesGiveWhatEachGivesAlone) {
   // Queries share the index and its pool of marks.
   const Volume v = make_synthetic("torus", 49, ScalarType::f32);
-  const auto grid = prepared_at(v, 0.005);
+  const auto grid = testutil::prepared_at(v, 0.005, true);
   const HierarchyQuery query(grid);
   const std::vector<double> isos{300, 450, 600, 750};
   std::vector<Mesh> alone;
@@ -238,7 +231,7 @@ TEST(DistanceQuery, ConcurrentQueriesGiveWhatEachGivesAlone) {
 
 TEST(DistanceQuery, FewerTrianglesAtLargerDistancesAndRefusals) {
   const Volume v = make_synthetic("marschner-lobb", 65, ScalarType::f32);
-  const auto grid = prepared_at(v, 0.005);
+  const auto grid = testutil::prepared_at(v, 0.005, true);
   const HierarchyQuery query(grid);
   std::size_t previous = query.extract_within(0.4, 0).triangle_count();
   for (double distance : {0.5, 2.0, 8.0}) {

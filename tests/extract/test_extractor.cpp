@@ -23,7 +23,6 @@ using namespace adaptiso;
 
 namespace {
 
-TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
 using testutil::all_voxels;
 
 // A random kept set (corners always) of a volume with small integer values: many ties, many
@@ -37,7 +36,7 @@ TetGrid random_grid(std::mt19937& rng, int levels) {
   auto corners = volume_corners(v);
   for (std::int64_t i = 0; i < v.voxel_count(); ++i)
     if (rng() % 3 != 0 || std::find(corners.begin(), corners.end(), i) != corners.end()) kept.push_back(i);
-  return build(v, kept);
+  return testutil::build_grid(v, kept);
 }
 
 std::vector<std::uint32_t> sorted(std::vector<std::uint32_t> a) {
@@ -166,7 +165,7 @@ TEST(Extractor, StepsBetweenAValueAndItsFloatRoundingMatchFreshExtraction) {
   std::mt19937 rng(11);
   Volume v = make_volume({7, 6, 5}, ScalarType::f64);
   for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, 0.1 * double(rng() % 7) + 1e-9 * double(rng() % 1000));
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g, 3);
   ExtractorOptions always;
   always.max_changed_fraction = 1.0;
@@ -191,7 +190,7 @@ TEST(Extractor, IncrementalStepsOnALargeGridMatchFreshExtractionForAnyThreadCoun
   // tetrahedra), run in arenas of 1 and 4 threads: the same history gives the same mesh, bit for
   // bit, and it is the fresh march's surface.
   Volume v = make_synthetic("marschner-lobb", 40, ScalarType::f32);
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g);
   ExtractorOptions chunked;
   chunked.parallel_min_tetrahedra = 1;
@@ -223,7 +222,7 @@ TEST(Extractor, CancelledAtAnyMomentTheNextExtractionStillMatchesAFreshMarch) {
   // fresh march's. Raised before the call (always cancelled), never, and after random delays that
   // land in the sweep, the collection, the march or the placing.
   Volume v = make_synthetic("marschner-lobb", 40, ScalarType::f32);
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g);
   ExtractorOptions chunked;
   chunked.parallel_min_tetrahedra = 1;
@@ -270,7 +269,7 @@ TEST(Extractor, CancelledAtAnyMomentTheNextExtractionStillMatchesAFreshMarch) {
 // corner (cut edges, so vertex numbering does not matter); the identity right after a fresh march.
 // Returns the number of incremental steps checked.
 static std::size_t expect_march_order_after_steps(const Volume& v, double up, double down) {
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g);
   const auto shared = testutil::prepared(g, tree);
   Extractor stepped(shared);

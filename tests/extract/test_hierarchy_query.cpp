@@ -33,13 +33,6 @@ std::vector<Triangle> triangles_of(const Mesh& m) {
   return out;
 }
 
-std::shared_ptr<const PreparedGrid> prepared_at(const Volume& v, double max_error) {
-  PrepareOptions o;
-  o.max_error = max_error;
-  o.relative = false;
-  return std::make_shared<const PreparedGrid>(prepare(v, o));
-}
-
 }  // namespace
 
 TEST(HierarchyQuery, EqualsPreparingAtThatErrorForEveryIsoAndError) {
@@ -49,10 +42,10 @@ TEST(HierarchyQuery, EqualsPreparingAtThatErrorForEveryIsoAndError) {
       v.spacing = {1.0, 0.75, 1.5};
       const ValueRange r = value_range(v);
       const double range = r.max - r.min;
-      const auto fine = prepared_at(v, 0.005 * range);
+      const auto fine = testutil::prepared_at(v, 0.005 * range, false);
       const HierarchyQuery query(fine);
       for (double rel : {0.005, 0.02, 0.07, 0.25, std::numeric_limits<double>::infinity()}) {
-        const auto coarse = prepared_at(v, rel * range);
+        const auto coarse = testutil::prepared_at(v, rel * range, false);
         Extractor ex(coarse);
         for (double f : {0.3, 0.55, 0.8}) {
           const double iso = r.min + f * range;
@@ -76,7 +69,7 @@ TEST(HierarchyQuery, EveryVoxelOfTheTetrahedraUsedIsWithinTheReportedBound) {
         for (std::int64_t x = 0; x < d[0]; ++x)
           v.set(v.index(x, y, z), std::sin(0.3 * x) * std::cos(0.2 * y) + 0.05 * z + 0.02 * double(rng() % 10));
     const ValueRange r = value_range(v);
-    const auto grid = prepared_at(v, 0.01);
+    const auto grid = testutil::prepared_at(v, 0.01, false);
     const HierarchyQuery query(grid);
     for (double e : {0.01, 0.05, 0.2, 0.6}) {
       for (double f : {0.25, 0.5, 0.75}) {
@@ -93,7 +86,7 @@ TEST(HierarchyQuery, EveryVoxelOfTheTetrahedraUsedIsWithinTheReportedBound) {
 
 TEST(HierarchyQuery, SurfacesAreClosedAndOrientedAtEveryError) {
   const Volume v = make_synthetic("sphere", 48, ScalarType::i16);
-  const auto grid = prepared_at(v, 5);
+  const auto grid = testutil::prepared_at(v, 5, false);
   const HierarchyQuery query(grid);
   std::size_t previous = ~std::size_t{0};
   for (double e : {5.0, 20.0, 60.0, 150.0, 400.0}) {
@@ -111,7 +104,7 @@ TEST(HierarchyQuery, SurfacesAreClosedAndOrientedAtEveryError) {
 
 TEST(HierarchyQuery, SameSurfaceForAnyThreadCountAndRefusals) {
   const Volume v = make_synthetic("marschner-lobb", 40, ScalarType::f32);
-  const auto grid = prepared_at(v, 0.002);
+  const auto grid = testutil::prepared_at(v, 0.002, false);
   const HierarchyQuery query(grid);
   Mesh one, four;
   tbb::task_arena(1).execute([&] { one = query.extract(0.5, 0.03); });
@@ -140,11 +133,11 @@ TEST(HierarchyQuery, IsoValuesEqualToVertexValuesGiveThePreparedSurface) {
       for (std::int64_t y = 0; y < d[1]; ++y)
         for (std::int64_t x = 0; x < d[0]; ++x)
           v.set(v.index(x, y, z), std::round(4 * std::sin(0.4 * x + 0.3 * y) + z % 3 + double(rng() % 2)));
-    const auto fine = prepared_at(v, 0);
+    const auto fine = testutil::prepared_at(v, 0, false);
     const HierarchyQuery query(fine);
     for (double e : {0.5, 1.0, 2.5})
       for (double iso : {-3.0, -1.0, 0.0, 1.0, 2.0, 4.0}) {
-        Extractor ex(prepared_at(v, e));
+        Extractor ex(testutil::prepared_at(v, e, false));
         ex.extract(iso);
         EXPECT_EQ(triangles_of(query.extract(iso, e)), triangles_of(ex.mesh())) << trial << " e " << e << " iso " << iso;
       }
@@ -163,10 +156,10 @@ TEST(Coarsen, GivesTheGridPreparedAtThatErrorWithoutTheVolume) {
         v = c;
       }
       const ValueRange r = value_range(v);
-      const auto fine = prepared_at(v, 0.003 * (r.max - r.min));
+      const auto fine = testutil::prepared_at(v, 0.003 * (r.max - r.min), false);
       for (double rel : {0.003, 0.01, 0.05, 0.3, std::numeric_limits<double>::infinity()}) {
         const PreparedGrid coarse = coarsen(*fine, rel * (r.max - r.min));
-        const auto direct = prepared_at(v, rel * (r.max - r.min));
+        const auto direct = testutil::prepared_at(v, rel * (r.max - r.min), false);
         EXPECT_EQ(coarse.grid.tets, direct->grid.tets) << name << " rel " << rel;
         EXPECT_EQ(coarse.grid.ijk, direct->grid.ijk);
         EXPECT_EQ(coarse.grid.values, direct->grid.values);

@@ -16,7 +16,6 @@ using namespace adaptiso;
 
 namespace {
 
-TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
 using testutil::all_voxels;
 
 // A random kept set (corners always) of a volume with small integer values: many ties, many
@@ -30,7 +29,7 @@ TetGrid random_grid(std::mt19937& rng, int levels) {
   auto corners = volume_corners(v);
   for (std::int64_t i = 0; i < v.voxel_count(); ++i)
     if (rng() % 3 != 0 || std::find(corners.begin(), corners.end(), i) != corners.end()) kept.push_back(i);
-  return build(v, kept);
+  return testutil::build_grid(v, kept);
 }
 
 testutil::EdgeCensus topology(const Mesh& m, const GridSource& s) { return testutil::edge_census(m, s.dims, s.spacing); }
@@ -57,7 +56,7 @@ TEST(MarchingTets, LinearFieldGivesThePlaneWithItsNormal) {
   for (std::int64_t k = 0; k < 7; ++k)
     for (std::int64_t j = 0; j < 8; ++j)
       for (std::int64_t i = 0; i < 9; ++i) v.set(v.index(i, j, k), a * i * 0.5 + b * j * 1.25 + c * k * 2.0);
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g);
   Extractor ex(testutil::prepared(g, tree));
   Mesh m;
@@ -91,7 +90,7 @@ TEST(MarchingTets, SphereIsClosedOrientedAndConverges) {
   double prev_err = 1e9;
   for (int n : {16, 28, 40}) {  // full grids: the reconstruction error shrinks with the voxel size
     Volume v = make_synthetic("sphere", n, ScalarType::f32);
-    TetGrid g = build(v, all_voxels(v));
+    TetGrid g = testutil::build_grid(v, all_voxels(v));
     IntervalTree tree = build_interval_tree(g);
     Extractor ex(testutil::prepared(g, tree));
     Mesh m;
@@ -147,7 +146,7 @@ TEST(MarchingTets, RandomGridsAreWatertightInsideTheBoxWithoutDegenerateTriangle
 
 TEST(MarchingTets, ParallelNumberingEqualsSequentialFirstUse) {
   Volume v = make_synthetic("marschner-lobb", 20, ScalarType::f32);
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   std::vector<std::uint32_t> act;
   const double iso = 0.5 * (g.source.min + g.source.max);
   scan_active(g, iso, act);
@@ -172,7 +171,7 @@ TEST(MarchingTets, ParallelNumberingEqualsSequentialFirstUse) {
 
 TEST(MarchingTets, OutsideTheRangeGivesAnEmptyMesh) {
   Volume v = make_synthetic("sphere", 16, ScalarType::i16);
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   IntervalTree tree = build_interval_tree(g);
   Extractor ex(testutil::prepared(g, tree));
   Mesh m;

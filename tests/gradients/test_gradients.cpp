@@ -13,20 +13,7 @@
 
 using namespace adaptiso;
 
-namespace {
-
-// A random subset of the voxels (about one in `every`) plus the 8 corners, sorted.
-std::vector<std::int64_t> random_kept(const Volume& v, std::mt19937& rng, unsigned every) {
-  std::vector<std::int64_t> kept;
-  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
-    if (rng() % every == 0) kept.push_back(i);
-  auto c = volume_corners(v);
-  std::vector<std::int64_t> k;
-  std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
-  return k;
-}
-
-}  // namespace
+namespace {}  // namespace
 
 TEST(Gradients, LinearFieldIsExact) {
   Volume v = make_volume({9, 8, 7}, ScalarType::f64);
@@ -35,7 +22,7 @@ TEST(Gradients, LinearFieldIsExact) {
     for (std::int64_t y = 0; y < 8; ++y)
       for (std::int64_t x = 0; x < 9; ++x) v.set(v.index(x, y, z), 3 + 2 * (0.5 * x) - 1.5 * y + 0.25 * (2.0 * z));
   std::mt19937 rng(2);
-  TetGrid g = testutil::build_grid(v, random_kept(v, rng, 3));
+  TetGrid g = testutil::build_grid(v, testutil::random_kept(v, rng, 3));
   for (const auto& gr : g.gradients) {
     EXPECT_NEAR(gr[0], 2.0, 1e-5);
     EXPECT_NEAR(gr[1], -1.5, 1e-5);
@@ -70,7 +57,7 @@ TEST(Gradients, QuadraticFieldCloseToAnalytic) {
 TEST(Gradients, PiecewiseLinearErrorIsTheSameForAnyThreadCount) {
   Volume v = make_synthetic("marschner-lobb", 24, ScalarType::f32);
   std::mt19937 rng(5);
-  const TetGrid g = testutil::build_grid(v, random_kept(v, rng, 7));
+  const TetGrid g = testutil::build_grid(v, testutil::random_kept(v, rng, 7));
   ReconstructionError one, many;
   tbb::task_arena(1).execute([&] { one = piecewise_linear_error(v, g); });
   for (int run = 0; run < 5; ++run) {

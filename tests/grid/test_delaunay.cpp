@@ -21,8 +21,6 @@ using EK = CGAL::Exact_predicates_exact_constructions_kernel;
 
 namespace {
 
-TetGrid build(const Volume& v, const std::vector<std::int64_t>& kept) { return testutil::build_grid(v, kept); }
-
 EK::Point_3 ept(const TetGrid& grid, std::uint32_t v) {
   // Exact coordinates in the triangulation's metric: the index times delaunay_metric's scales.
   const Vec3 scale = delaunay_metric(grid.source.spacing);
@@ -89,17 +87,6 @@ std::size_t check_grid(const Volume& v, const TetGrid& grid) {
   return interior;
 }
 
-// A random subset of the voxels (about one in `every`) plus the 8 corners, sorted.
-std::vector<std::int64_t> random_kept(const Volume& v, std::mt19937& rng, unsigned every) {
-  std::vector<std::int64_t> kept;
-  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
-    if (rng() % every == 0) kept.push_back(i);
-  auto c = volume_corners(v);
-  std::vector<std::int64_t> k;
-  std::set_union(kept.begin(), kept.end(), c.begin(), c.end(), std::back_inserter(k));
-  return k;
-}
-
 using testutil::all_voxels;
 
 }  // namespace
@@ -107,7 +94,7 @@ using testutil::all_voxels;
 TEST(Delaunay, FullLatticeManyCosphericalPoints) {
   Volume v = make_volume({6, 5, 4}, ScalarType::f32);
   v.spacing = {1.0, 0.5, 2.5};
-  TetGrid g = build(v, all_voxels(v));
+  TetGrid g = testutil::build_grid(v, all_voxels(v));
   EXPECT_GT(check_grid(v, g), 100u);
   EXPECT_EQ(g.vertex_count(), 120u);
 }
@@ -116,7 +103,7 @@ TEST(Delaunay, RandomLatticeSubsets) {
   std::mt19937 rng(5);
   for (int trial = 0; trial < 5; ++trial) {
     Volume v = make_volume({9, 7, 8}, ScalarType::f32);
-    TetGrid g = build(v, random_kept(v, rng, 4));
+    TetGrid g = testutil::build_grid(v, testutil::random_kept(v, rng, 4));
     check_grid(v, g);
   }
 }
@@ -127,12 +114,12 @@ TEST(Delaunay, PaperSphereAndRealKeptSets) {
   o.max_error = 0.15;
   o.relative = true;
   auto r = reduce(s, o);
-  check_grid(s, build(s, r.kept));
+  check_grid(s, testutil::build_grid(s, r.kept));
   REQUIRE_DATA(data);
   Volume m = read_volume(data + "/mr_head_HeadMRVolume/HeadMRVolume.mhd");
   o.max_error = 0.05;
   auto rm = reduce(m, o);
-  check_grid(m, build(m, rm.kept));
+  check_grid(m, testutil::build_grid(m, rm.kept));
 }
 
 TEST(Delaunay, FlatVolumeIsRefused) {
@@ -152,7 +139,7 @@ TEST(Delaunay, AnisotropicSpacingGivesNoFlatTetrahedronAndNoZeroAreaTriangle) {
     ReduceOptions o;
     o.max_error = 0.08;
     o.relative = true;
-    const TetGrid g = build(v, reduce(v, o).kept);
+    const TetGrid g = testutil::build_grid(v, reduce(v, o).kept);
     check_grid(v, g);
     std::size_t flat = 0;
     for (const auto& t : g.tets) {

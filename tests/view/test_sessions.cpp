@@ -29,7 +29,7 @@ using detail::Sessions;
 
 namespace {
 
-std::shared_ptr<const PreparedGrid> sphere_grid() {
+std::shared_ptr<const PreparedGrid> shared_sphere_grid() {
   static const auto grid = [] {
     PrepareOptions o;
     o.max_error = 0.01;
@@ -123,7 +123,7 @@ bool drag(Model& m, const std::string& client) {
 }  // namespace
 
 TEST(Sessions, EachClientsSurfaceIsTheLibrarysAndItsStepsIncremental) {
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   Model m(0);
   EXPECT_THROW(m->surface("a", 700, std::nullopt, std::nullopt), std::logic_error);  // before set_grid
   m->set_grid(grid);
@@ -151,7 +151,7 @@ TEST(Sessions, EachClientsSurfaceIsTheLibrarysAndItsStepsIncremental) {
 
 TEST(Sessions, TheLeastRecentlyUsedClientsGoBeyondTheirNumber) {
   Model m(0, 2);
-  m->set_grid(sphere_grid());
+  m->set_grid(shared_sphere_grid());
   m->surface("a", 700, std::nullopt, std::nullopt);
   m->surface("b", 700, std::nullopt, std::nullopt);
   m->surface("a", 700, std::nullopt, std::nullopt);  // a is the most recent now
@@ -160,13 +160,13 @@ TEST(Sessions, TheLeastRecentlyUsedClientsGoBeyondTheirNumber) {
   EXPECT_TRUE(kept(*m, "a", 700));
   EXPECT_FALSE(kept(*m, "b", 700));
   // A new grid: every client starts anew.
-  m->set_grid(sphere_grid());
+  m->set_grid(shared_sphere_grid());
   EXPECT_EQ(m->memory().clients, 0u);
   EXPECT_EQ(m->held_bytes(), 0u);
 }
 
 TEST(Sessions, UnderPressureTheLongestIdleOfEqualExtractorsIsEvicted) {
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   const std::uint64_t one = held_by_one(grid, 700);
   // Three extractors and a fourth's request fit, not four extractors and a fifth's request.
   Model m(3 * one + one / 2);
@@ -190,7 +190,7 @@ TEST(Sessions, UnderPressureTheLongestIdleOfEqualExtractorsIsEvicted) {
 }
 
 TEST(Sessions, UnderPressureTheLargerOfEquallyIdleExtractorsIsEvicted) {
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   // The iso-values of the most and fewest triangles (a larger sphere is not always more of them:
   // the grid is coarser away from the centre).
   double kBigIso = 700, kSmallIso = 700;
@@ -215,7 +215,7 @@ TEST(Sessions, UnderPressureTheLargerOfEquallyIdleExtractorsIsEvicted) {
 }
 
 TEST(Sessions, ARequestThatCannotFitIsRefusedWhileTheMemoryIsInUseThenServed) {
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   const std::uint64_t one = held_by_one(grid, 700);
   Model m(one + one / 2);
   m->set_grid(grid);
@@ -242,7 +242,7 @@ TEST(Sessions, ARequestThatCannotFitIsRefusedWhileTheMemoryIsInUseThenServed) {
 }
 
 TEST(Sessions, MemoryHeldElsewhereCountsAgainstTheBudget) {
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   const std::uint64_t one = held_by_one(grid, 700);
   Model m(4 * one);
   m->set_grid(grid);
@@ -258,7 +258,7 @@ TEST(Sessions, MemoryHeldElsewhereCountsAgainstTheBudget) {
 
 TEST(Sessions, AReservationCountsUntilReleased) {
   Model m(1000);
-  m->set_grid(sphere_grid());
+  m->set_grid(shared_sphere_grid());
   auto first = m->reserve(600);
   EXPECT_EQ(m->memory().reserved, 600u);
   EXPECT_THROW(m->reserve(600), OverBudget);
@@ -270,13 +270,13 @@ TEST(Sessions, AReservationCountsUntilReleased) {
   EXPECT_EQ(second.bytes(), 600u);
   // A reservation larger than the budget, nothing else held: served alone rather than never.
   Model tiny(1);
-  tiny->set_grid(sphere_grid());
+  tiny->set_grid(shared_sphere_grid());
   EXPECT_EQ(tiny->reserve(1'000'000).bytes(), 1'000'000u);
-  EXPECT_EQ(tiny->surface("a", 700, std::nullopt, std::nullopt).stats().triangles, triangles_at(sphere_grid(), 700));
+  EXPECT_EQ(tiny->surface("a", 700, std::nullopt, std::nullopt).stats().triangles, triangles_at(shared_sphere_grid(), 700));
 }
 
 TEST(Sessions, TransientSurfacesAreForeseenFromTheCountsSeen) {
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   Model m(0);
   m->set_grid(grid);
   EXPECT_EQ(m->expected_triangles(Sessions::Transient::distance, 700, 17), 17u);
@@ -346,7 +346,7 @@ TEST(Sessions, LevelsUnusedAnIdlePeriodGoUnderPressure) {
 }
 
 TEST(Sessions, ConcurrentClientsUnderATightBudgetGetCorrectSurfacesOrOverBudget) {
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   const std::uint64_t one = held_by_one(grid, 700);
   Model m(2 * one);
   m->set_grid(grid);
@@ -405,7 +405,7 @@ TEST(MemoryBudget, TheDefaultIsAtMostHalfTheMachineAndSizesReadAsText) {
   EXPECT_EQ(detail::byte_size_text(1'200'000'000), "1.2 GB");
   EXPECT_EQ(detail::byte_size_text(340'000'000), "340 MB");
   EXPECT_EQ(detail::byte_size_text(12'000), "12 kB");
-  const auto grid = sphere_grid();
+  const auto grid = shared_sphere_grid();
   EXPECT_GT(detail::grid_bytes(*grid), 16 * grid->grid.vertex_count());
   EXPECT_EQ(detail::extractor_bytes(*grid, 10), detail::extractor_fixed_bytes(*grid) + 10 * detail::kExtractorBytesPerTriangle);
 }
