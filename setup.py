@@ -61,7 +61,8 @@ class CMakeBuild(build_ext):
                                    f"({cache_value(build_dir, '_Python3_EXECUTABLE')}, modules {theirs}), not {sys.executable}")
         else:
             build_dir = os.path.join(ROOT, "build", "pip")
-            configure = ["cmake", "-S", ROOT, "-B", build_dir, "-DCMAKE_BUILD_TYPE=Release", "-DADAPTISO_BUILD_PYTHON=ON",
+            # A unity build: a fresh tree compiles in about half the time.
+            configure = ["cmake", "-S", ROOT, "-B", build_dir, "-DCMAKE_BUILD_TYPE=Release", "-DCMAKE_UNITY_BUILD=ON", "-DADAPTISO_BUILD_PYTHON=ON",
                          "-DADAPTISO_BUILD_TESTS=OFF", "-DADAPTISO_BUILD_APPS=OFF", "-DADAPTISO_BUILD_BENCH=OFF",
                          "-DADAPTISO_BUILD_PEERS=OFF", f"-DPython3_EXECUTABLE={sys.executable}"]
             if shutil.which("ninja") and not os.path.exists(os.path.join(build_dir, "CMakeCache.txt")):

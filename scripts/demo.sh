@@ -5,7 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ./scripts/deps.sh
 # Only the program is built here; the options the test script needs are set by it, explicitly.
-cmake -S . -B build/release -G Ninja -DCMAKE_BUILD_TYPE=Release -DADAPTISO_BUILD_APPS=ON -DADAPTISO_SANITIZE=OFF >/dev/null
+cmake -S . -B build/release -G Ninja -DCMAKE_UNITY_BUILD=ON -DCMAKE_BUILD_TYPE=Release -DADAPTISO_BUILD_APPS=ON -DADAPTISO_SANITIZE=OFF >/dev/null
 cmake --build build/release --target adaptiso_cli
 B=build/release/bin/adaptiso
 OUT=out/demo

@@ -16,7 +16,7 @@ TARGETS=("$@")
 ./scripts/deps.sh clang libclang-rt-14-dev >/dev/null
 BUILD=${ADAPTISO_FUZZ_BUILD:-$ROOT/build/fuzz}
 echo "== fuzz build ($BUILD)"
-CC=clang CXX=clang++ cmake -S fuzz -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG" >/dev/null
+CC=clang CXX=clang++ cmake -S fuzz -B "$BUILD" -G Ninja -DCMAKE_UNITY_BUILD=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG" >/dev/null
 cmake --build "$BUILD" -j "$(nproc)"
 
 echo "== seeds"

