@@ -142,13 +142,8 @@ HierarchyQuery::HierarchyQuery(std::shared_ptr<const PreparedGrid> grid) : grid_
   index_ = std::make_unique<detail::HierarchyIndex>();
   index_->lat = detail::make_lattice(g.source.dims);
   if (grid_->hierarchy->root_size != index_->lat.S) throw InputError("the grid's hierarchy does not match its dimensions");
-  auto& n = index_->numbers;
-  n.reset(static_cast<std::uint64_t>(g.source.dims[0] * g.source.dims[1] * g.source.dims[2]));
-  for (std::size_t v = 0; v < g.vertex_count(); ++v)
-    n.set(static_cast<std::uint64_t>(index_->lat.index(
-        {static_cast<std::int32_t>(g.ijk[v][0]), static_cast<std::int32_t>(g.ijk[v][1]), static_cast<std::int32_t>(g.ijk[v][2])})));
-  n.count();
-  index_->lining.build(index_->lat, n, g, *grid_->hierarchy);
+  index_->numbers = detail::grid_vertex_numbers(g);
+  index_->lining.build(index_->lat, index_->numbers, g, *grid_->hierarchy);
 }
 
 HierarchyQuery::~HierarchyQuery() = default;

@@ -34,10 +34,7 @@ BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& f
         lat.index({static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])}));
   };
   // The fine grid's vertices by voxel: its vertices are numbered in ascending voxel order.
-  VertexNumbers fine_numbers;
-  fine_numbers.reset(static_cast<std::uint64_t>(lat.nxy * (lat.X[2] + 1)));
-  for (const auto& p : fine.ijk) fine_numbers.set(voxel_of(p));
-  fine_numbers.count();
+  const VertexNumbers fine_numbers = grid_vertex_numbers(fine);
   // The selection below numbers the root cube's corners by their rank among the fine vertices
   // without asking whether they are vertices (load_grid refuses a file without them; a grid made
   // any other way is checked here, 8 lookups).

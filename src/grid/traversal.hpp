@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/tet_grid.hpp"
 #include "adaptiso/volume.hpp"
 #include "grid/diamond.hpp"
 #include "util/big_array.hpp"
@@ -216,6 +217,16 @@ struct VertexNumbers {
   // kNone for a voxel that is no vertex.
   std::uint32_t find(std::int64_t voxel) const { return used(voxel) ? id(voxel) : kNone; }
 };
+
+// The numbers of a grid's own vertices, by their voxels (lattice keys, tet_grid.hpp): a grid's
+// vertex ids ascend with their voxels, so these are its ids.
+inline VertexNumbers grid_vertex_numbers(const TetGrid& g) {
+  VertexNumbers n;
+  n.reset(static_cast<std::uint64_t>(g.source.dims[0] * g.source.dims[1] * g.source.dims[2]));
+  for (const auto& p : g.ijk) n.set(lattice_key(g.source.dims, p));
+  n.count();
+  return n;
+}
 
 // A numbered walk's tetrahedron: its vertices' numbers and values, in the slots of its corners.
 struct Corners {

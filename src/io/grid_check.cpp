@@ -69,17 +69,13 @@ bool narrow_lattice(const Dims& dims) { return std::max({dims[0], dims[1], dims[
 
 Wide six_box_volume(const Dims& dims) { return Wide{6} * (dims[0] - 1) * (dims[1] - 1) * (dims[2] - 1); }
 
-std::uint64_t voxel_of(const std::array<std::uint32_t, 3>& p, const Dims& dims) {
-  return p[0] + static_cast<std::uint64_t>(dims[0]) * (p[1] + static_cast<std::uint64_t>(dims[1]) * p[2]);
-}
-
 void check_vertices(const TetGrid& g, const std::string& path) {
   const GridSource& s = g.source;
   const Fault f = first_fault(g.vertex_count(), [&](std::size_t v) -> const char* {
     for (int a = 0; a < 3; ++a)
       if (g.ijk[v][a] >= static_cast<std::uint64_t>(s.dims[a])) return "lies outside the volume";
     // Ascending voxel order is what lets a voxel's rank among the vertices stand for its number.
-    if (v > 0 && !(voxel_of(g.ijk[v - 1], s.dims) < voxel_of(g.ijk[v], s.dims)))
+    if (v > 0 && !(lattice_key(s.dims, g.ijk[v - 1]) < lattice_key(s.dims, g.ijk[v])))
       return "is out of ascending voxel order (or repeats a voxel)";
     if (!std::isfinite(g.values[v])) return "has a non-finite value";
     if (g.values[v] < s.min || g.values[v] > s.max) return "has a value outside the grid's value range";
@@ -252,10 +248,7 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path) {
   // The bitmap and its counts (a quarter byte a voxel), and a byte each for the vertices used and
   // the value spans reached.
   check_memory(voxels / 4 + n * 2, fmt::format("checking the hierarchy of a grid over {} voxels", voxels), "", "");
-  VertexNumbers numbers;
-  numbers.reset(voxels);
-  for (const auto& v : g.ijk) numbers.set(voxel_of(v, g.source.dims));
-  numbers.count();
+  const VertexNumbers numbers = grid_vertex_numbers(g);
   // The walks number a tetrahedron's corners from the bitmap without asking whether they are
   // vertices: the root cube's corners, and the centres of the diamonds split above them.
   for (int corner = 0; corner < 8; ++corner) {
