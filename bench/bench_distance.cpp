@@ -1,8 +1,9 @@
 // Surface-adaptive extraction speed (hierarchy_query.hpp: extract_within) on a prepared grid: per
 // iso-value and distance, the median of repeated queries in one warm process (a new iso-value each
 // time: nothing is kept between queries), with its passes, counts and triangles.
-// Usage: bench_distance GRID.adg ISO[,ISO...] DISTANCE[,DISTANCE...] [REPS] [OUT_PREFIX]
-// Prints one JSON object per (iso, distance); with OUT_PREFIX also writes OUT_PREFIX-<iso>-<d>.ply.
+// Usage: bench_distance GRID.adg ISO[,ISO...] DISTANCE[,DISTANCE...] [REPS] [OUT_PREFIX] [ROUNDS[,ROUNDS...]]
+// Prints one JSON object per (iso, distance, rounds of collapses; default the library's); with
+// OUT_PREFIX (not "-") also writes OUT_PREFIX-<iso>-<d>-<rounds>.ply.
 #include <sys/resource.h>
 
 #include <cstdio>
@@ -25,7 +26,7 @@ static double cpu_seconds() {
 
 int main(int argc, char** argv) {
   if (argc < 4) {
-    std::fprintf(stderr, "usage: bench_distance GRID.adg ISO[,ISO...] DISTANCE[,DISTANCE...] [REPS] [OUT_PREFIX]\n");
+    std::fprintf(stderr, "usage: bench_distance GRID.adg ISO[,ISO...] DISTANCE[,DISTANCE...] [REPS] [OUT_PREFIX] [ROUNDS[,ROUNDS...]]\n");
     return 2;
   }
   const auto prepared = std::make_shared<const PreparedGrid>(load_grid(argv[1]));
@@ -34,27 +35,32 @@ int main(int argc, char** argv) {
   const auto isos = bench::parse_list(argv[2]);
   const auto distances = bench::parse_list(argv[3]);
   const int reps = argc > 4 ? std::atoi(argv[4]) : 5;
+  const bool write = argc > 5 && std::string(argv[5]) != "-";
+  const auto rounds = argc > 6 ? bench::parse_list(argv[6]) : std::vector<double>{double(kDefaultCollapseRounds)};
   for (double iso : isos)
-    for (double d : distances) {
-      DistanceQueryStats st;
-      Mesh mesh;
-      double refine = 0, walk = 0, march = 0;
-      const double cpu0 = cpu_seconds();
-      const double seconds = bench::median_time(
-          [&] {
-            mesh = query.extract_within(iso, d, &st);
-            refine += st.refine_seconds, walk += st.walk_seconds, march += st.march_seconds;
-          },
-          reps);
-      const double cpu = (cpu_seconds() - cpu0) / reps;
-      if (argc > 5) write_mesh(mesh, std::string(argv[5]) + "-" + std::to_string(iso) + "-" + std::to_string(d) + ".ply");
-      std::printf(
-          "{\"iso\": %g, \"distance\": %g, \"seconds\": %.5f, \"cpu_mean\": %.5f, \"refine_mean\": %.5f, \"walk_mean\": %.5f, "
-          "\"march_mean\": %.5f, "
-          "\"triangles\": %zu, \"vertices\": %zu, \"tested\": %zu, \"refined\": %zu, \"closure\": %zu, \"visited\": %zu, "
-          "\"marched\": %zu, \"setup_seconds\": %.3f}\n",
-          iso, d, seconds, cpu, refine / reps, walk / reps, march / reps, st.triangles, st.vertices, st.tested, st.refined, st.closure,
-          st.visited, st.tetrahedra, setup);
-      std::fflush(stdout);
-    }
+    for (double d : distances)
+      for (double r : rounds) {
+        DistanceQueryStats st;
+        Mesh mesh;
+        double refine = 0, walk = 0, march = 0, collapse = 0;
+        const double cpu0 = cpu_seconds();
+        const double seconds = bench::median_time(
+            [&] {
+              mesh = query.extract_within(iso, d, &st, static_cast<int>(r));
+              refine += st.refine_seconds, walk += st.walk_seconds, march += st.march_seconds, collapse += st.collapse_seconds;
+            },
+            reps);
+        const double cpu = (cpu_seconds() - cpu0) / reps;
+        if (write)
+          write_mesh(mesh,
+                     std::string(argv[5]) + "-" + std::to_string(iso) + "-" + std::to_string(d) + "-" + std::to_string(int(r)) + ".ply");
+        std::printf(
+            "{\"iso\": %g, \"distance\": %g, \"rounds\": %d, \"seconds\": %.5f, \"cpu_mean\": %.5f, \"refine_mean\": %.5f, "
+            "\"walk_mean\": %.5f, \"march_mean\": %.5f, \"collapse_mean\": %.5f, "
+            "\"triangles\": %zu, \"vertices\": %zu, \"collapsed\": %zu, \"tested\": %zu, \"refined\": %zu, \"closure\": %zu, "
+            "\"visited\": %zu, \"marched\": %zu, \"setup_seconds\": %.3f}\n",
+            iso, d, int(r), seconds, cpu, refine / reps, walk / reps, march / reps, collapse / reps, st.triangles, st.vertices,
+            st.collapsed, st.tested, st.refined, st.closure, st.visited, st.tetrahedra, setup);
+        std::fflush(stdout);
+      }
 }

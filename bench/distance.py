@@ -2,8 +2,9 @@
 """Surface-adaptive extraction against the peers (issue "Surface-adaptive extraction"), all in one
 run. For each volume and iso-value, on the bisection grid `prepare` makes by default:
 
-- adaptiso --distance D: `extract GRID --iso V --distance D` for each D (the fewest triangles within
-  about D voxels of the grid's own surface), and the grid's own surface (D = "grid");
+- adaptiso --distance D --collapse R: `extract GRID --iso V --distance D --collapse R` for each D and
+  each R of --collapse (rounds of edge collapses after the march; 0: every triangle inside its
+  tetrahedron; 2: the default), and the grid's own surface (D = "grid");
 - flying edges: VTK's vtkFlyingEdges3D (SMP, `peer_bench fe`), the reference for time and triangles;
 - flying edges + meshoptimizer at D: that surface simplified with the same distance as target
   (`bench_simplify MESH D·voxel 0`), its time added to flying edges';
@@ -20,7 +21,7 @@ loaded grid costs adaptiso the query alone; the query's one-time set-up per load
 beside the grid. The peers need `peer_bench` and `bench_simplify` (scripts/bench.sh builds them into
 build/peers, -DADAPTISO_BUILD_PEERS=ON); without them their rows are left out with a message.
 
-Usage: bench/distance.py --build BUILD [--data DIR] [--work DIR] [--distances 0.5,1,2] [--query-only]
+Usage: bench/distance.py --build BUILD [--data DIR] [--work DIR] [--distances 0.5,1,2] [--collapse 0,2] [--query-only]
                          [--repeat 3] [--out RECORDS.json] [DATASET[:ISO,...] ...]
 """
 import argparse
@@ -59,6 +60,7 @@ def main():
     ap.add_argument("--data", default=os.environ.get("ADAPTISO_DATA", "../shared/data"))
     ap.add_argument("--work", default="build/distance-work")
     ap.add_argument("--distances", default="0.5,1,2")
+    ap.add_argument("--collapse", default="0,2", help="rounds of edge collapses after the query, one row each")
     ap.add_argument("--repeat", type=int, default=3, help="runs per timing (fastest kept)")
     ap.add_argument("--query-only", action="store_true",
                     help="only flying edges, the grid's surface, the query at each D and OpenVDB (no simplification rows: minutes less on large volumes)")
@@ -120,9 +122,10 @@ def main():
                         lambda r: r["surfaces"][0]["seconds"])["surfaces"][0]
             record("adaptiso, the grid's surface", None, own, s["triangles"], s["seconds"], False, label="grid")
             for d in distances:
-                s = fastest([exe, "extract", grid, "--iso", f"{iso:g}", "--distance", f"{d:g}", "-o", mesh, "--json", "--quiet"], a.repeat,
-                            lambda r: r["surfaces"][0]["seconds"])["surfaces"][0]
-                record("adaptiso --distance", d, mesh, s["triangles"], s["seconds"], True)
+                for rounds in [int(r) for r in a.collapse.split(",")]:
+                    s = fastest([exe, "extract", grid, "--iso", f"{iso:g}", "--distance", f"{d:g}", "--collapse", str(rounds), "-o", mesh,
+                                 "--json", "--quiet"], a.repeat, lambda r: r["surfaces"][0]["seconds"])["surfaces"][0]
+                    record(f"adaptiso --distance --collapse {rounds}", d, mesh, s["triangles"], s["seconds"], True)
                 if a.query_only:
                     continue
                 # Tandem: half the distance to the query, half to a simplification of its surface,

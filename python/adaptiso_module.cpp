@@ -406,10 +406,12 @@ py::dict distance_stats(const DistanceQueryStats& s) {
   d["split_diamonds"] = s.refined;
   d["closure_diamonds"] = s.closure;
   d["visited_tetrahedra"] = s.visited;
-  d["seconds"] = s.refine_seconds + s.walk_seconds + s.march_seconds;
+  d["seconds"] = s.refine_seconds + s.walk_seconds + s.march_seconds + s.collapse_seconds;
   d["refine_seconds"] = s.refine_seconds;
   d["walk_seconds"] = s.walk_seconds;
   d["march_seconds"] = s.march_seconds;
+  d["collapsed_edges"] = s.collapsed;
+  d["collapse_seconds"] = s.collapse_seconds;
   return d;
 }
 
@@ -562,9 +564,11 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
   py::class_<Grid>(m, "Grid", "A prepared tetrahedral grid with its extraction index (adaptiso.prepare or adaptiso.load).")
       .def(
           "extract",
-          [](py::handle self, double iso, std::optional<double> max_error, bool relative, std::optional<double> distance) {
+          [](py::handle self, double iso, std::optional<double> max_error, bool relative, std::optional<double> distance,
+             std::optional<int> collapse) {
             Grid& g = grid_of(self);
             if (max_error && distance) throw py::value_error("max_error and distance: give one of them");
+            if (collapse && !distance) throw py::value_error("collapse needs distance");
             Mesh mesh;
             std::optional<HierarchyQueryStats> query;
             std::optional<DistanceQueryStats> within;
@@ -575,7 +579,7 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
               const double value = relative ? from_fraction(range, iso, FractionOf::value, "iso") : iso;
               if (distance) {
                 within.emplace();
-                mesh = g.hierarchy().extract_within(value, *distance, &*within);
+                mesh = g.hierarchy().extract_within(value, *distance, &*within, collapse.value_or(kDefaultCollapseRounds));
               } else if (max_error) {
                 const double e = relative ? from_fraction(range, *max_error, FractionOf::width, "max_error") : *max_error;
                 query.emplace();
@@ -589,7 +593,8 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
             return make_mesh(std::move(mesh), within ? distance_stats(*within) : query ? query_stats(*query) : extract_stats(*full));
           },
           py::arg("iso"), py::arg("max_error") = py::none(), py::arg("relative") = false, py::arg("distance") = py::none(),
-          R"(extract(iso, max_error=None, relative=False, distance=None) -> Mesh
+          py::arg("collapse") = py::none(),
+          R"(extract(iso, max_error=None, relative=False, distance=None, collapse=None) -> Mesh
 
 The iso-surface at iso as a Mesh, which unpacks as (vertices float32 (N, 3), faces uint32 (M, 3),
 normals float32 (N, 3)): world coordinates (x, y, z), faces counter-clockwise seen from the side
@@ -598,6 +603,9 @@ max_error (bisection grids): a coarser error than the prepared one, from the gri
 distance (bisection grids): the fewest triangles within about this many voxels (of the smallest
 spacing) of the grid's surface, refined where this surface needs it; every vertex is one of the
 full surface's (HierarchyQuery::extract_within).
+collapse (with distance): rounds of edge collapses after the march, each checked by the same tests
+(about a quarter fewer triangles a round; default 2); 0 keeps every triangle inside its
+tetrahedron. ValueError outside 0..16.
 relative: iso (and max_error) as fractions of the value range. Safe to call from several threads.)")
       .def(
           "extractor",

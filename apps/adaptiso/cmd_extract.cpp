@@ -173,14 +173,33 @@ nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const Mes
   });
 }
 
+// --distance and --collapse (extract and run).
+struct DistanceFlags {
+  double distance = -1;
+  int collapse = kDefaultCollapseRounds;
+  bool given() const { return distance >= 0; }
+  void add(CLI::App* cmd) {
+    auto* d = cmd->add_option("--distance", distance,
+                              "Bisection grids: the fewest triangles within about this distance of the grid's surface (voxels of the "
+                              "smallest spacing), refined where this surface needs it")
+                  ->check(finite_number() & CLI::NonNegativeNumber);
+    cmd->add_option("--collapse", collapse,
+                    fmt::format("With --distance: rounds of edge collapses after the march, each checked by the same tests (about a "
+                                "quarter fewer triangles a round); 0 keeps every triangle inside its tetrahedron (default {})",
+                                kDefaultCollapseRounds))
+        ->check(CLI::Range(0, kMaxCollapseRounds))
+        ->needs(d);
+  }
+};
+
 // Every iso-value within a distance of the grid's own surface (surface-adaptive extraction).
 nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
-                            double distance, const OutputFlags& out) {
+                            const DistanceFlags& flags, const OutputFlags& out) {
   const HierarchyQuery query(prepared);
   return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
     DistanceQueryStats st;
-    const Mesh mesh = query.extract_within(iso, distance, &st);
-    const double seconds = st.refine_seconds + st.walk_seconds + st.march_seconds;
+    const Mesh mesh = query.extract_within(iso, flags.distance, &st, flags.collapse);
+    const double seconds = st.refine_seconds + st.walk_seconds + st.march_seconds + st.collapse_seconds;
     record(mesh,
            {{"iso", st.iso},
             {"in_range", st.in_range},
@@ -195,7 +214,9 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
             {"seconds", seconds},
             {"refine_seconds", st.refine_seconds},
             {"walk_seconds", st.walk_seconds},
-            {"march_seconds", st.march_seconds}},
+            {"march_seconds", st.march_seconds},
+            {"collapsed_edges", st.collapsed},
+            {"collapse_seconds", st.collapse_seconds}},
            fmt::format("within about {:g} voxels of the grid's surface", st.distance), seconds);
   });
 }
@@ -209,13 +230,10 @@ void add_extract(CLI::App& app) {
   auto relative = std::make_shared<bool>(false);
   auto max_error = std::make_shared<double>(0);
   auto max_displacement = std::make_shared<double>(0);
-  auto distance = std::make_shared<double>(-1);
+  auto distance = std::make_shared<DistanceFlags>();
   auto out = std::make_shared<OutputFlags>();
   cmd->add_option("GRID", *input, "Grid file (.adg) written by prepare")->required();
-  cmd->add_option("--distance", *distance,
-                  "Bisection grids: the fewest triangles within about this distance of the grid's surface (voxels of the smallest "
-                  "spacing), refined where this surface needs it")
-      ->check(finite_number() & CLI::NonNegativeNumber);
+  distance->add(cmd);
   mesh_out->add(cmd);
   cmd->add_flag("--relative", *relative, "Iso-values (and --max-error) as fractions of the value range [min, max]");
   auto* error_opt = cmd->add_option("--max-error", *max_error,
@@ -250,7 +268,7 @@ void add_extract(CLI::App& app) {
     const ValueRange range{grid.source.min, grid.source.max};
     auto values = mesh_out->values(*relative, range, *input);
     nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
-    if (*distance >= 0) {
+    if (distance->given()) {
       if (query) throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
       j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
     } else if (query) {
@@ -277,11 +295,8 @@ void add_run(CLI::App& app) {
   add_memory_limit(cmd);
   mesh_out->add(cmd);
   cmd->add_option("--save-grid", *save, "Also save the prepared grid (.adg) for later extract or view");
-  auto distance = std::make_shared<double>(-1);
-  cmd->add_option("--distance", *distance,
-                  "Bisection grid: the fewest triangles within about this distance of the grid's surface (voxels of the smallest "
-                  "spacing), refined where this surface needs it")
-      ->check(finite_number() & CLI::NonNegativeNumber);
+  auto distance = std::make_shared<DistanceFlags>();
+  distance->add(cmd);
   cmd->callback([=] {
     mesh_out->check(in->path, *save, "--save-grid");
     if (!save->empty()) refuse_same_file(in->path, *save, "--save-grid");
@@ -291,7 +306,7 @@ void add_run(CLI::App& app) {
     auto range = value_range(v);
     // Parse before the long preprocessing so a typo fails at once.
     const PrepareOptions options = pf->options(in->path);
-    if (*distance >= 0 && options.grid != GridKind::bisection)
+    if (distance->given() && options.grid != GridKind::bisection)
       throw OptionError("distance", "needs the bisection grid (the Delaunay grid keeps no hierarchy to refine)");
     auto values = mesh_out->values(options.relative, range, in->path);
     TerminalProgress tp(!out->quiet && !out->json);
@@ -309,7 +324,7 @@ void add_run(CLI::App& app) {
     if (!out->json && !out->quiet)
       std::cout << fmt::format("kept {} of {} voxels ({:.2f} %), {} tetrahedra; {}\n", p->stats.kept, p->stats.voxels,
                                100.0 * j["ratio"].get<double>(), p->stats.tetrahedra, error_summary(p->stats));
-    j["surfaces"] = *distance >= 0 ? distance_all(p, *mesh_out, values, *distance, *out) : extract_all(p, *mesh_out, values, *out);
+    j["surfaces"] = distance->given() ? distance_all(p, *mesh_out, values, *distance, *out) : extract_all(p, *mesh_out, values, *out);
     j["seconds"]["total"] = seconds_since(t_all);
     if (out->json) print_json(j);
   });

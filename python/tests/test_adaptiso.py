@@ -130,6 +130,16 @@ def test_surface_within_a_distance_has_the_full_surfaces_vertices():
         grid.extract(15.0, distance=-1)
     with pytest.raises(ValueError):
         grid.extract(15.0, distance=1.0, max_error=0.1)
+    # Rounds of edge collapses: fewer triangles, the same vertices; 0 is the march alone.
+    marched = grid.extract(15.0, distance=1.0, collapse=0)
+    assert near.faces.shape[0] < marched.faces.shape[0] and near.stats["collapsed_edges"] > 0
+    assert marched.stats["collapsed_edges"] == 0
+    assert set(map(tuple, near.vertices.tolist())) <= set(map(tuple, marched.vertices.tolist()))
+    for bad in (-1, 17):
+        with pytest.raises(ValueError):
+            grid.extract(15.0, distance=1.0, collapse=bad)
+    with pytest.raises(ValueError):
+        grid.extract(15.0, collapse=1)
 
 
 def test_simplify_keeps_vertices_and_the_distance_checked():

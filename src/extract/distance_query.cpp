@@ -157,6 +157,18 @@ struct Node {
   const Node* parent = nullptr;
 };
 
+// The tetrahedra of the last probe's descent, root first.
+struct ProbeTrail {
+  static constexpr int kMax = 128;
+  Tet t[kMax];
+  OrderState o[kMax];
+  int depth = 0;
+  void push(const Tet& next, OrderState no) {
+    if (depth == kMax) return;
+    t[depth] = next, o[depth] = no, ++depth;
+  }
+};
+
 struct Query {
   const Lattice& lat;
   const VertexNumbers& numbers;
@@ -270,6 +282,26 @@ struct Query {
       t = near->t, o = near->order;
     else if (!root_holding(p, t, o))
       return false;
+    return descend(p, value, t, o, [](const Tet&, OrderState) {});
+  }
+  // The same from the deepest tetrahedron of the last descent that holds p (a probe near the
+  // last one, as the probes of a mesh walked in its vertices' order mostly are).
+  bool value_at(const Point& p, double& value, ProbeTrail& trail) const {
+    while (trail.depth > 0 && !holds(trail.t[trail.depth - 1], p)) --trail.depth;
+    Tet t;
+    OrderState o;
+    if (trail.depth > 0) {
+      t = trail.t[trail.depth - 1], o = trail.o[trail.depth - 1];
+    } else {
+      if (!root_holding(p, t, o)) return false;
+      trail.push(t, o);
+    }
+    return descend(p, value, t, o, [&](const Tet& next, OrderState no) { trail.push(next, no); });
+  }
+  // From t (which holds p) towards the grid's leaf holding p, until everything beneath is on one
+  // side; each tetrahedron stepped into is passed to `entered`.
+  template <class Entered>
+  bool descend(const Point& p, double& value, Tet t, OrderState o, Entered&& entered) const {
     for (;;) {
       Coord m;
       int i, j;
@@ -296,6 +328,7 @@ struct Query {
       const auto& e = order_table::kTable[o];
       t[static_cast<std::size_t>(keeps_i ? j : i)] = m;
       o = keeps_i ? e.at_j : e.at_i;
+      entered(t, o);
     }
     if (!tet_inside(lat, t)) return false;
     double vol[4], total = 0;  // barycentric coordinates of p, by volumes
@@ -313,7 +346,8 @@ struct Query {
   // grid's interpolant has opposite signs at p ± distance·normal (the surface crosses the segment
   // between them); otherwise it is taken as farther (a surface meeting the segment obliquely, or
   // twice, costs a needless split). Points off the box are not judged.
-  bool far_from_surface(const Point& pv, const Point& normal, const Node* near = nullptr) const {
+  template <class Hint>
+  bool far_from_surface(const Point& pv, const Point& normal, Hint&& near) const {
     bool side[2];
     for (int s = 0; s < 2; ++s) {
       const double sign = s ? -1 : 1;
@@ -588,15 +622,251 @@ void assemble(const TetGrid& g, std::vector<Found>& found, double iso, const Edg
   interpolate_vertices(g, order, iso, mesh);
 }
 
+// ---- Edge collapses after the query ----
+//
+// Marching tetrahedra make 2–3× marching cubes' triangles per cut cell, and most of them are not
+// needed to stay within the distance: in each round, an edge (v, u) of the surface is collapsed
+// into u when the refinement's own tests pass on the result (every new triangle's centre within
+// the distance of the grid's surface, probed as the refinement probes, unless its edges are short
+// enough that every point lies within the distance of a corner; v within the distance of the new
+// triangles), no new triangle turns by more than 60°, and the link condition keeps the surface
+// 2-manifold. Vertices on the surface's border (the box) stay. A round's collapses have disjoint
+// stars (a collapse locks v's ring), so they are chosen in vertex order without the probes, the
+// probes then run in parallel, and the chosen collapses whose probes pass are applied: the same
+// surface for any thread count. The vertices that stay keep their order and their places (cut
+// points of the grid's surface).
+
+struct Collapse {
+  std::uint32_t v, u;
+};
+
+// Vertex → triangles, and each vertex's ring (sorted) and whether it lies on the surface's border.
+struct Stars {
+  std::vector<std::uint32_t> start, tris;       // CSR: vertex v's triangles
+  std::vector<std::uint32_t> ring, ring_count;  // 2 slots per triangle corner, from 2·start[v]
+  std::vector<std::uint8_t> border;
+
+  explicit Stars(const Mesh& mesh) {
+    const std::size_t V = mesh.positions.size(), T = mesh.triangles.size();
+    start.assign(V + 1, 0);
+    for (const auto& t : mesh.triangles)
+      for (std::uint32_t v : t) ++start[v + 1];
+    for (std::size_t v = 0; v < V; ++v) start[v + 1] += start[v];
+    tris.resize(3 * T);
+    std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+    for (std::uint32_t t = 0; t < T; ++t)
+      for (std::uint32_t v : mesh.triangles[t]) tris[fill[v]++] = t;
+    ring.resize(6 * T);
+    ring_count.assign(V, 0);
+    border.assign(V, 0);
+    tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, static_cast<std::uint32_t>(V), 4096), [&](const auto& r) {
+      for (std::uint32_t v = r.begin(); v < r.end(); ++v) build_ring(mesh, v);
+    });
+  }
+  const std::uint32_t* ring_of(std::uint32_t v) const { return &ring[2 * start[v]]; }
+
+private:
+  // Each neighbour of an inner vertex appears in exactly two of its triangles.
+  void build_ring(const Mesh& mesh, std::uint32_t v) {
+    std::uint32_t* out = &ring[2 * start[v]];
+    int m = 0;
+    for (std::uint32_t k = start[v]; k < start[v + 1]; ++k)
+      for (std::uint32_t w : mesh.triangles[tris[k]])
+        if (w != v) out[m++] = w;
+    std::sort(out, out + m);
+    int n = 0;
+    for (int i = 0; i < m;) {
+      int j = i;
+      while (j < m && out[j] == out[i]) ++j;
+      if (j - i != 2) border[v] = 1;
+      out[n++] = out[i];
+      i = j;
+    }
+    ring_count[v] = static_cast<std::uint32_t>(n);
+  }
+};
+
+class Collapser {
+public:
+  Collapser(const Query& q, Mesh& mesh, double smallest) : q_(q), mesh_(mesh), d2_(q.distance * q.distance) {
+    at_.resize(mesh.positions.size());
+    for (std::size_t v = 0; v < at_.size(); ++v)
+      for (int k = 0; k < 3; ++k) at_[v][k] = mesh.positions[v][k] / smallest;
+  }
+
+  // One round; returns the collapses applied.
+  std::size_t round() {
+    const Stars s(mesh_);
+    const std::vector<Collapse> chosen = choose(s);
+    std::vector<std::uint8_t> pass(chosen.size(), 1);
+    const std::size_t chunk = 256;
+    tbb::parallel_for(std::size_t{0}, (chosen.size() + chunk - 1) / chunk, [&](std::size_t c) {
+      ProbeTrail trail;  // the chosen collapses are in vertex order: neighbours mostly
+      for (std::size_t i = c * chunk; i < std::min(chosen.size(), (c + 1) * chunk); ++i) pass[i] = probes_pass(s, chosen[i], trail);
+    });
+    std::vector<std::uint8_t> dead(mesh_.triangles.size(), 0);
+    std::size_t applied = 0;
+    for (std::size_t i = 0; i < chosen.size(); ++i) {
+      if (!pass[i]) continue;
+      const auto [v, u] = chosen[i];
+      for (std::uint32_t k = s.start[v]; k < s.start[v + 1]; ++k) {
+        auto& t = mesh_.triangles[s.tris[k]];
+        if (has(t, u))
+          dead[s.tris[k]] = 1;
+        else
+          for (auto& w : t) w = w == v ? u : w;
+      }
+      ++applied;
+    }
+    std::size_t o = 0;
+    for (std::size_t t = 0; t < mesh_.triangles.size(); ++t)
+      if (!dead[t]) mesh_.triangles[o++] = mesh_.triangles[t];
+    mesh_.triangles.resize(o);
+    return applied;
+  }
+
+  // Drops the vertices no triangle uses any more, keeping the others' order.
+  void compact() {
+    std::vector<std::uint32_t> id(mesh_.positions.size(), 0);
+    for (const auto& t : mesh_.triangles)
+      for (std::uint32_t w : t) id[w] = 1;
+    std::uint32_t n = 0;
+    for (std::size_t v = 0; v < id.size(); ++v) {
+      const bool used = id[v];
+      id[v] = n;
+      if (used) mesh_.positions[n] = mesh_.positions[v], mesh_.normals[n] = mesh_.normals[v], ++n;
+    }
+    mesh_.positions.resize(n), mesh_.normals.resize(n);
+    for (auto& t : mesh_.triangles)
+      for (auto& w : t) w = id[w];
+  }
+
+private:
+  const Query& q_;
+  Mesh& mesh_;
+  double d2_;
+  std::vector<Point> at_;  // voxels of the smallest spacing
+
+  static bool has(const std::array<std::uint32_t, 3>& t, std::uint32_t u) { return t[0] == u || t[1] == u || t[2] == u; }
+  static double dot(const Point& x, const Point& y) { return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]; }
+  static Point minus(const Point& x, const Point& y) { return {x[0] - y[0], x[1] - y[1], x[2] - y[2]}; }
+  static Point cross(const Point& x, const Point& y) {
+    return {x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]};
+  }
+  static Point normal(const Point& a, const Point& b, const Point& c) { return cross(minus(b, a), minus(c, a)); }
+
+  // Triangle k of v's star with v moved to u.
+  void moved(const Stars& s, std::uint32_t k, const Collapse& c, Point out[3]) const {
+    const auto& t = mesh_.triangles[s.tris[k]];
+    for (int i = 0; i < 3; ++i) out[i] = t[static_cast<std::size_t>(i)] == c.v ? at_[c.u] : at_[t[static_cast<std::size_t>(i)]];
+  }
+
+  // The collapses of a round, without the probes: in vertex order, each vertex into the nearest
+  // neighbour that passes, disjoint stars.
+  std::vector<Collapse> choose(const Stars& s) const {
+    const std::size_t V = at_.size();
+    std::vector<std::uint8_t> locked(V, 0);
+    std::vector<Collapse> chosen;
+    std::uint32_t order[64];
+    for (std::uint32_t v = 0; v < V; ++v) {
+      const int nv = static_cast<int>(s.ring_count[v]);
+      if (locked[v] || s.border[v] || nv < 4 || nv > 64) continue;  // valence 3: the link condition would also need its edges
+      const std::uint32_t* rv = s.ring_of(v);
+      std::copy(rv, rv + nv, order);
+      const Point& pv = at_[v];
+      std::sort(order, order + nv, [&](std::uint32_t a, std::uint32_t b) {
+        const double da = dot(minus(at_[a], pv), minus(at_[a], pv)), db = dot(minus(at_[b], pv), minus(at_[b], pv));
+        return da < db || (da == db && a < b);
+      });
+      for (int i = 0; i < nv; ++i) {
+        const Collapse c{v, order[i]};
+        if (locked[c.u] || !links(s, c) || !keeps_shape(s, c)) continue;
+        chosen.push_back(c);
+        locked[v] = locked[c.u] = 1;
+        for (int k = 0; k < nv; ++k) locked[rv[k]] = 1;
+        break;
+      }
+    }
+    return chosen;
+  }
+
+  // The link condition: the rings of v and u share exactly the two vertices opposite the edge.
+  static bool links(const Stars& s, const Collapse& c) {
+    const std::uint32_t *rv = s.ring_of(c.v), *ru = s.ring_of(c.u);
+    const std::uint32_t nv = s.ring_count[c.v], nu = s.ring_count[c.u];
+    int common = 0;
+    for (std::uint32_t i = 0, j = 0; i < nv && j < nu;) {
+      if (rv[i] < ru[j])
+        ++i;
+      else if (ru[j] < rv[i])
+        ++j;
+      else
+        ++common, ++i, ++j;
+    }
+    return common == 2;
+  }
+
+  // No new triangle degenerate or turned by more than 60°, and v within the distance of them.
+  bool keeps_shape(const Stars& s, const Collapse& c) const {
+    double best = std::numeric_limits<double>::infinity();
+    for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
+      if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
+      Point b[3];
+      moved(s, k, c, b);
+      const auto& t = mesh_.triangles[s.tris[k]];
+      const Point n0 = normal(at_[t[0]], at_[t[1]], at_[t[2]]), n1 = normal(b[0], b[1], b[2]);
+      const double l0 = std::sqrt(dot(n0, n0)), l1 = std::sqrt(dot(n1, n1));
+      if (!(l1 > 1e-12) || dot(n0, n1) < 0.5 * l0 * l1) return false;
+      best = std::min(best, distance2_to_triangle(at_[c.v], b[0], b[1], b[2]));
+    }
+    return best <= d2_;
+  }
+
+  // Every new triangle's centre within the distance of the grid's surface, as the refinement
+  // tests its triangles.
+  bool probes_pass(const Stars& s, const Collapse& c, ProbeTrail& trail) const {
+    for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
+      if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
+      Point b[3];
+      moved(s, k, c, b);
+      // Every point of a triangle with edges up to L lies within L/√3 of a corner (on the grid's
+      // surface): as in the refinement, such triangles are not probed.
+      double longest2 = 0;
+      for (int i = 0; i < 3; ++i) longest2 = std::max(longest2, dot(minus(b[i], b[(i + 1) % 3]), minus(b[i], b[(i + 1) % 3])));
+      if (longest2 <= 3 * d2_) continue;
+      const Point n = normal(b[0], b[1], b[2]);
+      const double len = std::sqrt(dot(n, n));
+      Point centre, unit;
+      for (int i = 0; i < 3; ++i) centre[i] = (b[0][i] + b[1][i] + b[2][i]) / 3, unit[i] = n[i] / len;
+      if (q_.far_from_surface(centre, unit, trail)) return false;
+    }
+    return true;
+  }
+};
+
+std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds) {
+  Collapser c(q, mesh, smallest);
+  std::size_t total = 0;
+  for (int r = 0; r < rounds; ++r) {
+    const std::size_t n = c.round();
+    total += n;
+    if (n == 0) break;
+  }
+  if (total) c.compact();
+  return total;
+}
+
 }  // namespace
 }  // namespace detail
 
-Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQueryStats* stats) const {
+Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds) const {
   using namespace detail;
   using Clock = std::chrono::steady_clock;
   if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
   if (!(distance >= 0) || !std::isfinite(distance))
     throw OptionError("distance", fmt::format("must be a non-negative number of voxels, got {}", distance));
+  if (collapse_rounds < 0 || collapse_rounds > kMaxCollapseRounds)
+    throw OptionError("collapse", fmt::format("must be a number of rounds from 0 to {}, got {}", kMaxCollapseRounds, collapse_rounds));
   const auto t0 = Clock::now();
   const TetGrid& g = grid_->grid;
   const BisectionHierarchy& h = *grid_->hierarchy;
@@ -650,6 +920,8 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
   Mesh mesh;
   const SnapRemap remap(q);
   assemble(g, found, iso, remap, mesh);
+  const auto t3 = Clock::now();
+  const std::size_t collapsed = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds) : 0;
   if (stats) {
     stats->iso = iso;
     stats->distance = distance;
@@ -664,7 +936,9 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
     stats->in_range = iso >= g.source.min && iso <= g.source.max;
     stats->refine_seconds = std::chrono::duration<double>(t1 - t0).count();
     stats->walk_seconds = std::chrono::duration<double>(t2 - t1).count();
-    stats->march_seconds = std::chrono::duration<double>(Clock::now() - t2).count();
+    stats->march_seconds = std::chrono::duration<double>(t3 - t2).count();
+    stats->collapsed = collapsed;
+    stats->collapse_seconds = std::chrono::duration<double>(Clock::now() - t3).count();
   }
   return mesh;
 }

@@ -380,7 +380,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
     const auto t0 = std::chrono::steady_clock::now();
     std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
     const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    res.set_header("X-Extract-Seconds", seconds_text(st.refine_seconds + st.walk_seconds + st.march_seconds));
+    res.set_header("X-Extract-Seconds", seconds_text(st.refine_seconds + st.walk_seconds + st.march_seconds + st.collapse_seconds));
     res.set_header("X-Encode-Seconds", seconds_text(encode));
     res.set_header("X-Wait-Seconds", "0");
     res.set_header("X-Triangles", std::to_string(st.triangles));

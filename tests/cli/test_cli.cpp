@@ -699,6 +699,26 @@ TEST(ExtractCli, MaxErrorMinusOneIsRefusedNotIgnored) {
   EXPECT_EQ(testutil::run_cli("extract " + (t / "g.adg") + " --iso 500 --max-error 0 --quiet -o " + (t / "m.ply")).code, 0);
 }
 
+TEST(ExtractCli, CollapseRoundsOutOfRangeOrWithoutADistanceAreRefused) {
+  TempDir t("cli_collapse");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 24 -o " + (t / "s.nrrd")).code, 0);
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --quiet -o " + (t / "g.adg")).code, 0);
+  const std::string extract = "extract " + (t / "g.adg") + " --iso 500 ";
+  expect_refused(testutil::run_cli(extract + "--distance 1 --collapse 17 -o " + (t / "m.ply")), "--collapse", "--collapse 17");
+  expect_refused(testutil::run_cli(extract + "--distance 1 --collapse -1 -o " + (t / "m.ply")), "--collapse", "--collapse -1");
+  expect_refused(testutil::run_cli(extract + "--collapse 1 -o " + (t / "m.ply")), "--distance", "--collapse without --distance");
+  EXPECT_FALSE(std::filesystem::exists(t / "m.ply"));
+  // The rounds asked for, and fewer triangles than the march alone.
+  auto marched = testutil::run_cli(extract + "--distance 1 --collapse 0 --json --quiet -o " + (t / "m.ply"));
+  auto collapsed = testutil::run_cli(extract + "--distance 1 --json --quiet -o " + (t / "m.ply"));
+  ASSERT_EQ(marched.code, 0) << marched.err;
+  ASSERT_EQ(collapsed.code, 0) << collapsed.err;
+  const auto a = nlohmann::json::parse(marched.out)["surfaces"][0], b = nlohmann::json::parse(collapsed.out)["surfaces"][0];
+  EXPECT_EQ(a["collapsed_edges"], 0);
+  EXPECT_GT(b["collapsed_edges"].get<int>(), 0);
+  EXPECT_EQ(a["triangles"].get<int>() - b["triangles"].get<int>(), 2 * b["collapsed_edges"].get<int>());
+}
+
 TEST(ExtractCli, MaxDisplacementOnAGridPreparedWithoutItIsRefused) {
   TempDir t("cli41");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);

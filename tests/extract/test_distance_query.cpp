@@ -277,3 +277,96 @@ TEST(DistanceQuery, APartTheDistanceLeavesOutRefinesNothingAroundIt) {
   EXPECT_EQ(left_out.positions, reference.positions);
   EXPECT_GT(with.extract_within(0, 0.5).triangle_count(), without.extract_within(0, 0.5).triangle_count());
 }
+
+namespace {
+
+// Vertices whose triangles do not form one fan (two cones meeting at a point): the edge census
+// sees every edge manifold there.
+std::size_t pinched_vertices(const Mesh& m) {
+  std::vector<std::vector<std::uint32_t>> star(m.vertex_count());
+  for (std::uint32_t t = 0; t < m.triangle_count(); ++t)
+    for (std::uint32_t v : m.triangles[t]) star[v].push_back(t);
+  std::size_t pinched = 0;
+  for (std::uint32_t v = 0; v < star.size(); ++v) {
+    const auto& s = star[v];
+    if (s.empty()) continue;
+    std::vector<char> seen(s.size(), 0);  // flood from the first triangle across edges through v
+    std::vector<std::size_t> todo{0};
+    seen[0] = 1;
+    while (!todo.empty()) {
+      const auto& a = m.triangles[s[todo.back()]];
+      todo.pop_back();
+      for (std::size_t j = 0; j < s.size(); ++j) {
+        if (seen[j]) continue;
+        const auto& b = m.triangles[s[j]];
+        int shared = 0;
+        for (std::uint32_t x : a) shared += x != v && (x == b[0] || x == b[1] || x == b[2]);
+        if (shared) seen[j] = 1, todo.push_back(j);
+      }
+    }
+    pinched += std::count(seen.begin(), seen.end(), 0) > 0;
+  }
+  return pinched;
+}
+
+}  // namespace
+
+TEST(DistanceQuery, CollapsesKeepTheTopologyTheVerticesAndTheBorderWithFewerTriangles) {
+  // Noisy fields on odd, anisotropic and thin boxes, whose surfaces are many pieces with borders
+  // on the box: each round of collapses keeps the Euler characteristic, every border edge, every
+  // vertex a vertex of the marched surface bit for bit, and no edge or vertex non-manifold, while
+  // the triangles fall; the query's tests hold for the triangles collapses made, so the distance
+  // to the grid's surface stays within the measured bounds (SurfacesStayWithin... above).
+  std::mt19937 rng(11);
+  std::size_t before_all = 0, after_all = 0;
+  for (Dims d : {Dims{33, 33, 33}, Dims{29, 18, 23}, Dims{40, 31, 3}}) {
+    const Vec3 spacing = d[1] == 18 ? Vec3{1.0, 0.8, 1.4} : Vec3{1, 1, 1};
+    Volume v = field(d, spacing, [&](double x, double y, double z) {
+      return std::sin(0.21 * x) * std::cos(0.17 * y) + 0.4 * std::sin(0.3 * z + 0.1 * x) + 0.15 * double(rng() % 1000) / 1000;
+    });
+    const auto grid = testutil::prepared_at(v, 0.01, true);
+    const HierarchyQuery query(grid);
+    for (double distance : {0.5, 1.0, 2.0}) {
+      const Mesh marched = query.extract_within(0.1, distance, nullptr, 0);
+      const auto base = testutil::edge_census(marched, v.dims, v.spacing);
+      std::set<std::array<float, 3>> places(marched.positions.begin(), marched.positions.end());
+      std::size_t previous = marched.triangle_count();
+      for (int rounds : {1, 2, 4}) {
+        DistanceQueryStats st;
+        const Mesh m = query.extract_within(0.1, distance, &st, rounds);
+        const std::string at = std::to_string(d[0]) + "x" + std::to_string(d[1]) + "x" + std::to_string(d[2]) + " distance " +
+                               std::to_string(distance) + " rounds " + std::to_string(rounds);
+        const auto census = testutil::edge_census(m, v.dims, v.spacing);
+        EXPECT_EQ(census.euler, base.euler) << at;
+        EXPECT_EQ(census.boundary, base.boundary) << at;
+        EXPECT_TRUE(census.boundary_on_box) << at;
+        EXPECT_EQ(census.nonmanifold, 0u) << at;
+        EXPECT_EQ(census.misoriented, 0u) << at;
+        EXPECT_EQ(census.degenerate, 0u) << at;
+        EXPECT_EQ(pinched_vertices(m), 0u) << at;
+        EXPECT_LE(m.triangle_count(), previous) << at;
+        EXPECT_EQ(marched.triangle_count() - m.triangle_count(), 2 * st.collapsed) << at;
+        EXPECT_EQ(st.triangles, m.triangle_count()) << at;
+        for (const auto& p : m.positions) ASSERT_TRUE(places.count(p)) << at;
+        previous = m.triangle_count();
+      }
+      before_all += marched.triangle_count();
+      after_all += previous;
+    }
+  }
+  EXPECT_LT(after_all, before_all * 3 / 4);  // the point of it
+}
+
+TEST(DistanceQuery, RoundsOutsideTheirRangeAreRefusedAndDistanceZeroCollapsesNothing) {
+  const Volume v = make_synthetic("sphere", 33, ScalarType::f32);
+  const auto grid = testutil::prepared_at(v, 0.01, true);
+  const HierarchyQuery query(grid);
+  const ValueRange r = value_range(v);
+  const double iso = r.min + 0.5 * (r.max - r.min);
+  EXPECT_THROW(query.extract_within(iso, 1, nullptr, -1), OptionError);
+  EXPECT_THROW(query.extract_within(iso, 1, nullptr, kMaxCollapseRounds + 1), OptionError);
+  DistanceQueryStats st;
+  const Mesh zero = query.extract_within(iso, 0, &st, kMaxCollapseRounds);
+  EXPECT_EQ(st.collapsed, 0u);
+  EXPECT_EQ(zero.triangles, query.extract(iso, 0).triangles);
+}
