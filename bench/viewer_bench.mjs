@@ -6,11 +6,12 @@
 // surface only once the GPU has drawn the previous one, so "drawn" is on screen, not queued.
 //
 // Usage: node bench/viewer_bench.mjs ADAPTISO_CLI GRID.adg [--budget N | --distance D [--drag-distance D2]
-//                                    [--drag-triangles T]] [--from F --to T] [--seconds S]
+//                                    [--drag-triangles T] [--collapse R]] [--from F --to T] [--seconds S]
 // F and T are slider positions (0–1000). --budget drives the error levels (?levels=1: built first,
 // waited for); --distance the surface-adaptive queries of a bisection grid (D at rest; while
 // dragging at least D2, default 2, and coarser to keep near T triangles, the page's default
-// 20,000; a huge T keeps D2; nothing to build). Prints one JSON object.
+// 20,000; a huge T keeps D2; nothing to build; R rounds of edge collapses, the server's default
+// when absent). Prints one JSON object.
 import { spawn } from 'node:child_process';
 import { createRequire } from 'node:module';
 import { dirname, join } from 'node:path';
@@ -22,8 +23,10 @@ const [cli, grid] = args;
 const budget = Number(opt('--budget', 150000)), from = Number(opt('--from', 400)), to = Number(opt('--to', 600));
 const seconds = Number(opt('--seconds', 4));
 const distance = opt('--distance', null), dragDistance = opt('--drag-distance', '2');
-const dragTriangles = opt('--drag-triangles', null);
-const query = distance !== null ? `?distance=${distance}&drag-distance=${dragDistance}${dragTriangles ? `&drag-triangles=${dragTriangles}` : ''}` : `?levels=1&budget=${budget}`;
+const dragTriangles = opt('--drag-triangles', null), collapse = opt('--collapse', null);
+const query = distance !== null
+  ? `?distance=${distance}&drag-distance=${dragDistance}${dragTriangles ? `&drag-triangles=${dragTriangles}` : ''}${collapse !== null ? `&collapse=${collapse}` : ''}`
+  : `?levels=1&budget=${budget}`;
 const web = join(dirname(fileURLToPath(import.meta.url)), '..', 'web');
 const { chromium } = createRequire(join(web, 'package.json'))('playwright-core');
 

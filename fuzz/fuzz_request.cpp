@@ -19,6 +19,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   quietly([&] { client_id(params); });
   quietly([&] { compact_format(params); });
   quietly([&] { export_format(params); });
-  for (const char* name : {"error", "budget", "simplify"}) quietly([&] { parse_optional(params, name); });
+  for (const char* name : {"error", "budget", "simplify", "distance"}) quietly([&] { parse_optional(params, name); });
+  quietly([&] {
+    const int rounds = parse_rounds(params, "collapse", 2, 16);
+    if (rounds < 0 || rounds > 16) __builtin_trap();  // a refusal, never a number out of range
+  });
   return 0;
 }

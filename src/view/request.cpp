@@ -3,6 +3,8 @@
 
 #include <fmt/format.h>
 
+#include <cmath>
+
 #include <algorithm>
 #include <cctype>
 
@@ -32,6 +34,15 @@ std::optional<double> parse_optional(const QueryParams& params, const char* name
   auto x = parse_finite(*s);
   if (!x || *x < 0) throw BadRequest(fmt::format("{} must be a non-negative number, not '{}'", name, s->substr(0, 40)));
   return x;
+}
+
+int parse_rounds(const QueryParams& params, const char* name, int fallback, int max) {
+  const std::string* s = param(params, name);
+  if (!s) return fallback;
+  const auto x = parse_finite(*s);
+  if (!x || *x < 0 || *x > max || *x != std::floor(*x))
+    throw BadRequest(fmt::format("{} must be a whole number from 0 to {}, not '{}'", name, max, s->substr(0, 40)));
+  return static_cast<int>(*x);
 }
 
 bool parse_flag(const QueryParams& params, const char* name) {

@@ -21,6 +21,9 @@ using QueryParams = std::multimap<std::string, std::string>;
 double parse_iso(const QueryParams& params);
 // An optional non-negative number parameter (error=, budget=, simplify=).
 std::optional<double> parse_optional(const QueryParams& params, const char* name);
+// collapse=: rounds of edge collapses after a distance query, a whole number from 0 to max;
+// `fallback` when absent.
+int parse_rounds(const QueryParams& params, const char* name, int fallback, int max);
 // format=plain (the default) or format=compact (mesh_codec.hpp) for /api/surface.
 bool compact_format(const QueryParams& params);
 // A yes/no parameter: absent, 0 or false is no; 1 or true is yes; anything else a bad request.

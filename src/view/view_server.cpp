@@ -168,7 +168,7 @@ struct ViewServer::Impl {
   bool host_allowed(const httplib::Request& req) const;
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
-  Mesh surface_within(const Served& s, double iso, double distance, DistanceQueryStats* stats);
+  Mesh surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats);
   void reference(const httplib::Request& req, httplib::Response& res);
   void download(const httplib::Request& req, httplib::Response& res);
   void points(const httplib::Request& req, httplib::Response& res);
@@ -177,6 +177,13 @@ struct ViewServer::Impl {
 };
 
 namespace {
+
+// collapse= (rounds of edge collapses) goes with distance= only.
+int collapse_rounds(const detail::QueryParams& params, bool distance) {
+  const int rounds = detail::parse_rounds(params, "collapse", kDefaultCollapseRounds, kMaxCollapseRounds);
+  if (!distance && params.count("collapse")) throw detail::BadRequest("collapse= needs distance=");
+  return rounds;
+}
 
 detail::SessionOptions session_options(const ViewOptions& o) {
   detail::SessionOptions s;
@@ -367,6 +374,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const auto error = parse_optional(req.params, "error");
   const auto budget = parse_optional(req.params, "budget");
   const auto distance = parse_optional(req.params, "distance");
+  const int collapse = collapse_rounds(req.params, distance.has_value());
   const bool compact = compact_format(req.params);
   const Served s = served_now();
   auto common_headers = [&](const std::string& body_encoding) {
@@ -376,7 +384,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   if (distance) {
     if (error || budget) throw BadRequest("distance= cannot be combined with error= or budget=");
     DistanceQueryStats st;
-    const Mesh mesh = surface_within(s, iso, *distance, &st);
+    const Mesh mesh = surface_within(s, iso, *distance, collapse, &st);
     const auto t0 = std::chrono::steady_clock::now();
     std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
     const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -432,12 +440,12 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
 
 // The surface within distance= voxels of the grid's (a bisection grid's hierarchy query): one
 // stateless query, no page state; its memory reserved for the time of the query.
-Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, DistanceQueryStats* stats) {
+Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats) {
   if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
   if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
   const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, s.grid->grid.tet_count() / 8);
   const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
-  Mesh mesh = s.query->extract_within(iso, distance, stats);
+  Mesh mesh = s.query->extract_within(iso, distance, stats, collapse);
   sessions.record_triangles(Sessions::Transient::distance, iso, mesh.triangle_count());
   return mesh;
 }
@@ -452,13 +460,14 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   SimplifyOptions how;
   how.checked = parse_flag(req.params, "checked");
   const auto within = parse_optional(req.params, "distance");
+  const int collapse = collapse_rounds(req.params, within.has_value());
   const std::string format = export_format(req.params);
   const Served s = served_now();
   if (within && error) throw BadRequest("distance= cannot be combined with error=");
   Mesh mesh;
   double error_bound = surface_error(s.grid->stats);
   if (within) {
-    mesh = surface_within(s, iso, *within, nullptr);
+    mesh = surface_within(s, iso, *within, collapse, nullptr);
   } else {
     const auto surface = sessions.surface(id, iso, error, std::nullopt);  // the level's lock, until copied
     mesh = surface.extractor().mesh();

@@ -499,13 +499,24 @@ TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
   // No level of detail was built for them.
   const nlohmann::json after = nlohmann::json::parse(c.Get("/api/info")->body);
   for (std::size_t k = 1; k < after["levels"].size(); ++k) EXPECT_FALSE(after["levels"][k]["built"].get<bool>()) << k;
-  for (const char* bad : {"distance=-1", "distance=nan", "distance=2&error=0.1", "distance=2&budget=1000", "distance=x"}) {
+  for (const char* bad : {"distance=-1", "distance=nan", "distance=2&error=0.1", "distance=2&budget=1000", "distance=x",
+                          "distance=2&collapse=17", "distance=2&collapse=1.5", "distance=2&collapse=-1", "collapse=1"}) {
     auto r = c.Get(fmt::format("/api/surface?iso=0.45&client=a&{}", bad));
     EXPECT_EQ(r->status, 400) << bad;
+  }
+  // collapse= asks for the rounds of edge collapses (the page asks for none while it draws).
+  for (int rounds : {0, 1, 3}) {
+    auto r = c.Get(fmt::format("/api/surface?iso=0.45&client=a&distance=2&collapse={}", rounds));
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->body, encode_mesh(query.extract_within(0.45, 2, nullptr, rounds))) << rounds;
   }
   auto exported = c.Get("/api/export?iso=0.45&client=a&distance=2&format=ply");
   ASSERT_EQ(exported->status, 200);
   EXPECT_EQ(exported->get_header_value("X-Triangles"), std::to_string(query.extract_within(0.45, 2).triangle_count()));
+  auto marched = c.Get("/api/export?iso=0.45&client=a&distance=2&collapse=0&format=ply");
+  ASSERT_EQ(marched->status, 200);
+  EXPECT_EQ(marched->get_header_value("X-Triangles"), std::to_string(query.extract_within(0.45, 2, nullptr, 0).triangle_count()));
+  EXPECT_EQ(c.Get("/api/export?iso=0.45&client=a&collapse=0&format=ply")->status, 400);
   // A Delaunay grid keeps no hierarchy: refused with one line.
   PrepareOptions o;
   o.grid = GridKind::delaunay;
