@@ -939,14 +939,16 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
   Mesh mesh;
   const SnapRemap remap(q);
   assemble(g, found, iso, remap, mesh);
+  std::size_t marched = 0, visited = top.roots.size() + top.splits.size();
+  for (const Found& f : found) marched += f.leaves, visited += f.visited;
+  std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
   const auto t3 = Clock::now();
   const std::size_t collapsed = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds) : 0;
   if (stats) {
     stats->iso = iso;
     stats->distance = distance;
-    stats->tetrahedra = 0;
-    stats->visited = top.roots.size() + top.splits.size();
-    for (const Found& f : found) stats->tetrahedra += f.leaves, stats->visited += f.visited;
+    stats->tetrahedra = marched;
+    stats->visited = visited;
     stats->tested = tested.combine(std::plus<>());
     stats->refined = refined + closure;
     stats->closure = closure;

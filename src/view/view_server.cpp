@@ -445,8 +445,11 @@ Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distan
   if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
   const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, s.grid->grid.tet_count() / 8);
   const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
+  DistanceQueryStats own;
+  if (!stats) stats = &own;
   Mesh mesh = s.query->extract_within(iso, distance, stats, collapse);
-  sessions.record_triangles(Sessions::Transient::distance, iso, mesh.triangle_count());
+  // The peak follows the marched triangles, collapses or not: those are what the next estimate counts.
+  sessions.record_triangles(Sessions::Transient::distance, iso, stats->triangles + 2 * stats->collapsed);
   return mesh;
 }
 
