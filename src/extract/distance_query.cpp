@@ -863,13 +863,18 @@ private:
   }
 };
 
+// Up to `rounds` rounds; a round that removes less than a sixteenth of the triangles is the last
+// (the next would remove fewer still at about the same cost: on the 512×512×120 MR head, whose
+// slices lie 3.7 voxels apart, the first round at 0.5 voxels removed 1.7 % of 5.4 M triangles in
+// 1.6 s, the second 0.8 % more in 0.85 s).
 std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds) {
+  if (rounds == 0) return 0;
   Collapser c(q, mesh, smallest);
   std::size_t total = 0;
   for (int r = 0; r < rounds; ++r) {
-    const std::size_t n = c.round();
+    const std::size_t before = mesh.triangles.size(), n = c.round();
     total += n;
-    if (n == 0) break;
+    if (32 * n < before) break;  // 2·n triangles removed, fewer than before / 16
   }
   if (total) c.compact();
   return total;
