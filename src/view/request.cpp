@@ -3,10 +3,9 @@
 
 #include <fmt/format.h>
 
-#include <cmath>
-
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 
 #include "adaptiso/number.hpp"
 
