@@ -603,15 +603,27 @@ void assemble(const TetGrid& g, std::vector<Found>& found, double iso, const Edg
     std::size_t n = 0;
     for (std::size_t f = first[c]; f < first[c + 1]; ++f) n += found[f].keys.size();
     ch.map = std::make_shared<EdgeMap>(n / 2 + 16, ch.slots);
-    ch.local.reserve(n);
+    resize_for_overwrite(ch.local, n);  // faulted in at once (march_detail.hpp), then filled in order
+    ch.local.clear();
+    // The keys' home slots are scattered misses: each is fetched kAhead keys before it is probed
+    // (on the CT bunny's noisy iso 438, 866 k triangles, these maps took 110-140 ms without).
+    constexpr std::size_t kAhead = 16;
+    std::uint64_t ahead[kAhead];
+    std::size_t queued = 0;
     for (std::size_t f = first[c]; f < first[c + 1]; ++f)
-      for (std::uint64_t key : found[f].keys) ch.local.push_back(ch.map->find_or_add(key, ch.order));
+      for (std::uint64_t key : found[f].keys) {
+        ch.map->prefetch(key);
+        if (queued >= kAhead) ch.local.push_back(ch.map->find_or_add(ahead[queued % kAhead], ch.order));
+        ahead[queued++ % kAhead] = key;
+      }
+    for (std::size_t k = queued > kAhead ? queued - kAhead : 0; k < queued; ++k)
+      ch.local.push_back(ch.map->find_or_add(ahead[k % kAhead], ch.order));
   });
   std::vector<std::uint64_t> order;
   number_chunk_edges(chunks, order);
   std::vector<std::size_t> tri_at(C + 1, 0);
   for (std::size_t c = 0; c < C; ++c) tri_at[c + 1] = tri_at[c] + chunks[c].local.size() / 3;
-  mesh.triangles.resize(tri_at[C]);
+  resize_for_overwrite(mesh.triangles, tri_at[C]);
   tbb::parallel_for(std::size_t{0}, C, [&](std::size_t c) {
     const auto& ch = chunks[c];
     for (std::size_t j = 0; j < ch.local.size() / 3; ++j)

@@ -111,7 +111,7 @@ private:
   void rehash(std::size_t cap) {
     cap_ = cap;
     shift_ = 64 - std::countr_zero(cap);
-    slots_.assign(2 * cap, kEmpty);
+    assign_big(slots_, 2 * cap, kEmpty);
   }
   void grow(const std::vector<std::uint64_t>& order) {
     rehash(cap_ * 2);
