@@ -279,7 +279,9 @@ function nextDragDistance(d, triangles) {
 // At most one surface request in flight; while it runs only the latest wanted request is kept, so
 // requests never go stale and dragging updates the surface as fast as the server answers. A
 // request while dragging (coarse) asks for the triangle budget; a request at rest for the error.
-let wanted = null, inFlight = false, shownIso = null, drawn = Promise.resolve();
+let wanted = null, inFlight = false, shownIso = null;
+const drawing = [];  // fences of the surfaces handed to the GPU and not yet drawn, oldest first
+const kQueuedTriangles = 100000;
 let statusBeforeBusy = null;  // the status line a "server busy" message replaced
 function requestSurface(iso, coarse = false) {
   wanted = { iso, coarse: coarse && $('lod').checked, input: performance.now() };
@@ -338,13 +340,20 @@ async function pump() {
     // Every surface within a distance tells the next drag how far to go (at rest too: the first
     // drag then starts near its target).
     if (info.distance) dragDistanceNow = nextDragDistance(distance, stats.triangles);
-    // The GPU is never given a surface before it has drawn the last one; a surface while dragging
-    // is drawn while the next is requested, one at rest before the page says it is ready.
-    await drawn;
+    // A surface while dragging is drawn while the next is requested, and a small one may wait
+    // behind the one being drawn (no more: a queue of frames blocked the page, gpuDone). A fence
+    // takes its time to signal, 24 ms for 180 triangles and 37 ms for 12,640 in an idle SwiftShader
+    // (bench/webgl_floor.mjs), and more while the server works: waiting for each before handing
+    // over the next held the bunny's drag at 6.5-9.9 surfaces/s, one queued raised it to 8.4-12.0
+    // in the same runs (bench/viewer_bench.mjs). A surface at rest waits for all, and is drawn
+    // before the page says it is ready.
+    while (drawing.length >= (coarse && stats.triangles <= kQueuedTriangles ? 2 : 1)) await drawing[0];
     const t2b = performance.now();
     replaceGeometry(surface, geometry);  // uploaded when first drawn, now
     renderNow();
-    const shown = (drawn = gpuDone());
+    const shown = gpuDone();
+    drawing.push(shown);
+    shown.then(() => drawing.splice(drawing.indexOf(shown), 1));
     shownIso = iso;
     // Timings (SwiftShader's drawing is CPU work, reported with the upload as draw), taken now:
     // the next request rewrites stats before a dragged surface is drawn.

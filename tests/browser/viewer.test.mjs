@@ -295,10 +295,16 @@ try {
     info.error_bound, { timeout: 30000 });
   const settled = await lod.evaluate(() => window.adaptisoSurfaces.at(-1));
   if (settled.coarse || settled.level !== 0) fail(`the surface at rest is not the prepared one: ${JSON.stringify(settled)}`);
-  // Frame pacing: no surface goes to the GPU (at - draw) before the previous one is drawn (at).
-  const shown = await lod.evaluate((n) => window.adaptisoSurfaces.slice(n), before);
-  const early = shown.findIndex((r, i) => i > 0 && r.at - r.draw < shown[i - 1].at - 0.5);
-  if (early > 0) fail(`a surface went to the GPU before the previous was drawn: ${JSON.stringify(shown.slice(early - 1, early + 1))}`);
+  // Frame pacing: no surface goes to the GPU (at - draw) before the previous one is drawn (at),
+  // except a small one while dragging (at most 100,000 triangles, web/viewer.js), which may wait
+  // behind the one being drawn but not behind two. In the order they went to the GPU: surfaces
+  // are recorded as their fences are seen to signal, two in the same poll in either order.
+  const shown = (await lod.evaluate((n) => window.adaptisoSurfaces.slice(n), before)).sort((a, b) => a.at - a.draw - (b.at - b.draw));
+  const early = shown.findIndex((r, i) => {
+    const behind = r.coarse && r.triangles <= 100000 ? 2 : 1;
+    return i >= behind && r.at - r.draw < shown[i - behind].at - 0.5;
+  });
+  if (early > 0) fail(`a surface went to the GPU before the ones ahead of it were drawn: ${JSON.stringify(shown.slice(Math.max(0, early - 2), early + 1))}`);
   // A software renderer (SwiftShader here) draws without antialiasing.
   if (await lod.evaluate(() => document.getElementById('view').getContext('webgl2').getContextAttributes().antialias))
     fail('the page antialiases on a software renderer');
