@@ -50,6 +50,21 @@ extern "C" std::size_t LLVMFuzzerCustomMutator(std::uint8_t* data, std::size_t s
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string path = fuzz::write("g.adg", fuzz::as_view(data, size));
+  // The distance query's own load, the hierarchy alone: the tetrahedra and the index are skipped,
+  // not checked, so a file lying only there loads here and must still walk safely.
+  std::shared_ptr<const adaptiso::PreparedGrid> parts;
+  fuzz::expect_input_error_or_success(
+      [&] { parts = std::make_shared<const adaptiso::PreparedGrid>(adaptiso::load_grid(path, adaptiso::GridParts::hierarchy)); });
+  if (parts && parts->grid.vertex_count() <= 100000) {
+    const auto& s = parts->grid.source;
+    fuzz::expect_input_error_or_success([&] {
+      const adaptiso::HierarchyQuery query(parts);
+      for (double f : {0.3, 0.61}) {
+        query.extract_within(s.min + f * (s.max - s.min), 0.5);
+        query.extract_within(s.min + f * (s.max - s.min), 2.0, nullptr, 1);
+      }
+    });
+  }
   std::shared_ptr<const adaptiso::PreparedGrid> grid;
   fuzz::expect_input_error_or_success([&] { grid = std::make_shared<const adaptiso::PreparedGrid>(adaptiso::load_grid(path)); });
   if (!grid || grid->grid.vertex_count() > 100000) return 0;

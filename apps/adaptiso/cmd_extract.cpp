@@ -254,23 +254,24 @@ void add_extract(CLI::App& app) {
       throw OptionError("max_error", fmt::format("must be a non-negative number, got {:.6g}", *max_error));
     if (displacement_opt->count() && !(*max_displacement >= 0))
       throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {:.6g}", *max_displacement));
+    if (distance->given() && query)
+      throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
     auto t0 = Clock::now();
-    auto p = std::make_shared<const PreparedGrid>(load_grid(*input));
+    // The hierarchy's queries walk the hierarchy alone: the tetrahedra and their index stay on disk.
+    const bool hierarchy_only = distance->given() || query;
+    auto p = std::make_shared<const PreparedGrid>(load_grid(*input, hierarchy_only ? GridParts::hierarchy : GridParts::all));
     const TetGrid& grid = p->grid;
     const double t_load = seconds_since(t0);
-    if (query && !p->hierarchy)
-      throw OptionError(error_opt->count() ? "max_error" : "max_displacement",
-                        fmt::format("{} has no bisection hierarchy (a Delaunay grid, or an older file): it extracts at its prepared "
-                                    "error only; prepare a bisection grid to extract at others",
-                                    *input));
     if (*max_displacement > 0 && p->hierarchy->displacement_code.empty())
       throw OptionError("max_displacement",
                         fmt::format("{} was prepared without the displacement criterion (prepare it with --max-displacement)", *input));
     const ValueRange range{grid.source.min, grid.source.max};
     auto values = mesh_out->values(*relative, range, *input);
-    nlohmann::json j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", grid.tet_count()}, {"load_seconds", t_load}};
+    nlohmann::json j = {{"grid", *input},
+                        {"vertices", grid.vertex_count()},
+                        {"tetrahedra", hierarchy_only ? p->stats.tetrahedra : grid.tet_count()},
+                        {"load_seconds", t_load}};
     if (distance->given()) {
-      if (query) throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
       j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
     } else if (query) {
       const double e =

@@ -65,6 +65,7 @@ struct ExtractCancelled : std::runtime_error {
 
 class Extractor {
 public:
+  // Throws std::invalid_argument for a grid loaded without its tetrahedra (GridParts::hierarchy).
   explicit Extractor(std::shared_ptr<const PreparedGrid> grid, const ExtractorOptions& options = {});
   ~Extractor();
   Extractor(Extractor&&) noexcept;

@@ -41,8 +41,18 @@ namespace adaptiso {
 // Writes the grid, its index (unless with_index is false: loading then builds it) and its
 // statistics, atomically.
 void save_grid(const PreparedGrid& grid, const std::string& path, bool with_index = true);
-// The grid, its index (built now when the file has none) and its statistics.
-PreparedGrid load_grid(const std::string& path);
+// What load_grid keeps of a file.
+enum class GridParts {
+  all,        // the grid, its index (built now when the file has none) and its statistics
+  hierarchy,  // a bisection grid's vertices, hierarchy and statistics, without its tetrahedra or index
+};
+// The grid as `parts` says. With GridParts::hierarchy (what HierarchyQuery walks, at a distance or
+// at another error) the tetrahedra and the index are read for the checksum but
+// neither kept nor checked (nothing will read them): on the CT bunny's default grid that leaves
+// 0.4 of its 1.8 GB in memory and skips the index's check, the longest. The returned grid has no
+// tetrahedra (its statistics still count them) and an empty index: give it to HierarchyQuery, not
+// to an Extractor. Throws InputError for a file without a bisection hierarchy.
+PreparedGrid load_grid(const std::string& path, GridParts parts = GridParts::all);
 
 // VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
 // point data "value" and "gradient" (world frame). Written atomically.

@@ -64,6 +64,8 @@ struct HierarchyIndex;
 class HierarchyQuery {
 public:
   // Throws InputError when the grid has no hierarchy (a Delaunay grid, or a file without one).
+  // Neither query reads the grid's tetrahedra or index: a grid loaded with GridParts::hierarchy
+  // (grid_file.hpp) serves both.
   explicit HierarchyQuery(std::shared_ptr<const PreparedGrid> grid);
   ~HierarchyQuery();
   HierarchyQuery(HierarchyQuery&&) noexcept;

@@ -489,6 +489,9 @@ namespace adaptiso {
 
 Extractor::Extractor(std::shared_ptr<const PreparedGrid> grid, const ExtractorOptions& options) {
   if (!grid) throw std::invalid_argument("Extractor: no grid");
+  // Vertices without tetrahedra: loaded with GridParts::hierarchy, whose surfaces would come out empty.
+  if (grid->grid.tet_count() == 0 && grid->grid.vertex_count() > 0)
+    throw std::invalid_argument("Extractor: the grid was loaded without its tetrahedra (GridParts::hierarchy): use HierarchyQuery");
   state_ = std::make_unique<detail::ExtractorState>(std::move(grid), options);
 }
 Extractor::~Extractor() = default;

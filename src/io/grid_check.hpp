@@ -5,6 +5,8 @@
 #pragma once
 #include <nlohmann/json.hpp>
 
+#include <cstdint>
+#include <optional>
 #include <string>
 
 #include "adaptiso/prepared_grid.hpp"
@@ -30,7 +32,9 @@ GridSource grid_source_from_json(const nlohmann::json& source, const std::string
 //   where it crosses the box, with a code at least its own midpoint's deviation from its refinement
 //   edge; and the hierarchy's walk at the grid's thresholds gives exactly the file's tetrahedra in
 //   their order, tiling the box, with the file's value spans.
-// The index is checked apart (validate_interval_tree).
-void check_grid(const PreparedGrid& grid, const std::string& path);
+// The index is checked apart (validate_interval_tree). With `leaves` (a bisection grid loaded
+// without its tetrahedra, GridParts::hierarchy), the hierarchy's walk must have that many leaves,
+// and nothing is checked of the tetrahedra themselves.
+void check_grid(const PreparedGrid& grid, const std::string& path, std::optional<std::uint64_t> leaves = std::nullopt);
 
 }  // namespace adaptiso::detail

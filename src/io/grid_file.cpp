@@ -210,7 +210,7 @@ void save_grid_building_index(PreparedGrid& p, const std::string& path, const In
 
 }  // namespace detail
 
-PreparedGrid load_grid(const std::string& path) {
+PreparedGrid load_grid(const std::string& path, GridParts parts) {
   detail::file_size_or_throw(path);  // a FIFO or device would block or never end
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
@@ -254,6 +254,10 @@ PreparedGrid load_grid(const std::string& path) {
     throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
   if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
     throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));
+  const bool keep_tets = parts == GridParts::all;
+  if (!keep_tets && !has_hierarchy)
+    throw InputError(fmt::format(
+        "{}: has no bisection hierarchy (a Delaunay grid, or an older file): surfaces at a distance or at another error need one", path));
   std::uint32_t crc = libdeflate_crc32(0, h, header);
   const bool restarting = version <= kLastRestartingChecksum;
   auto read = [&](void* p, std::size_t n) {
@@ -264,6 +268,16 @@ PreparedGrid load_grid(const std::string& path) {
     else if (restarting && !p)
       crc = 0;  // what the older writers did
   };
+  // An array read for the checksum only, a slice at a time (an empty one as read() takes it).
+  auto pass_over = [&](std::uint64_t n) {
+    if (n == 0) return read(nullptr, 0);
+    std::vector<unsigned char> slice(std::min<std::uint64_t>(n, std::uint64_t{8} << 20));
+    for (std::uint64_t done = 0; done < n;) {
+      const std::uint64_t step = std::min<std::uint64_t>(slice.size(), n - done);
+      read(slice.data(), step);
+      done += step;
+    }
+  };
   std::string meta(M, '\0');
   read(meta.data(), M);
   PreparedGrid p;
@@ -271,13 +285,20 @@ PreparedGrid load_grid(const std::string& path) {
   detail::resize_big(grid.ijk, N);
   detail::resize_big(grid.values, N);
   detail::resize_big(grid.gradients, N);
-  detail::resize_big(grid.tets, T);
+  if (keep_tets) detail::resize_big(grid.tets, T);
   read(grid.ijk.data(), N * 12);
   read(grid.values.data(), N * 8);
   read(grid.gradients.data(), N * 12);
-  read(grid.tets.data(), T * 16);
+  if (keep_tets)
+    read(grid.tets.data(), T * 16);
+  else
+    pass_over(T * 16);
   IntervalTree tree;
-  if (has_index) {
+  if (has_index && !keep_tets) {
+    pass_over(nodes * kNodeBytes);
+    pass_over(E * 4);  // by_min
+    pass_over(E * 4);  // by_max
+  } else if (has_index) {
     tree.depth = depth;
     tree.nodes.resize(nodes);
     std::vector<unsigned char> raw(nodes * kNodeBytes);
@@ -329,8 +350,11 @@ PreparedGrid load_grid(const std::string& path) {
     }
   }
   // Before the index's check, which costs more: what every later walk trusts.
-  detail::check_grid(p, path);
-  if (has_index) {
+  detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T));
+  if (!keep_tets) {
+    p.index = IntervalTree{};
+    if (p.stats.tetrahedra == 0) p.stats.tetrahedra = T;  // an older file's metadata without them
+  } else if (has_index) {
     validate_interval_tree(tree, grid, path);
     finish_interval_tree(tree, grid);
     p.index = std::move(tree);

@@ -732,6 +732,23 @@ TEST(ExtractCli, MaxDisplacementOnAGridPreparedWithoutItIsRefused) {
   EXPECT_EQ(testutil::run_cli("extract " + (t / "h.adg") + " --iso 500 --max-displacement 1 --quiet -o " + (t / "m.ply")).code, 0);
 }
 
+// extract --distance loads the hierarchy without the tetrahedra or their index: it still
+// reports the file's tetrahedra, and a grid without a hierarchy is refused in one line.
+TEST(ExtractCli, DistanceLoadsTheHierarchyAloneAndCountsTheFilesTetrahedra) {
+  TempDir t("cli_parts");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --quiet -o " + (t / "g.adg")).code, 0);
+  const auto whole = testutil::run_cli("extract " + (t / "g.adg") + " --iso 500 --json --quiet -o " + (t / "a.ply"));
+  const auto parts = testutil::run_cli("extract " + (t / "g.adg") + " --iso 500 --distance 1 --json --quiet -o " + (t / "b.ply"));
+  ASSERT_EQ(whole.code, 0) << whole.err;
+  ASSERT_EQ(parts.code, 0) << parts.err;
+  EXPECT_GT(nlohmann::json::parse(whole.out)["tetrahedra"].get<std::uint64_t>(), 0u);
+  EXPECT_EQ(nlohmann::json::parse(parts.out)["tetrahedra"], nlohmann::json::parse(whole.out)["tetrahedra"]);
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid delaunay --quiet -o " + (t / "d.adg")).code, 0);
+  expect_refused(testutil::run_cli("extract " + (t / "d.adg") + " --iso 500 --distance 1 -o " + (t / "m.ply")),
+                 "has no bisection hierarchy", "delaunay");
+}
+
 TEST(PrepareCli, DelaunayOnlyOptionsWithTheBisectionGridAreRefused) {
   TempDir t("cli41");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);

@@ -501,3 +501,108 @@ TEST(GridFileLies, AnyMutantThatLoadsGivesTheSurfaceOfPreparingItsOwnVolume) {
   EXPECT_GE(refused, 400) << loaded << " loaded, " << refused << " refused";
   std::cout << "differential: " << loaded << " mutants loaded (" << compared << " surfaces compared), " << refused << " refused\n";
 }
+
+// GridParts::hierarchy (the distance query's load): the same vertices and hierarchy as the whole
+// file, no tetrahedra or index, the file's tetrahedra still counted, and the same surfaces.
+TEST(GridFileHierarchyParts, AreTheWholeLoadsVerticesAndHierarchyAndGiveItsSurfaces) {
+  testutil::TempDir t("parts_same");
+  save_grid(bisection(bumpy({13, 10, 7}, 3), 0.02), t / "g.adg");
+  const auto whole = std::make_shared<const PreparedGrid>(load_grid(t / "g.adg"));
+  const auto parts = std::make_shared<const PreparedGrid>(load_grid(t / "g.adg", GridParts::hierarchy));
+  EXPECT_EQ(parts->grid.ijk, whole->grid.ijk);
+  EXPECT_EQ(parts->grid.values, whole->grid.values);
+  EXPECT_EQ(parts->grid.gradients, whole->grid.gradients);
+  EXPECT_EQ(parts->grid.source.dims, whole->grid.source.dims);
+  ASSERT_TRUE(parts->hierarchy);
+  EXPECT_EQ(parts->hierarchy->error_code, whole->hierarchy->error_code);
+  EXPECT_EQ(parts->hierarchy->value_span, whole->hierarchy->value_span);
+  EXPECT_EQ(parts->grid.tet_count(), 0u);
+  EXPECT_TRUE(parts->index.nodes.empty());
+  EXPECT_EQ(parts->stats.tetrahedra, whole->grid.tet_count());
+  EXPECT_THROW(Extractor{parts}, std::invalid_argument);  // its surfaces would be empty
+  const HierarchyQuery a(whole), b(parts);
+  EXPECT_EQ(a.extract(0.5, a.prepared_error() * 4, 0).triangles, b.extract(0.5, b.prepared_error() * 4, 0).triangles);
+  for (double iso : {0.3, 0.9})
+    for (double d : {0.0, 0.5, 2.0}) {
+      const Mesh ma = a.extract_within(iso, d), mb = b.extract_within(iso, d);
+      EXPECT_GT(ma.triangle_count(), 0u);
+      EXPECT_EQ(ma.triangles, mb.triangles) << iso << " " << d;
+      EXPECT_EQ(ma.positions, mb.positions) << iso << " " << d;
+    }
+}
+
+TEST(GridFileHierarchyParts, OfAGridWithoutAHierarchyAreRefused) {
+  testutil::TempDir t("parts_delaunay");
+  PrepareOptions o;
+  o.grid = GridKind::delaunay;
+  o.max_error = 0.05;
+  o.relative = true;
+  save_grid(prepare(make_synthetic("sphere", 11, ScalarType::f32), o), t / "d.adg");
+  try {
+    load_grid(t / "d.adg", GridParts::hierarchy);
+    FAIL() << "loaded";
+  } catch (const InputError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find(t / "d.adg"), std::string::npos) << m;
+    EXPECT_NE(m.find("no bisection hierarchy"), std::string::npos) << m;
+  }
+}
+
+// The tetrahedra and the index are skipped, not trusted: damage in them still fails the checksum,
+// a count that disagrees with the hierarchy's leaves is refused, and a lie in their contents alone
+// (refused by the whole load) changes nothing the hierarchy's load gives.
+TEST(GridFileHierarchyParts, ChecksumTheSkippedSectionsAndCountTheLeaves) {
+  testutil::TempDir t("parts_lies");
+  save_grid(bisection(bumpy({13, 10, 7}, 4), 0.02), t / "g.adg");
+  const GridSections honest = sections_of(t / "g.adg");
+  auto refused = [&](const std::string& path) {
+    try {
+      load_grid(path, GridParts::hierarchy);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  // A bit flipped in the tetrahedra, then in the index, the checksum left as it was.
+  std::string bytes = testutil::read_bytes(t / "g.adg");
+  const std::size_t tets_at = 64 + honest.meta.size() + honest.ijk.size() + honest.values.size() + honest.gradients.size();
+  for (std::size_t at : {tets_at + 5, tets_at + honest.tets.size() + honest.nodes.size() + 3}) {
+    std::string flipped = bytes;
+    flipped[at] = static_cast<char>(flipped[at] ^ 0x10);
+    testutil::write_bytes(t / "flipped.adg", flipped);
+    EXPECT_NE(refused(t / "flipped.adg").find("checksum"), std::string::npos) << at;
+  }
+  // One tetrahedron fewer, and one index entry (a fresh checksum): the count disagrees with the
+  // hierarchy's leaves.
+  GridSections fewer = honest;
+  fewer.tets.resize(fewer.tets.size() - 16);
+  fewer.by_min.resize(fewer.by_min.size() - 4);
+  fewer.by_max.resize(fewer.by_max.size() - 4);
+  save_sections(fewer, t / "fewer.adg");
+  EXPECT_NE(refused(t / "fewer.adg").find("leaves"), std::string::npos) << refused(t / "fewer.adg");
+  // Two tetrahedra swapped (a fresh checksum): the whole load refuses, the hierarchy's is unchanged.
+  GridSections swapped = honest;
+  std::swap_ranges(swapped.tets.begin(), swapped.tets.begin() + 16, swapped.tets.begin() + 16);
+  save_sections(swapped, t / "swapped.adg");
+  expect_refused(t / "swapped.adg", "not the hierarchy's leaves");
+  ASSERT_EQ(refused(t / "swapped.adg"), "");
+  const auto a = std::make_shared<const PreparedGrid>(load_grid(t / "g.adg", GridParts::hierarchy));
+  const auto b = std::make_shared<const PreparedGrid>(load_grid(t / "swapped.adg", GridParts::hierarchy));
+  EXPECT_EQ(HierarchyQuery(a).extract_within(0.5, 1.0).triangles, HierarchyQuery(b).extract_within(0.5, 1.0).triangles);
+}
+
+// Up to version 4 the checksum restarted after every empty array; the skipped index of a constant
+// volume (no entries) must restart it as reading it would.
+TEST(GridFileHierarchyParts, ReadOlderChecksumsThatRestartAtEmptyArrays) {
+  testutil::TempDir t("parts_v4");
+  Volume v = make_volume({9, 8, 7}, ScalarType::f32);
+  for (std::size_t i = 0; i < 9 * 8 * 7; ++i) v.set(i, 3.0);
+  save_grid(bisection(v, 0.05), t / "g.adg");
+  GridSections s = sections_of(t / "g.adg");
+  ASSERT_TRUE(s.by_min.empty());
+  ASSERT_EQ(s.flags & GridSections::kHasHierarchy, GridSections::kHasHierarchy);
+  s.version = 4;
+  save_sections(s, t / "v4.adg");
+  EXPECT_NO_THROW(load_grid(t / "v4.adg"));
+  EXPECT_NO_THROW(load_grid(t / "v4.adg", GridParts::hierarchy));
+}
