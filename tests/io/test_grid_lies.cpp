@@ -39,6 +39,13 @@ PreparedGrid bisection(const Volume& v, double relative_error, double displaceme
   o.max_displacement = displacement;
   return prepare(v, o);
 }
+PreparedGrid delaunay(const Volume& v, double relative_error) {
+  PrepareOptions o;
+  o.grid = GridKind::delaunay;
+  o.max_error = relative_error;
+  o.relative = true;
+  return prepare(v, o);
+}
 
 // A smooth field with some noise on a box that is no power-of-two cube, so diamonds cross its far
 // faces and are always split.
@@ -358,11 +365,7 @@ TEST(GridFileLies, HierarchyThatIsNotItsCodesSelectionIsRefused) {
 // Grids without a hierarchy (Delaunay, floored levels): their tetrahedra must tile the box.
 TEST(GridFileLies, TetrahedraThatDoNotTileTheBoxAreRefused) {
   testutil::TempDir t("lies_tiling");
-  PrepareOptions o;
-  o.grid = GridKind::delaunay;
-  o.max_error = 0.05;
-  o.relative = true;
-  const PreparedGrid fine = prepare(make_synthetic("sphere", 11, ScalarType::f32), o);
+  const PreparedGrid fine = delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05);
   save_grid(fine, t / "g.adg");
   ASSERT_EQ(refusal(t / "g.adg"), "");
   struct Case {
@@ -533,11 +536,7 @@ TEST(GridFileHierarchyParts, AreTheWholeLoadsVerticesAndHierarchyAndGiveItsSurfa
 
 TEST(GridFileHierarchyParts, OfAGridWithoutAHierarchyAreRefused) {
   testutil::TempDir t("parts_delaunay");
-  PrepareOptions o;
-  o.grid = GridKind::delaunay;
-  o.max_error = 0.05;
-  o.relative = true;
-  save_grid(prepare(make_synthetic("sphere", 11, ScalarType::f32), o), t / "d.adg");
+  save_grid(delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05), t / "d.adg");
   try {
     load_grid(t / "d.adg", GridParts::hierarchy);
     FAIL() << "loaded";
