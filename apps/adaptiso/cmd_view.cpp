@@ -62,16 +62,23 @@ void add_view(CLI::App& app) {
     std::shared_ptr<const Volume> volume;
     // Read the input before serving, so an unreadable file fails at once with exit code 2.
     std::shared_ptr<const PreparedGrid> grid;
-    std::optional<PrepareOptions> options;  // refused at once too, not in the background
+    std::shared_ptr<const OpenGridFile> file;  // a bisection grid's tetrahedra are read when a route needs them
+    std::optional<PrepareOptions> options;     // refused at once too, not in the background
     if (is_grid) {
-      grid = std::make_shared<const PreparedGrid>(load_grid(in->path));
+      file = std::make_shared<const OpenGridFile>(in->path);
+      grid = std::make_shared<const PreparedGrid>(file->load(GridParts::hierarchy_or_all));
     } else {
       options = pf->options(in->path);
       volume = std::make_shared<const Volume>(in->load());
     }
     ViewServer server(o);
     if (volume) server.set_volume(volume);
-    if (grid) server.set_grid(grid);
+    // Handed over: the server frees the part once it has read the whole, and closes the file.
+    if (grid && loaded_in_part(*grid))
+      server.set_grid(std::move(grid), [file] { return std::make_shared<const PreparedGrid>(file->load(GridParts::all)); });
+    else if (grid)
+      server.set_grid(std::move(grid));
+    file.reset();
     const int port = server.bind();
     const std::string host = o.host == "0.0.0.0" ? "localhost" : o.host;
     std::cout << fmt::format("adaptiso view: serving http://{}:{}/  (Ctrl-C to stop; memory budget {:.2f} GB)\n", host, port,

@@ -46,14 +46,42 @@ void save_grid(const PreparedGrid& grid, const std::string& path, bool with_inde
 enum class GridParts {
   all,        // the grid, its index (built now when the file has none) and its statistics
   hierarchy,  // a bisection grid's vertices, hierarchy and statistics, without its tetrahedra or index
+  // As hierarchy where the file has a bisection hierarchy, else as all (a Delaunay grid, an older
+  // file): for a caller that reads the rest later when a route needs it (Python's adaptiso.load).
+  hierarchy_or_all,
 };
 // The grid as `parts` says. With GridParts::hierarchy (what HierarchyQuery walks, at a distance or
 // at another error) the tetrahedra and the index are read for the checksum but neither kept nor
 // checked (nothing will read them): of the CT bunny's default grid (1.8 GB) that keeps about
 // 0.45 GB in memory and skips the index's check, the longest (load 6.5-7.4 s -> 2.7 s). The
 // returned grid has no tetrahedra (its statistics still count them) and an empty index: give it to
-// HierarchyQuery, not to an Extractor. Throws InputError for a file without a bisection hierarchy.
+// HierarchyQuery, not to an Extractor. Throws InputError for a file without a bisection hierarchy
+// (GridParts::hierarchy; hierarchy_or_all loads it whole instead).
 PreparedGrid load_grid(const std::string& path, GridParts parts = GridParts::all);
+
+// A grid file held open, so that what is loaded later is what was loaded first: the
+// hierarchy's parts now (GridParts::hierarchy_or_all: what surfaces at a distance or at another
+// error read), the whole grid when a route first needs its tetrahedra (Python's adaptiso.load,
+// `adaptiso view GRID`). Renamed over or deleted meanwhile, the file is still the one opened
+// (read again through /proc/self/fd: Linux). Messages name the path given. Throws InputError as
+// load_grid does (no such file, a folder, a FIFO or device: opened without blocking, then refused).
+class OpenGridFile {
+public:
+  explicit OpenGridFile(std::string path);
+  ~OpenGridFile();
+  OpenGridFile(const OpenGridFile&) = delete;
+  OpenGridFile& operator=(const OpenGridFile&) = delete;
+
+  PreparedGrid load(GridParts parts) const;  // load_grid of the open file
+  const std::string& path() const { return path_; }
+
+private:
+  std::string path_;
+  int fd_ = -1;
+};
+
+// Whether a grid was loaded without its tetrahedra (GridParts::hierarchy; its statistics count them).
+inline bool loaded_in_part(const PreparedGrid& g) { return g.grid.tets.empty() && g.stats.tetrahedra > 0; }
 
 // VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
 // point data "value" and "gradient" (world frame). Written atomically.

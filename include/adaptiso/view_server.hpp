@@ -11,6 +11,7 @@
 // cannot bind.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -53,7 +54,11 @@ public:
   void set_progress(const std::string& stage, double fraction);
   void set_failed(const std::string& message);
   // The grid to serve; its statistics appear in /api/info. Clients of an earlier grid start anew.
-  void set_grid(std::shared_ptr<const PreparedGrid> grid);
+  // A grid loaded in part (grid_file.hpp: OpenGridFile, GridParts::hierarchy) serves what it
+  // holds as it is (surfaces within a distance, the points, /api/info); `rest` reads the whole
+  // grid the first time a route needs its tetrahedra (a surface at an error level, a download at
+  // one, the wireframe), once: the other requests wait for it, and its InputError answers them.
+  void set_grid(std::shared_ptr<const PreparedGrid> grid, std::function<std::shared_ptr<const PreparedGrid>()> rest = {});
   // The source volume: enables /api/reference and the histogram of voxel values.
   void set_volume(std::shared_ptr<const Volume> volume);
   std::uint64_t memory_budget() const;  // bytes, the default resolved

@@ -103,6 +103,87 @@ def test_save_load_and_incremental_extractor(tmp_path):
     assert sorted(map(tuple, v1[f1].reshape(-1, 9).tolist())) == sorted(map(tuple, v2[f2].reshape(-1, 9).tolist()))
 
 
+def faces_as_points(mesh):
+    v, f, _ = mesh
+    return sorted(map(tuple, v[f].reshape(-1, 9).tolist()))
+
+
+def test_load_reads_the_tetrahedra_from_the_file_it_opened(tmp_path):
+    # load keeps a bisection grid's vertices and hierarchy; extract(iso) reads the tetrahedra later,
+    # from the file as loaded: one renamed over and then deleted still gives the first grid.
+    grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.02, relative=True)
+    other = adaptiso.prepare(adaptiso.Volume(sphere_distance(centre=(10.5, 12.0, 13.5))), max_error=0.02, relative=True)
+    path = tmp_path / "s.adg"
+    grid.save(path)
+    loaded = adaptiso.load(path)
+    assert loaded.tetrahedron_count == grid.tetrahedron_count
+    assert faces_as_points(loaded.extract(9.1, distance=1.0)) == faces_as_points(grid.extract(9.1, distance=1.0))
+    other.save(tmp_path / "o.adg")
+    os.replace(tmp_path / "o.adg", path)
+    os.remove(path)
+    assert faces_as_points(loaded.extract(9.1)) == faces_as_points(grid.extract(9.1))
+    assert faces_as_points(loaded.extract(9.1, distance=1.0)) == faces_as_points(grid.extract(9.1, distance=1.0))
+    assert faces_as_points(loaded.extractor().extract(9.1)) == faces_as_points(grid.extract(9.1))
+    assert loaded.coarsen(1.0).tetrahedron_count == grid.coarsen(1.0).tetrahedron_count
+    loaded.save(tmp_path / "again.adg")
+    assert (tmp_path / "again.adg").stat().st_size > 0
+
+
+def test_load_in_part_reads_the_rest_once_for_two_threads(tmp_path):
+    grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.02, relative=True)
+    grid.save(tmp_path / "s.adg")
+    loaded = adaptiso.load(tmp_path / "s.adg")
+    out = [None, None]
+
+    def run(k):
+        out[k] = faces_as_points(loaded.extract(9.1 + 0.1 * k))
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert out == [faces_as_points(grid.extract(9.1)), faces_as_points(grid.extract(9.2))]
+
+
+def test_load_in_part_names_the_file_when_its_tetrahedra_lie(tmp_path):
+    # Tetrahedra that lie (two corners swapped, the checksum made good) pass the partial load, which
+    # reads them for the checksum only, and are refused when a route reads them, naming the file.
+    import struct
+    import zlib
+    grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.02, relative=True)
+    path = tmp_path / "lie.adg"
+    grid.save(path)
+    data = bytearray(path.read_bytes())
+    m, n = struct.unpack_from("<QQ", data, 24)
+    tets = 64 + m + n * (12 + 8 + 12)
+    a, b = struct.unpack_from("<II", data, tets)
+    struct.pack_into("<II", data, tets, b, a)
+    struct.pack_into("<I", data, len(data) - 4, zlib.crc32(bytes(data[:-4])))
+    path.write_bytes(bytes(data))
+    loaded = adaptiso.load(path)
+    assert loaded.extract(9.1, distance=1.0).faces.shape[0] > 0
+    with pytest.raises(OSError, match="lie.adg") as e:
+        loaded.extract(9.1)
+    assert "/proc/" not in str(e.value)
+    with pytest.raises(OSError):
+        adaptiso.load(path).extractor()
+    with pytest.raises(OSError, match="lie.adg"):
+        adaptiso.load(path, lazy=False)
+
+
+def test_delaunay_grid_loads_whole(tmp_path):
+    grid = adaptiso.prepare(adaptiso.Volume(sphere_distance((16, 17, 18), (7.5, 8.0, 8.5))), grid="delaunay", max_error=0.05,
+                            relative=True)
+    grid.save(tmp_path / "d.adg")
+    loaded = adaptiso.load(tmp_path / "d.adg")
+    eager = adaptiso.load(tmp_path / "d.adg", lazy=False)
+    os.remove(tmp_path / "d.adg")
+    assert faces_as_points(eager.extract(5.0)) == faces_as_points(grid.extract(5.0))
+    assert loaded.tetrahedron_count == grid.tetrahedron_count
+    assert faces_as_points(loaded.extract(5.0)) == faces_as_points(grid.extract(5.0))
+
+
 def test_coarser_error_from_the_hierarchy():
     v = adaptiso.Volume(sphere_distance())
     grid = adaptiso.prepare(v, max_error=0.005, relative=True)

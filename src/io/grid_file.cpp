@@ -3,7 +3,9 @@
 
 #include <libdeflate.h>
 
+#include <fcntl.h>
 #include <fmt/format.h>
+#include <unistd.h>
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -254,7 +256,7 @@ PreparedGrid load_grid(const std::string& path, GridParts parts) {
     throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
   if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
     throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));
-  const bool keep_tets = parts == GridParts::all;
+  const bool keep_tets = parts == GridParts::all || (parts == GridParts::hierarchy_or_all && !has_hierarchy);
   if (!keep_tets && !has_hierarchy)
     throw InputError(fmt::format(
         "{}: has no bisection hierarchy (a Delaunay grid, or an older file): surfaces at a distance or at another error need one", path));
@@ -412,6 +414,27 @@ void write_vtu(const TetGrid& grid, const std::string& path) {
     }
     out << "\n</AppendedData>\n</VTKFile>\n";
   });
+}
+
+OpenGridFile::OpenGridFile(std::string path) : path_(std::move(path)) {
+  fd_ = ::open(path_.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);  // a FIFO would wait for a writer
+  if (fd_ < 0) {
+    detail::file_size_or_throw(path_);  // its message for a missing file or a folder
+    throw InputError(fmt::format("{}: cannot open grid file", path_));
+  }
+}
+
+OpenGridFile::~OpenGridFile() { ::close(fd_); }
+
+PreparedGrid OpenGridFile::load(GridParts parts) const {
+  const std::string fd_path = "/proc/self/fd/" + std::to_string(fd_);
+  try {
+    return load_grid(fd_path, parts);
+  } catch (const InputError& e) {  // the user's name for the file, not the descriptor's
+    std::string what = e.what();
+    if (what.starts_with(fd_path)) what.replace(0, fd_path.size(), path_);
+    throw InputError(what);
+  }
 }
 
 }  // namespace adaptiso

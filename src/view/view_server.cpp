@@ -21,6 +21,7 @@
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
+#include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_codec.hpp"
@@ -152,7 +153,10 @@ struct ViewServer::Impl {
   std::string stage = "starting", failure;
   double fraction = 0;
   std::shared_ptr<const PreparedGrid> grid;
-  std::shared_ptr<const HierarchyQuery> query;  // bisection grids only: surfaces within a distance
+  std::shared_ptr<const HierarchyQuery> query;                // bisection grids only: surfaces within a distance
+  std::function<std::shared_ptr<const PreparedGrid>()> rest;  // a grid loaded in part: the whole of it
+  std::string rest_failed;                                    // what reading it said, when it failed
+  std::mutex rest_mutex;                                      // held while the rest is read
   std::shared_ptr<const Volume> volume;
   nlohmann::json histogram;
 
@@ -160,7 +164,9 @@ struct ViewServer::Impl {
     std::shared_ptr<const PreparedGrid> grid;
     std::shared_ptr<const HierarchyQuery> query;
   };
-  Served served_now();  // throws NotReady while preparing
+  Served served_now();    // throws NotReady while preparing
+  Served served_whole();  // with the grid's tetrahedra, read now if it was loaded in part
+  void install(std::shared_ptr<const PreparedGrid> g, std::function<std::shared_ptr<const PreparedGrid>()> rest);
 
   using Handler = void (Impl::*)(const httplib::Request&, httplib::Response&);
   void routes();
@@ -177,6 +183,9 @@ struct ViewServer::Impl {
 };
 
 namespace {
+
+// The grid's tetrahedra, counted from its file when loaded in part.
+std::uint64_t tetrahedra_of(const PreparedGrid& g) { return loaded_in_part(g) ? g.stats.tetrahedra : g.grid.tet_count(); }
 
 // collapse= (rounds of edge collapses) goes with distance= only.
 int collapse_rounds(const detail::QueryParams& params, bool distance) {
@@ -303,22 +312,55 @@ void ViewServer::set_failed(const std::string& message) {
   std::lock_guard lock(impl_->state_mutex);
   impl_->failure = message;
 }
-void ViewServer::set_grid(std::shared_ptr<const PreparedGrid> g) {
+void ViewServer::set_grid(std::shared_ptr<const PreparedGrid> g, std::function<std::shared_ptr<const PreparedGrid>()> rest) {
+  std::lock_guard loading(impl_->rest_mutex);  // a rest being read is of the grid this one replaces
+  impl_->install(std::move(g), std::move(rest));
+}
+
+void ViewServer::Impl::install(std::shared_ptr<const PreparedGrid> g, std::function<std::shared_ptr<const PreparedGrid>()> whole) {
   nlohmann::json hist;
   {
-    std::lock_guard lock(impl_->state_mutex);
-    if (impl_->volume) hist = impl_->histogram;
+    std::lock_guard lock(state_mutex);
+    if (volume) hist = histogram;
   }
   if (hist.is_null())  // no volume: the histogram of the grid's vertex values
-    hist = histogram_json(histogram(g->grid.values, {g->grid.source.min, g->grid.source.max}, kHistogramBins), "vertices");
-  auto query = g->hierarchy ? std::make_shared<const HierarchyQuery>(g) : nullptr;
-  impl_->sessions.set_grid(g);
-  std::lock_guard lock(impl_->state_mutex);
-  impl_->query = query;
-  impl_->histogram = hist;
-  impl_->grid = std::move(g);
-  impl_->stage = "ready";
-  impl_->fraction = 1;
+    hist = histogram_json(adaptiso::histogram(g->grid.values, {g->grid.source.min, g->grid.source.max}, kHistogramBins), "vertices");
+  auto q = g->hierarchy ? std::make_shared<const HierarchyQuery>(g) : nullptr;
+  sessions.set_grid(g);
+  std::lock_guard lock(state_mutex);
+  query = q;
+  histogram = hist;
+  grid = std::move(g);
+  rest = loaded_in_part(*grid) ? std::move(whole) : nullptr;
+  rest_failed.clear();
+  stage = "ready";
+  fraction = 1;
+}
+
+// The routes that walk the tetrahedra (an error level's extractor, the wireframe) read them here
+// the first time, while the others go on being served from the part loaded.
+ViewServer::Impl::Served ViewServer::Impl::served_whole() {
+  if (Served s = served_now(); !loaded_in_part(*s.grid)) return s;
+  std::lock_guard loading(rest_mutex);
+  const Served s = served_now();
+  if (!loaded_in_part(*s.grid)) return s;  // read while this request waited
+  std::function<std::shared_ptr<const PreparedGrid>()> read;
+  {
+    std::lock_guard lock(state_mutex);
+    if (!rest_failed.empty()) throw InputError(rest_failed);
+    read = rest;
+  }
+  if (!read) throw std::logic_error("a grid loaded in part was served without the means to read the rest");
+  std::shared_ptr<const PreparedGrid> whole;
+  try {
+    whole = read();
+  } catch (const InputError& e) {  // asked again, the same answer without reading again
+    std::lock_guard lock(state_mutex);
+    rest_failed = e.what();
+    throw;
+  }
+  install(std::move(whole), nullptr);
+  return served_now();
 }
 void ViewServer::set_volume(std::shared_ptr<const Volume> v) {
   const nlohmann::json hist = histogram_json(histogram(*v, kHistogramBins), "voxels");
@@ -343,7 +385,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
                 {"max", s.max},
                 {"type", s.type},
                 {"kept", grid->grid.vertex_count()},
-                {"tetrahedra", grid->grid.tet_count()},
+                {"tetrahedra", tetrahedra_of(*grid)},
                 {"histogram", histogram},
                 {"reference", volume != nullptr},
                 {"reduction", {{"method", s.method}, {"max_error", s.max_error}, {"threshold", s.threshold}}},
@@ -376,7 +418,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const auto distance = parse_optional(req.params, "distance");
   const int collapse = collapse_rounds(req.params, distance.has_value());
   const bool compact = compact_format(req.params);
-  const Served s = served_now();
+  const Served s = distance ? served_now() : served_whole();
   auto common_headers = [&](const std::string& body_encoding) {
     res.set_header("X-Encoding", body_encoding);
     res.set_header("Cache-Control", "no-store");
@@ -443,7 +485,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
 Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats) {
   if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
   if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
-  const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, s.grid->grid.tet_count() / 8);
+  const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, tetrahedra_of(*s.grid) / 8);
   const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
   DistanceQueryStats own;
   if (!stats) stats = &own;
@@ -465,7 +507,7 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   const auto within = parse_optional(req.params, "distance");
   const int collapse = collapse_rounds(req.params, within.has_value());
   const std::string format = export_format(req.params);
-  const Served s = served_now();
+  const Served s = within ? served_now() : served_whole();
   if (within && error) throw BadRequest("distance= cannot be combined with error=");
   Mesh mesh;
   double error_bound = surface_error(s.grid->stats);
@@ -521,7 +563,7 @@ void ViewServer::Impl::points(const httplib::Request&, httplib::Response& res) {
 }
 
 void ViewServer::Impl::tetrahedra(const httplib::Request& req, httplib::Response& res) {
-  const auto p = served_now().grid;
+  const auto p = served_whole().grid;
   const TetGrid& grid = p->grid;
   std::vector<std::uint32_t> tets;
   if (req.has_param("iso")) {

@@ -5,6 +5,7 @@
 // surfaces. The last test is the differential check: any grid that loads gives the surfaces of
 // preparing its own volume.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <fmt/format.h>
 
@@ -604,4 +605,60 @@ TEST(GridFileHierarchyParts, ReadOlderChecksumsThatRestartAtEmptyArrays) {
   save_sections(s, t / "v4.adg");
   EXPECT_NO_THROW(load_grid(t / "v4.adg"));
   EXPECT_NO_THROW(load_grid(t / "v4.adg", GridParts::hierarchy));
+}
+
+// OpenGridFile: what a later load reads is the file as opened, renamed over or deleted since; its
+// messages name the path given, not the descriptor; a FIFO is refused without waiting for a writer;
+// hierarchy_or_all loads a Delaunay grid whole.
+TEST(OpenGridFile, ReadsTheFileAsOpenedAndNamesItsPath) {
+  testutil::TempDir t("open_grid");
+  const PreparedGrid first = bisection(bumpy({13, 10, 7}, 3), 0.02);
+  save_grid(first, t / "g.adg");
+  const OpenGridFile file(t / "g.adg");
+  const PreparedGrid part = file.load(GridParts::hierarchy_or_all);
+  EXPECT_TRUE(loaded_in_part(part));
+  EXPECT_EQ(part.stats.tetrahedra, first.grid.tet_count());
+  save_grid(bisection(bumpy({13, 10, 7}, 5), 0.02), t / "other.adg");
+  std::filesystem::rename(t / "other.adg", t / "g.adg");
+  const PreparedGrid whole = file.load(GridParts::all);
+  EXPECT_FALSE(loaded_in_part(whole));
+  EXPECT_EQ(whole.grid.tets, first.grid.tets);
+  EXPECT_EQ(whole.grid.values, first.grid.values);
+  std::filesystem::remove(t / "g.adg");
+  EXPECT_EQ(file.load(GridParts::all).grid.tets, first.grid.tets);
+
+  save_grid(first, t / "h.adg");
+  GridSections swapped = sections_of(t / "h.adg");
+  std::swap_ranges(swapped.tets.begin(), swapped.tets.begin() + 16, swapped.tets.begin() + 16);
+  save_sections(swapped, t / "lie.adg");
+  const OpenGridFile lie(t / "lie.adg");
+  EXPECT_TRUE(loaded_in_part(lie.load(GridParts::hierarchy_or_all)));
+  try {
+    lie.load(GridParts::all);
+    FAIL() << "loaded";
+  } catch (const InputError& e) {
+    const std::string m = e.what();
+    EXPECT_EQ(m.rfind(t / "lie.adg", 0), 0u) << m;
+    EXPECT_NE(m.find("not the hierarchy's leaves"), std::string::npos) << m;
+  }
+
+  ASSERT_EQ(mkfifo((t / "fifo.adg").c_str(), 0600), 0);
+  try {
+    const OpenGridFile fifo(t / "fifo.adg");
+    fifo.load(GridParts::hierarchy_or_all);
+    FAIL() << "loaded a FIFO";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()).rfind(t / "fifo.adg", 0), 0u) << e.what();
+  }
+  try {
+    const OpenGridFile missing(t / "missing.adg");
+    FAIL() << "opened a missing file";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(t / "missing.adg"), std::string::npos) << e.what();
+  }
+
+  save_grid(delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05), t / "d.adg");
+  const PreparedGrid d = OpenGridFile(t / "d.adg").load(GridParts::hierarchy_or_all);
+  EXPECT_FALSE(loaded_in_part(d));
+  EXPECT_GT(d.grid.tet_count(), 0u);
 }

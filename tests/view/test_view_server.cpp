@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "adaptiso/extractor.hpp"
+#include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_cubes.hpp"
 #include "adaptiso/mesh_codec.hpp"
@@ -527,4 +528,63 @@ TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
   auto r = c.Get("/api/surface?iso=0.45&client=a&distance=1");
   EXPECT_EQ(r->status, 400);
   EXPECT_NE(r->body.find("bisection"), std::string::npos);
+}
+
+// `adaptiso view GRID.adg` serves a bisection grid loaded in part (OpenGridFile): surfaces within a
+// distance need nothing more; the first route that walks the tetrahedra reads them, once, from the
+// file as opened (here deleted by then), and a rest that cannot be read answers every such request
+// with its message without reading again.
+TEST(ViewServer, AGridLoadedInPartReadsItsTetrahedraOnceWhenARouteNeedsThem) {
+  const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 40, ScalarType::f32));
+  const auto grid = bisection_grid_of(*volume, 0.002);
+  testutil::TempDir t("view_in_part");
+  const std::string path = (t.path / "g.adg").string();
+  save_grid(*grid, path);
+  const auto file = std::make_shared<const OpenGridFile>(path);
+  const auto part = std::make_shared<const PreparedGrid>(file->load(GridParts::hierarchy_or_all));
+  ASSERT_TRUE(loaded_in_part(*part));
+  std::filesystem::remove(path);
+  std::atomic<int> reads = 0;
+  Running run(testutil::server_options());
+  run.server.set_grid(part, [&] {
+    ++reads;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));  // the second request arrives meanwhile
+    return std::make_shared<const PreparedGrid>(file->load(GridParts::all));
+  });
+  auto c = run.client();
+  const nlohmann::json info = nlohmann::json::parse(c.Get("/api/info")->body);
+  EXPECT_EQ(info["tetrahedra"].get<std::uint64_t>(), grid->grid.tet_count());
+  EXPECT_TRUE(info["distance"].get<bool>());
+  EXPECT_GT(info["levels"].size(), 1u);
+  auto near = c.Get("/api/surface?iso=0.45&client=a&distance=1");
+  ASSERT_EQ(near->status, 200) << near->body;
+  EXPECT_EQ(near->body, encode_mesh(HierarchyQuery(grid).extract_within(0.45, 1)));
+  EXPECT_EQ(reads, 0);
+
+  Extractor ex(grid);
+  ex.extract(0.45);
+  const std::string expected = encode_mesh(ex.mesh());
+  std::string bodies[2];
+  std::thread other([&] { bodies[1] = run.client().Get("/api/surface?iso=0.45&client=b")->body; });
+  bodies[0] = c.Get("/api/surface?iso=0.45&client=a")->body;
+  other.join();
+  EXPECT_TRUE(same_surface(bodies[0], expected));
+  EXPECT_TRUE(same_surface(bodies[1], expected));
+  EXPECT_EQ(c.Get("/api/tetrahedra?iso=0.45")->status, 200);
+  EXPECT_EQ(reads, 1);
+  EXPECT_EQ(nlohmann::json::parse(c.Get("/api/info")->body)["tetrahedra"].get<std::uint64_t>(), grid->grid.tet_count());
+
+  std::atomic<int> failures = 0;
+  run.server.set_grid(part, [&]() -> std::shared_ptr<const PreparedGrid> {
+    ++failures;
+    throw InputError("g.adg: grid file is corrupt (a test's lie)");
+  });
+  for (int k = 0; k < 2; ++k) {
+    auto r = c.Get("/api/surface?iso=0.45&client=a");
+    EXPECT_EQ(r->status, 400);
+    EXPECT_NE(r->body.find("a test's lie"), std::string::npos) << r->body;
+    EXPECT_EQ(c.Get("/api/tetrahedra?iso=0.45")->status, 400);
+  }
+  EXPECT_EQ(failures, 1);
+  EXPECT_EQ(c.Get("/api/surface?iso=0.45&client=a&distance=1")->status, 200);
 }
