@@ -878,7 +878,7 @@ lazy: of a bisection grid, only what extract(distance=...) and extract(max_error
 loaded now (the CT bunny's 1.8 GB grid: 2.5 s and 0.54 GB instead of 6.5-7 s and 2.1 GB); the
 tetrahedra when extract(iso), extractor(), coarsen or save first need them, from the file as it
 was (kept open until then). lazy=False reads all of it now: one read instead of two when the grid
-will be used at its prepared error (the bunny: load and extract(iso) 7-8.6 s, lazily 10.5 s).)");
+will be used at its prepared error (the bunny: load and extract(iso) 7.7-8.3 s, lazily 9.2-10.3 s).)");
 
   m.def(
       "write_mesh",

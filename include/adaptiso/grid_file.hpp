@@ -31,6 +31,7 @@
 // file that fails any of them is refused with InputError naming it: checksums catch damage, these
 // catch a file that was written to lie.
 #pragma once
+#include <memory>
 #include <string>
 
 #include "adaptiso/interval_tree.hpp"
@@ -59,6 +60,10 @@ enum class GridParts {
 // (GridParts::hierarchy; hierarchy_or_all loads it whole instead).
 PreparedGrid load_grid(const std::string& path, GridParts parts = GridParts::all);
 
+namespace detail {
+struct HierarchyWalk;
+}
+
 // A grid file held open, so that what is loaded later is what was loaded first: the
 // hierarchy's parts now (GridParts::hierarchy_or_all: what surfaces at a distance or at another
 // error read), the whole grid when a route first needs its tetrahedra (Python's adaptiso.load,
@@ -72,12 +77,16 @@ public:
   OpenGridFile(const OpenGridFile&) = delete;
   OpenGridFile& operator=(const OpenGridFile&) = delete;
 
-  PreparedGrid load(GridParts parts) const;  // load_grid of the open file
+  // load_grid of the open file. A whole load after a load in part skips the hierarchy's walk when
+  // the file's bytes are the same (size and checksum): the tetrahedra are checked against what
+  // the first walk saw. Not for two threads at once.
+  PreparedGrid load(GridParts parts) const;
   const std::string& path() const { return path_; }
 
 private:
   std::string path_;
   int fd_ = -1;
+  mutable std::unique_ptr<detail::HierarchyWalk> walk_;  // of the last load in part
 };
 
 // Whether a grid was loaded without its tetrahedra (GridParts::hierarchy; its statistics count them).

@@ -219,7 +219,7 @@ private:
   std::uint32_t worst_ = VertexNumbers::kNone;
 };
 
-void check_hierarchy(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> file_leaves) {
+void check_hierarchy(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> file_leaves, HierarchyWalk* walked) {
   const TetGrid& g = p.grid;
   const BisectionHierarchy& h = *p.hierarchy;
   auto fail = [&](const std::string& why) { throw InputError(fmt::format("{}: grid hierarchy is corrupt ({})", path, why)); };
@@ -340,6 +340,21 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
   if (tets.why) fail(fmt::format("the tetrahedra {} to {} are not the hierarchy's leaves", leaves[tets.at], leaves[tets.at + 1] - 1));
   if (const auto v = spans.first_wrong()) fail(fmt::format("the value span of vertex {} is not that of the values beneath it", *v));
   check_used(used, path);
+  if (walked) {
+    walked->leaves = std::move(leaves);
+    walked->hashes = std::move(hashes);
+  }
+}
+
+// Every index a vertex (the tetrahedra's first check in check_grid).
+void check_indices(const TetGrid& g, const std::string& path) {
+  const std::size_t n = g.vertex_count();
+  const Fault f = first_fault(g.tet_count(), [&](std::size_t t) -> const char* {
+    for (std::uint32_t v : g.tets[t])
+      if (v >= n) return "references a vertex that does not exist";
+    return nullptr;
+  });
+  if (f.why) throw InputError(fmt::format("{}: tetrahedron {} {}", path, f.at, f.why));
 }
 
 [[noreturn]] void invalid_metadata(const std::string& path, const std::string& why) {
@@ -404,22 +419,35 @@ GridSource grid_source_from_json(const nlohmann::json& s, const std::string& pat
   return g;
 }
 
-void check_grid(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> leaves) {
+void check_grid(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> leaves, HierarchyWalk* walked) {
   const TetGrid& g = p.grid;
   if ((leaves ? *leaves : g.tet_count()) == 0)
     throw InputError(fmt::format("{}: the grid has no tetrahedra (a grid tiles its volume's box)", path));
   check_vertices(g, path);
-  const std::size_t n = g.vertex_count();
-  const Fault f = first_fault(g.tet_count(), [&](std::size_t t) -> const char* {
-    for (std::uint32_t v : g.tets[t])
-      if (v >= n) return "references a vertex that does not exist";
-    return nullptr;
-  });
-  if (f.why) throw InputError(fmt::format("{}: tetrahedron {} {}", path, f.at, f.why));
+  check_indices(g, path);
   if (p.hierarchy)
-    check_hierarchy(p, path, leaves);
+    check_hierarchy(p, path, leaves, walked);
   else
     check_tiling(g, path);
+}
+
+void check_tets_walked(const PreparedGrid& p, const std::string& path, const HierarchyWalk& walked) {
+  const TetGrid& g = p.grid;
+  if (!p.hierarchy || walked.leaves.size() != walked.hashes.size() + 1)
+    throw std::logic_error("check_tets_walked: not the walk of a bisection grid's hierarchy");
+  check_indices(g, path);
+  if (walked.leaves.back() != g.tet_count())
+    throw InputError(fmt::format("{}: grid hierarchy is corrupt (the hierarchy has {} leaves, the file {} tetrahedra)", path,
+                                 walked.leaves.back(), g.tet_count()));
+  const TetHash hash = TetHash::draw();
+  const Fault tets = first_fault(walked.hashes.size(), [&](std::size_t f) -> const char* {
+    std::uint64_t sum = 0;
+    for (std::uint64_t t = walked.leaves[f]; t < walked.leaves[f + 1]; ++t) sum += hash(t - walked.leaves[f], g.tets[t]);
+    return sum == walked.hashes[f] ? nullptr : "x";
+  });
+  if (tets.why)
+    throw InputError(fmt::format("{}: grid hierarchy is corrupt (the tetrahedra {} to {} are not the hierarchy's leaves)", path,
+                                 walked.leaves[tets.at], walked.leaves[tets.at + 1] - 1));
 }
 
 }  // namespace adaptiso::detail

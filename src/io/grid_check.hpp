@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "adaptiso/prepared_grid.hpp"
 
@@ -35,6 +36,21 @@ GridSource grid_source_from_json(const nlohmann::json& source, const std::string
 // The index is checked apart (validate_interval_tree). With `leaves` (a bisection grid loaded
 // without its tetrahedra, GridParts::hierarchy), the hierarchy's walk must have that many leaves,
 // and nothing is checked of the tetrahedra themselves.
-void check_grid(const PreparedGrid& grid, const std::string& path, std::optional<std::uint64_t> leaves = std::nullopt);
+// What a check of a bisection grid's hierarchy walked (check_grid's `walked`): per subtree of the
+// walk's frontier, its leaves (prefix counts) and a keyed hash of them in order (the key is drawn
+// once per process). A later load of the same file in the same process checks its tetrahedra
+// against it (check_tets_walked) instead of walking again.
+struct HierarchyWalk {
+  std::uint64_t file_bytes = 0;  // of the file walked, and its checksum, for the caller to match
+  std::uint32_t checksum = 0;
+  std::vector<std::uint64_t> leaves;
+  std::vector<std::uint64_t> hashes;
+};
+void check_grid(const PreparedGrid& grid, const std::string& path, std::optional<std::uint64_t> leaves = std::nullopt,
+                HierarchyWalk* walked = nullptr);
+// The tetrahedra of a grid whose vertices and hierarchy check_grid passed in an earlier load of the
+// same bytes (`walked`): every index a vertex, and the walk's leaves in its order. The rest of
+// check_grid's findings hold for the same bytes.
+void check_tets_walked(const PreparedGrid& grid, const std::string& path, const HierarchyWalk& walked);
 
 }  // namespace adaptiso::detail

@@ -212,7 +212,11 @@ void save_grid_building_index(PreparedGrid& p, const std::string& path, const In
 
 }  // namespace detail
 
-PreparedGrid load_grid(const std::string& path, GridParts parts) {
+namespace {
+
+// load_grid, remembering what the hierarchy's walk checked (`remember`), or taking a walk of the
+// same bytes as checked (`walked`: the same size and checksum) instead of walking again.
+PreparedGrid load_checked(const std::string& path, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked) {
   detail::file_size_or_throw(path);  // a FIFO or device would block or never end
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
@@ -352,7 +356,15 @@ PreparedGrid load_grid(const std::string& path, GridParts parts) {
     }
   }
   // Before the index's check, which costs more: what every later walk trusts.
-  detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T));
+  if (walked && keep_tets && p.hierarchy && walked->file_bytes == size && walked->checksum == stored) {
+    detail::check_tets_walked(p, path, *walked);
+  } else {
+    detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T), remember);
+    if (remember) {
+      remember->file_bytes = size;
+      remember->checksum = stored;
+    }
+  }
   if (!keep_tets) {
     p.index = IntervalTree{};
     if (p.stats.tetrahedra == 0) p.stats.tetrahedra = T;  // an older file's metadata without them
@@ -365,6 +377,10 @@ PreparedGrid load_grid(const std::string& path, GridParts parts) {
   }
   return p;
 }
+
+}  // namespace
+
+PreparedGrid load_grid(const std::string& path, GridParts parts) { return load_checked(path, parts, nullptr, nullptr); }
 
 void write_vtu(const TetGrid& grid, const std::string& path) {
   const std::uint64_t n = grid.vertex_count(), t = grid.tet_count();
@@ -429,7 +445,11 @@ OpenGridFile::~OpenGridFile() { ::close(fd_); }
 PreparedGrid OpenGridFile::load(GridParts parts) const {
   const std::string fd_path = "/proc/self/fd/" + std::to_string(fd_);
   try {
-    return load_grid(fd_path, parts);
+    if (parts == GridParts::all) return load_checked(fd_path, parts, nullptr, walk_.get());
+    auto walk = std::make_unique<detail::HierarchyWalk>();
+    PreparedGrid p = load_checked(fd_path, parts, walk.get(), nullptr);
+    if (!walk->leaves.empty()) walk_ = std::move(walk);  // a bisection grid's walk
+    return p;
   } catch (const InputError& e) {  // the user's name for the file, not the descriptor's
     std::string what = e.what();
     if (what.starts_with(fd_path)) what.replace(0, fd_path.size(), path_);

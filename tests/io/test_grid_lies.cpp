@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <functional>
 #include <nlohmann/json.hpp>
 #include <numeric>
@@ -640,6 +641,28 @@ TEST(OpenGridFile, ReadsTheFileAsOpenedAndNamesItsPath) {
     const std::string m = e.what();
     EXPECT_EQ(m.rfind(t / "lie.adg", 0), 0u) << m;
     EXPECT_NE(m.find("not the hierarchy's leaves"), std::string::npos) << m;
+  }
+
+  // Rewritten in place after the load in part (the same file, other bytes): the whole load checks
+  // everything again rather than trusting the first walk, and finds the lie in the value spans.
+  {
+    save_grid(first, t / "inplace.adg");
+    const OpenGridFile inplace(t / "inplace.adg");
+    EXPECT_TRUE(loaded_in_part(inplace.load(GridParts::hierarchy_or_all)));
+    GridSections spans = sections_of(t / "inplace.adg");
+    spans.spans[0] = static_cast<char>(spans.spans[0] ^ 0x40);
+    save_sections(spans, t / "spans.adg");
+    const std::string lie_bytes = testutil::read_bytes(t / "spans.adg");
+    ASSERT_EQ(lie_bytes.size(), std::filesystem::file_size(t / "inplace.adg"));
+    std::fstream same(t / "inplace.adg", std::ios::in | std::ios::out | std::ios::binary);
+    same.write(lie_bytes.data(), static_cast<std::streamsize>(lie_bytes.size()));
+    same.close();
+    try {
+      inplace.load(GridParts::all);
+      FAIL() << "trusted the first walk";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("value span"), std::string::npos) << e.what();
+    }
   }
 
   ASSERT_EQ(mkfifo((t / "fifo.adg").c_str(), 0600), 0);
