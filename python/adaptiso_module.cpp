@@ -332,11 +332,6 @@ public:
     if (!query_) query_ = std::make_shared<const HierarchyQuery>(grid_);
     return query_;
   }
-  // Counted from the file when its tetrahedra are not loaded.
-  std::uint64_t tetrahedron_count() const {
-    const auto g = loaded();
-    return loaded_in_part(*g) ? g->stats.tetrahedra : g->grid.tet_count();
-  }
 
   std::optional<py::dict> bricks;  // prepared in bricks or over ranks: what they did (stats["bricks"])
 
@@ -701,7 +696,8 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
       .def_property_readonly(
           "vertex_count", [](py::handle self) { return grid_of(self).loaded()->grid.vertex_count(); }, "Vertices of the grid")
       .def_property_readonly(
-          "tetrahedron_count", [](py::handle self) { return grid_of(self).tetrahedron_count(); }, "Tetrahedra of the grid")
+          "tetrahedron_count", [](py::handle self) { return adaptiso::tetrahedron_count(*grid_of(self).loaded()); },
+          "Tetrahedra of the grid")
       .def_property_readonly(
           "value_range",
           [](py::handle self) {
@@ -721,7 +717,7 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
         const Grid& g = grid_of(self);
         const auto p = g.loaded();
         return "<adaptiso.Grid " + p->stats.grid + ": " + std::to_string(p->grid.vertex_count()) + " vertices, " +
-               std::to_string(g.tetrahedron_count()) + " tetrahedra>";
+               std::to_string(adaptiso::tetrahedron_count(*p)) + " tetrahedra>";
       });
 
   py::class_<PyExtractor, std::shared_ptr<PyExtractor>>(

@@ -267,10 +267,8 @@ void add_extract(CLI::App& app) {
                         fmt::format("{} was prepared without the displacement criterion (prepare it with --max-displacement)", *input));
     const ValueRange range{grid.source.min, grid.source.max};
     auto values = mesh_out->values(*relative, range, *input);
-    nlohmann::json j = {{"grid", *input},
-                        {"vertices", grid.vertex_count()},
-                        {"tetrahedra", hierarchy_only ? p->stats.tetrahedra : grid.tet_count()},
-                        {"load_seconds", t_load}};
+    nlohmann::json j = {
+        {"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", tetrahedron_count(*p)}, {"load_seconds", t_load}};
     if (distance->given()) {
       j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
     } else if (query) {

@@ -31,6 +31,7 @@
 // file that fails any of them is refused with InputError naming it: checksums catch damage, these
 // catch a file that was written to lie.
 #pragma once
+#include <cstdint>
 #include <memory>
 #include <string>
 
@@ -91,6 +92,8 @@ private:
 
 // Whether a grid was loaded without its tetrahedra (GridParts::hierarchy; its statistics count them).
 inline bool loaded_in_part(const PreparedGrid& g) { return g.grid.tets.empty() && g.stats.tetrahedra > 0; }
+// The grid's tetrahedra: those in memory, or those its file holds when loaded in part.
+inline std::uint64_t tetrahedron_count(const PreparedGrid& g) { return loaded_in_part(g) ? g.stats.tetrahedra : g.grid.tet_count(); }
 
 // VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
 // point data "value" and "gradient" (world frame). Written atomically.

@@ -219,10 +219,34 @@ private:
   std::uint32_t worst_ = VertexNumbers::kNone;
 };
 
+[[noreturn]] void corrupt_hierarchy(const std::string& path, const std::string& why) {
+  throw InputError(fmt::format("{}: grid hierarchy is corrupt ({})", path, why));
+}
+
+// The file's tetrahedra against a walk of its hierarchy: as many as its leaves (file_leaves when
+// they were not kept) and, when kept, the leaves themselves in the walk's order (per subtree, a
+// keyed hash of its leaves, TetHash).
+void check_leaves(const TetGrid& g, const std::string& path, const std::vector<std::uint64_t>& leaves,
+                  const std::vector<std::uint64_t>& hashes, std::optional<std::uint64_t> file_leaves) {
+  const std::uint64_t in_file = file_leaves ? *file_leaves : g.tet_count();
+  if (leaves.back() != in_file)
+    corrupt_hierarchy(path, fmt::format("the hierarchy has {} leaves, the file {} tetrahedra", leaves.back(), in_file));
+  if (file_leaves) return;
+  const TetHash hash = TetHash::draw();
+  const Fault tets = first_fault(hashes.size(), [&](std::size_t f) -> const char* {
+    std::uint64_t sum = 0;
+    for (std::uint64_t t = leaves[f]; t < leaves[f + 1]; ++t) sum += hash(t - leaves[f], g.tets[t]);
+    return sum == hashes[f] ? nullptr : "x";
+  });
+  if (tets.why)
+    corrupt_hierarchy(path,
+                      fmt::format("the tetrahedra {} to {} are not the hierarchy's leaves", leaves[tets.at], leaves[tets.at + 1] - 1));
+}
+
 void check_hierarchy(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> file_leaves, HierarchyWalk* walked) {
   const TetGrid& g = p.grid;
   const BisectionHierarchy& h = *p.hierarchy;
-  auto fail = [&](const std::string& why) { throw InputError(fmt::format("{}: grid hierarchy is corrupt ({})", path, why)); };
+  auto fail = [&](const std::string& why) { corrupt_hierarchy(path, why); };
   const std::size_t n = g.vertex_count();
   if (g.source.method != "bisection") fail(fmt::format("a bisection hierarchy in a grid made by '{}'", g.source.method.substr(0, 40)));
   const bool moves = !h.displacement_code.empty();
@@ -330,14 +354,7 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
   // Holes: a diamond across the box's boundary left whole leaves tetrahedra reaching outside it,
   // which the walk drops.
   if (volume != six_box_volume(g.source.dims)) fail("its leaves do not tile the volume's box");
-  const std::uint64_t in_file = file_leaves ? *file_leaves : g.tet_count();
-  if (leaves.back() != in_file) fail(fmt::format("the hierarchy has {} leaves, the file {} tetrahedra", leaves.back(), in_file));
-  const Fault tets = file_leaves ? Fault{} : first_fault(roots, [&](std::size_t f) -> const char* {
-    std::uint64_t sum = 0;
-    for (std::uint64_t t = leaves[f]; t < leaves[f + 1]; ++t) sum += hash(t - leaves[f], g.tets[t]);
-    return sum == hashes[f] ? nullptr : "x";
-  });
-  if (tets.why) fail(fmt::format("the tetrahedra {} to {} are not the hierarchy's leaves", leaves[tets.at], leaves[tets.at + 1] - 1));
+  check_leaves(g, path, leaves, hashes, file_leaves);
   if (const auto v = spans.first_wrong()) fail(fmt::format("the value span of vertex {} is not that of the values beneath it", *v));
   check_used(used, path);
   if (walked) {
@@ -436,18 +453,7 @@ void check_tets_walked(const PreparedGrid& p, const std::string& path, const Hie
   if (!p.hierarchy || walked.leaves.size() != walked.hashes.size() + 1)
     throw std::logic_error("check_tets_walked: not the walk of a bisection grid's hierarchy");
   check_indices(g, path);
-  if (walked.leaves.back() != g.tet_count())
-    throw InputError(fmt::format("{}: grid hierarchy is corrupt (the hierarchy has {} leaves, the file {} tetrahedra)", path,
-                                 walked.leaves.back(), g.tet_count()));
-  const TetHash hash = TetHash::draw();
-  const Fault tets = first_fault(walked.hashes.size(), [&](std::size_t f) -> const char* {
-    std::uint64_t sum = 0;
-    for (std::uint64_t t = walked.leaves[f]; t < walked.leaves[f + 1]; ++t) sum += hash(t - walked.leaves[f], g.tets[t]);
-    return sum == walked.hashes[f] ? nullptr : "x";
-  });
-  if (tets.why)
-    throw InputError(fmt::format("{}: grid hierarchy is corrupt (the tetrahedra {} to {} are not the hierarchy's leaves)", path,
-                                 walked.leaves[tets.at], walked.leaves[tets.at + 1] - 1));
+  check_leaves(g, path, walked.leaves, walked.hashes, std::nullopt);
 }
 
 }  // namespace adaptiso::detail

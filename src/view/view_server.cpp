@@ -184,9 +184,6 @@ struct ViewServer::Impl {
 
 namespace {
 
-// The grid's tetrahedra, counted from its file when loaded in part.
-std::uint64_t tetrahedra_of(const PreparedGrid& g) { return loaded_in_part(g) ? g.stats.tetrahedra : g.grid.tet_count(); }
-
 // collapse= (rounds of edge collapses) goes with distance= only.
 int collapse_rounds(const detail::QueryParams& params, bool distance) {
   const int rounds = detail::parse_rounds(params, "collapse", kDefaultCollapseRounds, kMaxCollapseRounds);
@@ -385,7 +382,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
                 {"max", s.max},
                 {"type", s.type},
                 {"kept", grid->grid.vertex_count()},
-                {"tetrahedra", tetrahedra_of(*grid)},
+                {"tetrahedra", tetrahedron_count(*grid)},
                 {"histogram", histogram},
                 {"reference", volume != nullptr},
                 {"reduction", {{"method", s.method}, {"max_error", s.max_error}, {"threshold", s.threshold}}},
@@ -485,7 +482,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
 Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats) {
   if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
   if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
-  const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, tetrahedra_of(*s.grid) / 8);
+  const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, tetrahedron_count(*s.grid) / 8);
   const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
   DistanceQueryStats own;
   if (!stats) stats = &own;
