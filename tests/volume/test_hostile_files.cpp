@@ -408,13 +408,28 @@ TEST(HostileDicom, SamplesPerPixelOtherThanOneIsRefusedNotAGdcmAssert) {
   expect_refused(t / "s.dcm", "s.dcm", "samples per pixel");
 }
 
+// The RescaleSlope element's tag and VR in minimal_dicom's explicit little-endian bytes.
+const std::string kRescaleSlopeDs(
+    "\x28\x00\x53\x10"
+    "DS",
+    6);
+
+// Found by fuzz_dicom: a tag past the pixel data's (here f827,0103) before RescaleSlope ends
+// GDCM's header read there, which then sees an intercept without a slope and asserts on slope 0.
+TEST(HostileDicom, RescaleSlopeAfterATagPastThePixelDataIsRefusedNotAGdcmAssert) {
+  TempDir t("hostile");
+  std::string b = minimal_dicom("0", "1");
+  const auto at = b.find(kRescaleSlopeDs);
+  ASSERT_NE(at, std::string::npos);
+  b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
+  testutil::write_bytes(t / "late.dcm", b);
+  expect_refused(t / "late.dcm", "late.dcm", "RescaleSlope");
+}
+
 TEST(HostileDicom, RescaleSlopeWithAnotherVrIsRefusedNotAGdcmAssert) {
   TempDir t("hostile");
   std::string b = minimal_dicom("0", "1");
-  const auto at =
-      b.find(std::string("\x28\x00\x53\x10"
-                         "DS",
-                         6));
+  const auto at = b.find(kRescaleSlopeDs);
   ASSERT_NE(at, std::string::npos);
   b[at + 4] = 'L';
   b[at + 5] = 'O';
