@@ -174,7 +174,13 @@ std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool 
         top->frames = n && *n >= 1 && *n <= 1e9 ? static_cast<std::uint64_t>(*n) : 1;
       }
       if (tag >= 0x7fe00010) top->past_header = true;
-      if ((tag == 0x00281052 || tag == 0x00281053) && e.length != kUndefined && !top->past_header) {
+      // Tags out of order: GDCM's header read stops before these and its full read sees them, so
+      // the two readers disagree on the rescale (one of them asserts on the slope it misses).
+      if ((tag == 0x00281052 || tag == 0x00281053) && top->past_header)
+        r.fail(fmt::format("{} after a tag past the pixel data's (tags out of order)",
+                           tag == 0x00281052 ? "RescaleIntercept" : "RescaleSlope"),
+               at);
+      if ((tag == 0x00281052 || tag == 0x00281053) && e.length != kUndefined) {
         // GDCM asserts on a zero rescale slope, and takes a missing one as zero when an intercept
         // is given; it reads the value as a stream does (a leading number, else 0).
         std::string v(reinterpret_cast<const char*>(&r.b[e.value]), e.length);

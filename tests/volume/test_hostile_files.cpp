@@ -413,6 +413,10 @@ const std::string kRescaleSlopeDs(
     "\x28\x00\x53\x10"
     "DS",
     6);
+const std::string kRescaleInterceptDs(
+    "\x28\x00\x52\x10"
+    "DS",
+    6);
 
 // Found by fuzz_dicom: a tag past the pixel data's (here f827,0103) before RescaleSlope ends
 // GDCM's header read there, which then sees an intercept without a slope and asserts on slope 0.
@@ -424,6 +428,18 @@ TEST(HostileDicom, RescaleSlopeAfterATagPastThePixelDataIsRefusedNotAGdcmAssert)
   b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
   testutil::write_bytes(t / "late.dcm", b);
   expect_refused(t / "late.dcm", "late.dcm", "RescaleSlope");
+}
+
+TEST(HostileDicom, RescaleInterceptAfterATagPastThePixelDataIsRefusedNotAGdcmAssert) {
+  // An intercept past the out-of-order tag and no slope: GDCM's header read sees neither, its
+  // full read an intercept without a slope, on which it asserts (found by fuzz_dicom).
+  TempDir t("hostile");
+  std::string b = minimal_dicom("0", "");
+  const auto at = b.find(kRescaleInterceptDs);
+  ASSERT_NE(at, std::string::npos);
+  b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
+  testutil::write_bytes(t / "late.dcm", b);
+  expect_refused(t / "late.dcm", "late.dcm", "RescaleIntercept after a tag past the pixel data");
 }
 
 TEST(HostileDicom, RescaleSlopeWithAnotherVrIsRefusedNotAGdcmAssert) {
