@@ -173,13 +173,15 @@ std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool 
         auto n = parse_finite(trim(s.substr(0, s.find('\\'))));
         top->frames = n && *n >= 1 && *n <= 1e9 ? static_cast<std::uint64_t>(*n) : 1;
       }
-      if (tag >= 0x7fe00010) top->past_header = true;
-      // Tags out of order: GDCM's header read stops before these and its full read sees them, so
-      // the two readers disagree on the rescale (one of them asserts on the slope it misses).
-      if ((tag == 0x00281052 || tag == 0x00281053) && top->past_header)
-        r.fail(fmt::format("{} after a tag past the pixel data's (tags out of order)",
-                           tag == 0x00281052 ? "RescaleIntercept" : "RescaleSlope"),
+      // DICOM orders a data set's tags (PS3.5 §7.1). GDCM does not check it: its header read stops
+      // at the first tag past the one it wants, its full read keeps the first of two equal tags,
+      // so a file out of order reads differently in each and fuzz_dicom found it asserting on the
+      // rescale and the pixel format those disagreements give.
+      if (std::int64_t{tag} <= top->last_tag)
+        r.fail(fmt::format("tags out of order: ({:04x},{:04x}) after ({:04x},{:04x})", e.group, e.element, top->last_tag >> 16,
+                           top->last_tag & 0xffff),
                at);
+      top->last_tag = tag;
       if ((tag == 0x00281052 || tag == 0x00281053) && e.length != kUndefined) {
         // GDCM asserts on a zero rescale slope, and takes a missing one as zero when an intercept
         // is given; it reads the value as a stream does (a leading number, else 0).

@@ -12,9 +12,7 @@ struct DicomSummary {
   std::uint64_t frames = 1, pixel_bytes = 0;
   bool has_pixels = false, encapsulated = false, has_intercept = false;
   std::optional<double> slope;  // RescaleSlope as GDCM reads it
-  // A top-level tag at or past the pixel data's was met: GDCM's header read (ReadUpToTag) stops
-  // there, so a rescale after it is not the one GDCM's header gives (issue: fuzz_dicom's assert).
-  bool past_header = false;
+  std::int64_t last_tag = -1;   // the data set's tags must ascend
   // Where the data set ends when zero bytes pad the file after the pixel data (0: no padding).
   // GDCM parses padding as empty elements, an exception each: 2.1 s for 2.5 MB of zeros.
   std::uint64_t padded_from = 0;

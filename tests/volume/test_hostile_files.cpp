@@ -408,6 +408,23 @@ TEST(HostileDicom, SamplesPerPixelOtherThanOneIsRefusedNotAGdcmAssert) {
   expect_refused(t / "s.dcm", "s.dcm", "samples per pixel");
 }
 
+// Found by fuzz_dicom: a BitsAllocated of 1 in SamplesPerPixel's place, before the real one of 16,
+// and a PixelRepresentation of 21316.
+// GDCM keeps the first of two equal tags and asserts on the pixel format; the check had kept the
+// last. Tags out of order are refused.
+TEST(HostileDicom, ASecondBitsAllocatedOutOfOrderIsRefusedNotAGdcmAssert) {
+  TempDir t("hostile");
+  std::string b = minimal_dicom("", "");
+  const auto at = b.find(std::string("\x28\x00\x02\x00US\x02\x00", 8));
+  ASSERT_NE(at, std::string::npos);
+  b[at + 2] = 0x00, b[at + 3] = 0x01;  // (0028,0002) → (0028,0100), value 1
+  const auto sign = b.find(std::string("\x28\x00\x03\x01US\x02\x00", 8));
+  ASSERT_NE(sign, std::string::npos);
+  b[sign + 8] = 'D', b[sign + 9] = 'S';  // PixelRepresentation 21316, as in the fuzzer's file
+  testutil::write_bytes(t / "bits.dcm", b);
+  expect_refused(t / "bits.dcm", "bits.dcm", "tags out of order: (0028,0004) after (0028,0100)");
+}
+
 // The RescaleSlope element's tag and VR in minimal_dicom's explicit little-endian bytes.
 const std::string kRescaleSlopeDs(
     "\x28\x00\x53\x10"
@@ -427,7 +444,7 @@ TEST(HostileDicom, RescaleSlopeAfterATagPastThePixelDataIsRefusedNotAGdcmAssert)
   ASSERT_NE(at, std::string::npos);
   b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
   testutil::write_bytes(t / "late.dcm", b);
-  expect_refused(t / "late.dcm", "late.dcm", "RescaleSlope");
+  expect_refused(t / "late.dcm", "late.dcm", "tags out of order: (0028,1053) after (f827,0103)");
 }
 
 TEST(HostileDicom, RescaleInterceptAfterATagPastThePixelDataIsRefusedNotAGdcmAssert) {
@@ -439,7 +456,7 @@ TEST(HostileDicom, RescaleInterceptAfterATagPastThePixelDataIsRefusedNotAGdcmAss
   ASSERT_NE(at, std::string::npos);
   b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
   testutil::write_bytes(t / "late.dcm", b);
-  expect_refused(t / "late.dcm", "late.dcm", "RescaleIntercept after a tag past the pixel data");
+  expect_refused(t / "late.dcm", "late.dcm", "tags out of order: (0028,1052) after (f827,0103)");
 }
 
 TEST(HostileDicom, RescaleSlopeWithAnotherVrIsRefusedNotAGdcmAssert) {
