@@ -22,8 +22,8 @@
 //   the midpoint differs from both ends of the refinement edge.
 // Smaller hidden parts are left out, and so are the splits made to look for them: a split for a
 // hidden surface is kept only when some tetrahedron beneath it shows the surface at its corners,
-// so a part left out costs its neighbours no closure. Tetrahedra whose longest edge is within the
-// distance are not probed: every point of their triangles lies within it of a cut point.
+// so a part left out costs its neighbours no closure. Triangles whose corners cover them (every
+// point within the distance of a corner: corners_cover) are not probed: the corners are cut points.
 //
 // Three passes:
 // 1. Refine (parallel, top-down), each tetrahedron carrying its corners and its edges' cut points
@@ -57,6 +57,7 @@
 #include "adaptiso/hierarchy_query.hpp"
 #include "extract/hierarchy_index.hpp"
 #include "extract/march_detail.hpp"
+#include "extract/triangle_cover.hpp"
 #include "grid/traversal.hpp"
 
 namespace adaptiso {
@@ -497,7 +498,7 @@ private:
     }
     (void)others;
     for (int k = 0; k < cs.triangles; ++k)
-      if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
+      if (!corners_cover(tris[k][0], tris[k][1], tris[k][2], d2) && triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
     return false;
   }
 
@@ -856,11 +857,8 @@ private:
       if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
       Point b[3];
       moved(s, k, c, b);
-      // Every point of a triangle with edges up to L lies within L/√3 of a corner (on the grid's
-      // surface): as in the refinement, such triangles are not probed.
-      double longest2 = 0;
-      for (int i = 0; i < 3; ++i) longest2 = std::max(longest2, dot(minus(b[i], b[(i + 1) % 3]), minus(b[i], b[(i + 1) % 3])));
-      if (longest2 <= 3 * d2_) continue;
+      // A triangle whose corners (on the grid's surface) cover it is not probed, as in the refinement.
+      if (corners_cover(b[0], b[1], b[2], d2_)) continue;
       const Point n = normal(b[0], b[1], b[2]);
       const double len = std::sqrt(dot(n, n));
       Point centre, unit;

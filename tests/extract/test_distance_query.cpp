@@ -3,7 +3,7 @@
 // the distance asked for (measured densely, both ways); closed, manifold and oriented with the
 // right Euler characteristic on spheres, tori and nested spheres at several distances, on odd,
 // anisotropic and non-cubic boxes; cuts of the box's faces stay on them; the same mesh for 1 and
-// several threads; refusals.
+// several threads; refusals; the test that spares probes against brute force.
 #include <gtest/gtest.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -17,6 +17,7 @@
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/surface_distance.hpp"
 #include "adaptiso/synthetic.hpp"
+#include "extract/triangle_cover.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
@@ -369,4 +370,47 @@ TEST(DistanceQuery, RoundsOutsideTheirRangeAreRefusedAndDistanceZeroCollapsesNot
   const Mesh zero = query.extract_within(iso, 0, &st, kMaxCollapseRounds);
   EXPECT_EQ(st.collapsed, 0u);
   EXPECT_EQ(zero.triangles, query.extract(iso, 0).triangles);
+}
+
+// The cover test that spares a probe against a brute-force one: the largest distance from a point
+// of the triangle (a dense barycentric grid) to its nearest corner. Acute, right-angled (the
+// lattice's cut triangles), obtuse, equilateral, slivers and flat triangles.
+TEST(DistanceQuery, ACornersCoverTestAgreesWithTheFarthestPointFoundByBruteForce) {
+  using P = std::array<double, 3>;
+  auto farthest = [](const P& a, const P& b, const P& c) {
+    const int n = 300;
+    double worst = 0;
+    for (int i = 0; i <= n; ++i)
+      for (int j = 0; i + j <= n; ++j) {
+        P x;
+        for (int k = 0; k < 3; ++k) x[k] = (i * a[k] + j * b[k] + (n - i - j) * c[k]) / n;
+        double best = 1e300;
+        for (const P* q : {&a, &b, &c}) best = std::min(best, std::hypot((*q)[0] - x[0], (*q)[1] - x[1], (*q)[2] - x[2]));
+        worst = std::max(worst, best);
+      }
+    return worst;
+  };
+  std::vector<std::array<P, 3>> tris = {
+      {P{0, 0, 0}, P{2, 0, 0}, P{0, 2, 0}},               // right-angled: half the hypotenuse
+      {P{0, 0, 0}, P{2, 0, 0}, P{1, std::sqrt(3.0), 0}},  // equilateral: L/√3
+      {P{0, 0, 0}, P{4, 0, 0}, P{2, 0.3, 0.1}},           // obtuse
+      {P{0, 0, 0}, P{1, 0, 0}, P{3, 0, 0}},               // flat
+      {P{0, 0, 0}, P{0, 0, 0}, P{1, 1, 1}},               // two corners at one point
+  };
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-3, 3);
+  for (int t = 0; t < 200; ++t) tris.push_back({P{u(rng), u(rng), u(rng)}, P{u(rng), u(rng), u(rng)}, P{u(rng), u(rng), u(rng)}});
+  for (const auto& [a, b, c] : tris) {
+    const double far = farthest(a, b, c);
+    double e[3] = {std::hypot(b[0] - c[0], b[1] - c[1], b[2] - c[2]), std::hypot(c[0] - a[0], c[1] - a[1], c[2] - a[2]),
+                   std::hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2])};
+    std::sort(e, e + 3);
+    // Never a cover the brute force refutes.
+    if (far > 1e-9) EXPECT_FALSE(detail::corners_cover(a, b, c, std::pow(far * (1 - 1e-6), 2))) << far;
+    // Exact for acute and right-angled triangles (the grid's farthest point is within a step of
+    // the true one); half the longest edge for obtuse ones.
+    const bool obtuse = e[2] * e[2] > (e[0] * e[0] + e[1] * e[1]) * (1 + 1e-9);
+    const double bound = obtuse ? e[2] / 2 : far + e[2] / 300;
+    EXPECT_TRUE(detail::corners_cover(a, b, c, std::pow(bound * (1 + 1e-9) + 1e-12, 2))) << far << (obtuse ? " obtuse" : "");
+  }
 }
