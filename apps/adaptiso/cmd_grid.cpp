@@ -126,7 +126,9 @@ void add_export(CLI::App& app) {
     const std::string ext = std::filesystem::path(*output).extension().string();
     if (ext != ".vtu" && ext != ".ply") throw InputError(fmt::format("{}: unknown output type '{}' (use .vtu or .ply)", *output, ext));
     auto t0 = Clock::now();
-    const PreparedGrid p = load_grid(*input);
+    // Points need the vertices only: a bisection grid's tetrahedra are then not kept or checked
+    // (the CT bunny's default grid: 0.45 of its 1.8 GB held, the index's check skipped).
+    const PreparedGrid p = load_grid(*input, ext == ".ply" ? GridParts::hierarchy_or_all : GridParts::all);
     const TetGrid& grid = p.grid;
     const double t_load = seconds_since(t0);
     if (ext == ".vtu")
@@ -134,13 +136,13 @@ void add_export(CLI::App& app) {
     else
       write_points_ply(*output, grid);
     nlohmann::json j = {{"vertices", grid.vertex_count()},
-                        {"tetrahedra", grid.tet_count()},
+                        {"tetrahedra", tetrahedron_count(p)},
                         {"seconds", {{"load", t_load}, {"total", seconds_since(t0)}}},
                         {"output", *output}};
     if (out->json)
       print_json(j);
     else if (!out->quiet)
-      std::cout << fmt::format("wrote {} ({} vertices, {} tetrahedra)\n", *output, grid.vertex_count(), grid.tet_count());
+      std::cout << fmt::format("wrote {} ({} vertices, {} tetrahedra)\n", *output, grid.vertex_count(), tetrahedron_count(p));
   });
 }
 
