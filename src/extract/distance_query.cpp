@@ -315,7 +315,7 @@ struct Query {
         // A diamond across the box keeps the span of its tetrahedra inside it only.
         const std::uint32_t id = numbers.id(voxel);
         const auto& span = h.value_span[id];
-        if ((span[1] < iso || span[0] >= iso) && (!forced(id) || tet_inside(lat, t))) {
+        if ((span[1] < iso || span[0] >= iso) && (tet_inside(lat, t) || !forced(id))) {  // the box test first: no load
           value = span[0] >= iso ? iso : -std::numeric_limits<double>::infinity();
           return true;
         }
