@@ -66,6 +66,11 @@ namespace {
 
 using Point = std::array<double, 3>;
 
+// |x − y|²
+double distance2(const Point& x, const Point& y) {
+  return (x[0] - y[0]) * (x[0] - y[0]) + (x[1] - y[1]) * (x[1] - y[1]) + (x[2] - y[2]) * (x[2] - y[2]);
+}
+
 // The closest point of triangle abc to p (Ericson, "Real-Time Collision Detection", §5.1.5),
 // returned as the squared distance.
 double distance2_to_triangle(const Point& p, const Point& a, const Point& b, const Point& c) {
@@ -850,8 +855,14 @@ private:
     return best <= d2_;
   }
 
+  bool near_a_point(const Point& x, std::initializer_list<const Point*> points) const {
+    for (const Point* p : points)
+      if (distance2(x, *p) <= d2_) return true;
+    return false;
+  }
+
   // Every new triangle's centre within the distance of the grid's surface, as the refinement
-  // tests its triangles.
+  // tests its triangles: within it of a corner or of v (cut points), or probed.
   bool probes_pass(const Stars& s, const Collapse& c, ProbeTrail& trail) const {
     for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
       if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
@@ -863,6 +874,7 @@ private:
       const double len = std::sqrt(dot(n, n));
       Point centre, unit;
       for (int i = 0; i < 3; ++i) centre[i] = (b[0][i] + b[1][i] + b[2][i]) / 3, unit[i] = n[i] / len;
+      if (near_a_point(centre, {&b[0], &b[1], &b[2], &at_[c.v]})) continue;
       if (q_.far_from_surface(centre, unit, trail)) return false;
     }
     return true;
