@@ -642,15 +642,16 @@ void assemble(const TetGrid& g, std::vector<Found>& found, double iso, const Edg
 // Marching tetrahedra make 2–3× marching cubes' triangles per cut cell, and most of them are not
 // needed to stay within the distance: in each round, an edge (v, u) of the surface is collapsed
 // into u when the refinement's own tests pass on the result (every new triangle's centre within
-// the distance of the grid's surface, probed as the refinement probes, unless its edges are short
-// enough that every point lies within the distance of a corner; v within the distance of the new
-// triangles), no new triangle turns by more than 60°, and the link condition keeps the surface
-// 2-manifold. Vertices on the surface's border (the box) stay. A round's collapses have disjoint
-// stars (a collapse locks v's ring), so they are chosen in vertex order without the probes, the
-// probes then run in parallel, and the chosen collapses whose probes pass are applied: the same
-// surface for any thread count. The vertices that stay keep their order and their places (cut
-// points of the grid's surface). A vertex of fewer than 4 triangles is not collapsed: the link
-// condition would then need its ring's edges too (a closed tetrahedron would fold flat).
+// the distance of the grid's surface: within it of a corner or of v, else probed as the
+// refinement probes, unless every point of the triangle lies within the distance of a corner; v
+// within the distance of the new triangles), no new triangle turns by more than 60°, and the link
+// condition keeps the surface 2-manifold. Vertices on the surface's border (the box) stay. A
+// round's collapses have disjoint stars (a collapse locks v's ring), so they are chosen in vertex
+// order without the probes, the probes then run in parallel, and the chosen collapses whose probes
+// pass are applied: the same surface for any thread count. The vertices that stay keep their order
+// and their places (cut points of the grid's surface). A vertex of fewer than 4 triangles is not
+// collapsed: the link condition would then need its ring's edges too (a closed tetrahedron would
+// fold flat).
 //
 // Cost (CT bunny, 2 cores): the probes, about 1 µs a descent (cache misses down the hierarchy),
 // 3.4 per collapse; then the rings and the choice. A round on the noisy 866 k-triangle surface at
