@@ -20,6 +20,17 @@ namespace adaptiso::detail {
 // names. Throws InputError naming `path`.
 GridSource grid_source_from_json(const nlohmann::json& source, const std::string& path);
 
+// What a check of a bisection grid's hierarchy walked (check_grid's `walked`): per subtree of the
+// walk's frontier, its leaves (prefix counts) and a keyed hash of them in order (the key is drawn
+// once per process). A later load of the same file in the same process checks its tetrahedra
+// against it (check_tets_walked) instead of walking again.
+struct HierarchyWalk {
+  std::uint64_t file_bytes = 0;  // of the file walked, and its checksum, for the caller to match
+  std::uint32_t checksum = 0;
+  std::vector<std::uint64_t> leaves;
+  std::vector<std::uint64_t> hashes;
+};
+
 // The grid against its own invariants (tet_grid.hpp, bisection.hpp), or InputError naming `path`:
 // - vertices at distinct voxels inside the box, in ascending voxel order, with finite values
 //   within [min, max] and gradients that are numbers;
@@ -35,17 +46,8 @@ GridSource grid_source_from_json(const nlohmann::json& source, const std::string
 //   their order, tiling the box, with the file's value spans.
 // The index is checked apart (validate_interval_tree). With `leaves` (a bisection grid loaded
 // without its tetrahedra, GridParts::hierarchy), the hierarchy's walk must have that many leaves,
-// and nothing is checked of the tetrahedra themselves.
-// What a check of a bisection grid's hierarchy walked (check_grid's `walked`): per subtree of the
-// walk's frontier, its leaves (prefix counts) and a keyed hash of them in order (the key is drawn
-// once per process). A later load of the same file in the same process checks its tetrahedra
-// against it (check_tets_walked) instead of walking again.
-struct HierarchyWalk {
-  std::uint64_t file_bytes = 0;  // of the file walked, and its checksum, for the caller to match
-  std::uint32_t checksum = 0;
-  std::vector<std::uint64_t> leaves;
-  std::vector<std::uint64_t> hashes;
-};
+// and nothing is checked of the tetrahedra themselves. With `walked`, a bisection grid's walk is
+// kept there.
 void check_grid(const PreparedGrid& grid, const std::string& path, std::optional<std::uint64_t> leaves = std::nullopt,
                 HierarchyWalk* walked = nullptr);
 // The tetrahedra of a grid whose vertices and hierarchy check_grid passed in an earlier load of the

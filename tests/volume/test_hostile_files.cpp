@@ -425,7 +425,7 @@ TEST(HostileDicom, ASecondBitsAllocatedOutOfOrderIsRefusedNotAGdcmAssert) {
   expect_refused(t / "bits.dcm", "bits.dcm", "tags out of order: (0028,0004) after (0028,0100)");
 }
 
-// The RescaleSlope element's tag and VR in minimal_dicom's explicit little-endian bytes.
+// The rescale elements' tags and VRs in minimal_dicom's explicit little-endian bytes.
 const std::string kRescaleSlopeDs(
     "\x28\x00\x53\x10"
     "DS",
@@ -435,15 +435,19 @@ const std::string kRescaleInterceptDs(
     "DS",
     6);
 
+// A file's bytes with a tag past the pixel data's, (f827,0103) US 0, inserted before `element`.
+static std::string with_late_tag_before(std::string b, const std::string& element) {
+  const auto at = b.find(element);
+  EXPECT_NE(at, std::string::npos);
+  if (at != std::string::npos) b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
+  return b;
+}
+
 // Found by fuzz_dicom: a tag past the pixel data's (here f827,0103) before RescaleSlope ends
 // GDCM's header read there, which then sees an intercept without a slope and asserts on slope 0.
 TEST(HostileDicom, RescaleSlopeAfterATagPastThePixelDataIsRefusedNotAGdcmAssert) {
   TempDir t("hostile");
-  std::string b = minimal_dicom("0", "1");
-  const auto at = b.find(kRescaleSlopeDs);
-  ASSERT_NE(at, std::string::npos);
-  b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
-  testutil::write_bytes(t / "late.dcm", b);
+  testutil::write_bytes(t / "late.dcm", with_late_tag_before(minimal_dicom("0", "1"), kRescaleSlopeDs));
   expect_refused(t / "late.dcm", "late.dcm", "tags out of order: (0028,1053) after (f827,0103)");
 }
 
@@ -451,11 +455,7 @@ TEST(HostileDicom, RescaleInterceptAfterATagPastThePixelDataIsRefusedNotAGdcmAss
   // An intercept past the out-of-order tag and no slope: GDCM's header read sees neither, its
   // full read an intercept without a slope, on which it asserts (found by fuzz_dicom).
   TempDir t("hostile");
-  std::string b = minimal_dicom("0", "");
-  const auto at = b.find(kRescaleInterceptDs);
-  ASSERT_NE(at, std::string::npos);
-  b.insert(at, std::string("\x27\xf8\x03\x01US\x02\x00\x00\x00", 10));
-  testutil::write_bytes(t / "late.dcm", b);
+  testutil::write_bytes(t / "late.dcm", with_late_tag_before(minimal_dicom("0", ""), kRescaleInterceptDs));
   expect_refused(t / "late.dcm", "late.dcm", "tags out of order: (0028,1052) after (f827,0103)");
 }
 
