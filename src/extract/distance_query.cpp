@@ -22,8 +22,11 @@
 //   the midpoint differs from both ends of the refinement edge.
 // Smaller hidden parts are left out, and so are the splits made to look for them: a split for a
 // hidden surface is kept only when some tetrahedron beneath it shows the surface at its corners,
-// so a part left out costs its neighbours no closure. Triangles whose corners cover them (every
-// point within the distance of a corner: corners_cover) are not probed: the corners are cut points.
+// so a part left out costs its neighbours no closure. Tetrahedra whose longest edge is within the
+// distance are not probed: every point of their triangles lies within it of a cut point. A small
+// triangle in a larger tetrahedron is probed all the same: the probe along its normal also finds
+// the grid's surface bulging away from it inside the tetrahedron, which its corners cannot show
+// (sparing it cost the FLAIR brain's p95 distance 2.3 -> 3.5 voxels at 2).
 //
 // Three passes:
 // 1. Refine (parallel, top-down), each tetrahedron carrying its corners and its edges' cut points
@@ -503,7 +506,7 @@ private:
     }
     (void)others;
     for (int k = 0; k < cs.triangles; ++k)
-      if (!corners_cover(tris[k][0], tris[k][1], tris[k][2], d2) && triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
+      if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
     return false;
   }
 
