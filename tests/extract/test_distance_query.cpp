@@ -414,3 +414,22 @@ TEST(DistanceQuery, ACornersCoverTestAgreesWithTheFarthestPointFoundByBruteForce
     EXPECT_TRUE(detail::corners_cover(a, b, c, std::pow(bound * (1 + 1e-9) + 1e-12, 2))) << far << (obtuse ? " obtuse" : "");
   }
 }
+
+// Found on the FLAIR brain: sparing the probe of every triangle its corners cover let a small
+// triangle cutting a corner off a large tetrahedron stand unprobed, though the grid's surface
+// bulged away from it inside that tetrahedron (p95 2.3 -> 3.5 voxels at 2). On a noisy field the
+// grid's surface stays as near the query's as with the probe: measured 0.416 / 1.120 voxels (mean
+// / p95) at 2, without the probe 0.563 / 1.437.
+TEST(DistanceQuery, ASmallTriangleInALargeTetrahedronIsStillProbed) {
+  const Volume v = make_synthetic("noise", 41, ScalarType::f32);
+  const auto grid = testutil::prepared_at(v, 0.02, true);
+  const HierarchyQuery query(grid);
+  const ValueRange r = value_range(v);
+  const double iso = r.min + 0.5 * (r.max - r.min);
+  const Mesh m = query.extract_within(iso, 2, nullptr, 0);
+  DistanceOptions sampling;
+  sampling.min_samples = 20'000;
+  const SurfaceDistance sd = surface_distance(m, query.extract(iso, 0), sampling);
+  EXPECT_LE(sd.b_to_a.mean, 0.48);
+  EXPECT_LE(sd.b_to_a.p95, 1.3);
+}
