@@ -17,6 +17,7 @@
 // applies at its prepared bound or any larger one asked for.
 #pragma once
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -105,10 +106,13 @@ public:
   // places, do not exclude them. Not guaranteed, and measured (bench/distance.py,
   // docs/RESULTS.md): the distance everywhere, and parts smaller than 2·distance that no corner
   // shows, which are left out. distance 0 gives the grid's own surface exactly (no collapses).
-  // Thread-safe.
+  // Thread-safe. With `cancel`, once *cancel is raised the query stops within a stage's part (a
+  // subtree of the refinement, a chunk of probes) and throws ExtractCancelled (extractor.hpp):
+  // the viewer drops a surface the page no longer wants (a rest surface the next drag overtook).
   // Throws OptionError for a non-finite iso, a negative or non-finite distance, or rounds outside
   // 0..kMaxCollapseRounds.
-  Mesh extract_within(double iso, double distance, DistanceQueryStats* stats = nullptr, int collapse_rounds = kDefaultCollapseRounds) const;
+  Mesh extract_within(double iso, double distance, DistanceQueryStats* stats = nullptr, int collapse_rounds = kDefaultCollapseRounds,
+                      const std::atomic<bool>* cancel = nullptr) const;
 
   double prepared_error() const;  // the smallest error a query can have
   const PreparedGrid& grid() const;

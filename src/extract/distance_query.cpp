@@ -57,6 +57,7 @@
 #include <memory>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "extract/hierarchy_index.hpp"
 #include "extract/march_detail.hpp"
@@ -193,7 +194,12 @@ struct Query {
   Marks& split;     // diamonds split (their test, or the closure)
   tbb::enumerable_thread_specific<std::vector<std::int64_t>>& marked;
   tbb::enumerable_thread_specific<std::size_t>& tested;
+  const std::atomic<bool>* cancel;  // raised: stop (ExtractCancelled), or nullptr
 
+  bool cancelled() const { return cancel && cancel->load(std::memory_order_relaxed); }
+  void throw_if_cancelled() const {
+    if (cancelled()) throw ExtractCancelled();
+  }
   bool above(double v) const { return v >= iso; }
   Corner corner(const Coord& c) const {
     const std::uint32_t id = numbers.id(lat.index(c));
@@ -376,7 +382,7 @@ public:
   explicit Refine(const Query& q) : q_(q) {}
 
   void tetrahedron(const Tet& t, OrderState o, int depth) const {
-    if (tet_outside(q_.lat, t)) return;
+    if (tet_outside(q_.lat, t) || q_.cancelled()) return;  // cancelled: the caller throws
     Coord m;
     int i, j;
     if (!refinement(t, o, m, i, j)) return;  // a unit tetrahedron
@@ -731,6 +737,7 @@ public:
 
   // One round; returns the collapses applied.
   std::size_t round() {
+    q_.throw_if_cancelled();
     stars_.build(mesh_);
     const Stars& s = stars_;
     const std::vector<Collapse> chosen = choose(s);
@@ -738,8 +745,10 @@ public:
     const std::size_t chunk = 256;
     tbb::parallel_for(std::size_t{0}, (chosen.size() + chunk - 1) / chunk, [&](std::size_t c) {
       ProbeTrail trail;  // the chosen collapses are in vertex order: neighbours mostly
+      if (q_.cancelled()) return;
       for (std::size_t i = c * chunk; i < std::min(chosen.size(), (c + 1) * chunk); ++i) pass[i] = probes_pass(s, chosen[i], trail);
     });
+    q_.throw_if_cancelled();  // before any collapse is applied: the probes of some were skipped
     std::vector<std::uint8_t> dead(mesh_.triangles.size(), 0);
     std::size_t applied = 0;
     for (std::size_t i = 0; i < chosen.size(); ++i) {
@@ -905,7 +914,8 @@ std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int roun
 }  // namespace
 }  // namespace detail
 
-Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds) const {
+Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds,
+                                    const std::atomic<bool>* cancel) const {
   using namespace detail;
   using Clock = std::chrono::steady_clock;
   if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
@@ -939,10 +949,12 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
                 {g.source.spacing[0] / smallest, g.source.spacing[1] / smallest, g.source.spacing[2] / smallest},
                 split,
                 marked,
-                tested};
+                tested,
+                cancel};
   const Refine refine(q);
   const auto roots = root_tetrahedra(lat.S);
   tbb::parallel_for(0, 6, [&](int r) { refine.tetrahedron(roots[static_cast<std::size_t>(r)], root_order(r), 0); });
+  q.throw_if_cancelled();  // the marks go back cleared however the query ends (Lease)
   std::vector<std::int64_t> pending;
   for (auto& part : marked) pending.insert(pending.end(), part.begin(), part.end());
   const std::size_t refined = pending.size();
@@ -954,6 +966,7 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
   const Frontier top = walk.frontier(10);
   std::vector<Found> found(top.roots.size());
   tbb::parallel_for(std::size_t{0}, top.roots.size(), [&](std::size_t f) {
+    if (q.cancelled()) return;
     walk.visit(
         top.roots[f], index_->numbers, g.values,
         [&](const Tet&, const Corners& c, std::int64_t) {
@@ -963,6 +976,7 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
         [&](std::int64_t, std::uint32_t, const Tet&, const ValueSpan&) { ++found[f].visited; });
   });
   const auto t2 = Clock::now();
+  q.throw_if_cancelled();
   Mesh mesh;
   const SnapRemap remap(q);
   assemble(g, found, iso, remap, mesh);

@@ -9,11 +9,15 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <functional>
 #include <random>
 #include <set>
+#include <thread>
 
+#include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/surface_distance.hpp"
 #include "adaptiso/synthetic.hpp"
@@ -230,6 +234,38 @@ TEST(DistanceQuery, ConcurrentQueriesGiveWhatEachGivesAlone) {
   }
 }
 
+TEST(DistanceQuery, ACancelledQueryThrowsAndLeavesTheNextOnesWhole) {
+  // The viewer cancels a rest surface a new drag overtook. A cancelled query must throw, never
+  // return a partial surface, and give back its marks cleared: a later query on the same index
+  // (the pool of marks) is the surface it gives alone.
+  const Volume v = make_synthetic("marschner-lobb", 65, ScalarType::f32);
+  const auto grid = testutil::prepared_at(v, 0.005, true);
+  const HierarchyQuery query(grid);
+  const Mesh reference = query.extract_within(0.4, 0.5);
+  std::atomic<bool> raised{true};
+  EXPECT_THROW(query.extract_within(0.4, 0.5, nullptr, kDefaultCollapseRounds, &raised), ExtractCancelled);
+  std::atomic<bool> lowered{false};
+  EXPECT_EQ(query.extract_within(0.4, 0.5, nullptr, kDefaultCollapseRounds, &lowered).triangles, reference.triangles);
+  // Raised from another thread at some point of the query: whole or cancelled, nothing between.
+  for (int delay_us : {0, 200, 1000, 3000, 10000, 30000}) {
+    std::atomic<bool> flag{false};
+    std::thread raiser([&] {
+      std::this_thread::sleep_for(std::chrono::microseconds(delay_us));
+      flag = true;
+    });
+    try {
+      const Mesh m = query.extract_within(0.4, 0.5, nullptr, kDefaultCollapseRounds, &flag);
+      EXPECT_EQ(m.triangles, reference.triangles) << delay_us;
+      EXPECT_EQ(m.positions, reference.positions) << delay_us;
+    } catch (const ExtractCancelled&) {  // the thread's timing decides which: both are right
+    }
+    raiser.join();
+    const Mesh after = query.extract_within(0.4, 0.5);
+    EXPECT_EQ(after.triangles, reference.triangles) << delay_us;
+    EXPECT_EQ(after.positions, reference.positions) << delay_us;
+  }
+}
+
 TEST(DistanceQuery, FewerTrianglesAtLargerDistancesAndRefusals) {
   const Volume v = make_synthetic("marschner-lobb", 65, ScalarType::f32);
   const auto grid = testutil::prepared_at(v, 0.005, true);
@@ -406,7 +442,9 @@ TEST(DistanceQuery, ACornersCoverTestAgreesWithTheFarthestPointFoundByBruteForce
                    std::hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2])};
     std::sort(e, e + 3);
     // Never a cover the brute force refutes.
-    if (far > 1e-9) EXPECT_FALSE(detail::corners_cover(a, b, c, std::pow(far * (1 - 1e-6), 2))) << far;
+    if (far > 1e-9) {
+      EXPECT_FALSE(detail::corners_cover(a, b, c, std::pow(far * (1 - 1e-6), 2))) << far;
+    }
     // Exact for acute and right-angled triangles (the grid's farthest point is within a step of
     // the true one); half the longest edge for obtuse ones.
     const bool obtuse = e[2] * e[2] > (e[0] * e[0] + e[1] * e[1]) * (1 + 1e-9);
