@@ -32,6 +32,7 @@
 #include "view/http.hpp"
 #include "view/memory_budget.hpp"
 #include "view/request.hpp"
+#include "view/running_queries.hpp"
 #include "view/sessions.hpp"
 
 namespace adaptiso {
@@ -148,6 +149,7 @@ struct ViewServer::Impl {
   fs::path web_root;
   std::set<std::string> served;  // the page's files (web_root/served.txt), relative to web_root
   Sessions sessions;
+  detail::RunningQueries running;  // each page's distance query: the page's next one cancels it
 
   std::mutex state_mutex;  // guards everything below
   std::string stage = "starting", failure;
@@ -174,7 +176,8 @@ struct ViewServer::Impl {
   bool host_allowed(const httplib::Request& req) const;
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
-  Mesh surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats);
+  Mesh surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats,
+                      const std::atomic<bool>* cancel = nullptr);
   void reference(const httplib::Request& req, httplib::Response& res);
   void download(const httplib::Request& req, httplib::Response& res);
   void points(const httplib::Request& req, httplib::Response& res);
@@ -423,7 +426,11 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   if (distance) {
     if (error || budget) throw BadRequest("distance= cannot be combined with error= or budget=");
     DistanceQueryStats st;
-    const Mesh mesh = surface_within(s, iso, *distance, collapse, &st);
+    // A page's previous query, if still running, is dropped. Requests without client= share the
+    // name "default" (scripts, several at once): they cancel nothing.
+    std::optional<detail::RunningQueries::Ticket> ticket;
+    if (req.params.count("client")) ticket.emplace(running, id);
+    const Mesh mesh = surface_within(s, iso, *distance, collapse, &st, ticket ? ticket->cancel() : nullptr);
     const auto t0 = std::chrono::steady_clock::now();
     std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
     const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -479,14 +486,15 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
 
 // The surface within distance= voxels of the grid's (a bisection grid's hierarchy query): one
 // stateless query, no page state; its memory reserved for the time of the query.
-Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats) {
+Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats,
+                                      const std::atomic<bool>* cancel) {
   if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
   if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
   const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, tetrahedron_count(*s.grid) / 8);
   const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
   DistanceQueryStats own;
   if (!stats) stats = &own;
-  Mesh mesh = s.query->extract_within(iso, distance, stats, collapse);
+  Mesh mesh = s.query->extract_within(iso, distance, stats, collapse, cancel);
   // The peak follows the marched triangles, collapses or not: those are what the next estimate counts.
   sessions.record_triangles(Sessions::Transient::distance, iso, stats->triangles + 2 * stats->collapsed);
   return mesh;
@@ -607,6 +615,8 @@ void ViewServer::Impl::routes() {
         answer(503, e.what());
       } catch (const InputError& e) {
         answer(400, e.what());
+      } catch (const ExtractCancelled&) {  // the page asked for another surface meanwhile, and dropped this one
+        answer(409, "cancelled: the page asked for another surface");
       } catch (const std::bad_alloc&) {
         sessions.relieve();
         res.set_header("Retry-After", "1");

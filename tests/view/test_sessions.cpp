@@ -19,6 +19,7 @@
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "view/memory_budget.hpp"
+#include "view/running_queries.hpp"
 #include "view/sessions.hpp"
 
 using namespace adaptiso;
@@ -408,4 +409,27 @@ TEST(MemoryBudget, TheDefaultIsAtMostHalfTheMachineAndSizesReadAsText) {
   const auto grid = shared_sphere_grid();
   EXPECT_GT(detail::grid_bytes(*grid), 16 * grid->grid.vertex_count());
   EXPECT_EQ(detail::extractor_bytes(*grid, 10), detail::extractor_fixed_bytes(*grid) + 10 * detail::kExtractorBytesPerTriangle);
+}
+
+// A page's new distance query cancels its previous one still running, and no other page's; a
+// query that ends forgets only itself (not a newer one of its page).
+TEST(RunningQueries, APagesNextQueryCancelsItsPreviousOneOnly) {
+  detail::RunningQueries rq;
+  auto first = std::make_unique<detail::RunningQueries::Ticket>(rq, "page");
+  const detail::RunningQueries::Ticket other(rq, "other");
+  EXPECT_FALSE(first->cancelled());
+  const detail::RunningQueries::Ticket second(rq, "page");
+  EXPECT_TRUE(first->cancelled());
+  EXPECT_TRUE(first->cancel()->load());
+  EXPECT_FALSE(second.cancelled());
+  EXPECT_FALSE(other.cancelled());
+  EXPECT_EQ(rq.running(), 2u);
+  first.reset();  // the cancelled query ends after its successor started
+  EXPECT_EQ(rq.running(), 2u);
+  {
+    const detail::RunningQueries::Ticket third(rq, "page");
+    EXPECT_TRUE(second.cancelled());
+    EXPECT_FALSE(other.cancelled());
+  }
+  EXPECT_EQ(rq.running(), 1u);  // "other" alone
 }

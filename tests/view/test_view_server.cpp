@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <cstring>
 #include <nlohmann/json.hpp>
 #include <thread>
@@ -528,6 +529,50 @@ TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
   auto r = c.Get("/api/surface?iso=0.45&client=a&distance=1");
   EXPECT_EQ(r->status, 400);
   EXPECT_NE(r->body.find("bisection"), std::string::npos);
+}
+
+// A page's new distance request cancels its previous one still running (the page dropped it: a
+// drag overtook the surface at rest): of two at once from one page, the one that arrives first is
+// answered 409 if it had not finished, the other is whole. Requests without client= cancel
+// nothing. Which arrives first, and whether it had finished, is the threads' timing: every answer
+// is checked either way.
+TEST(ViewServer, APagesNextDistanceRequestCancelsItsPreviousOne) {
+  const auto volume = std::make_shared<Volume>(make_synthetic("marschner-lobb", 65, ScalarType::f32));
+  const auto grid = bisection_grid_of(*volume, 0.0005);
+  Running run(testutil::server_options());
+  run.server.set_grid(grid);
+  const HierarchyQuery query(grid);
+  const std::string fine = encode_mesh(query.extract_within(0.45, 0.25)), coarse = encode_mesh(query.extract_within(0.45, 4));
+  for (const char* client : {"&client=page", ""}) {
+    int cancelled = 0;
+    for (int k = 0; k < 8; ++k) {
+      std::pair<int, std::string> first, next;
+      auto get = [&](double distance, std::pair<int, std::string>& out) {
+        auto r = run.client().Get(fmt::format("/api/surface?iso=0.45&distance={}{}", distance, client));
+        if (r) out = {r->status, r->body};
+      };
+      std::thread slow([&] { get(0.25, first); });
+      std::this_thread::sleep_for(std::chrono::milliseconds(3 * k));
+      get(4, next);
+      slow.join();
+      for (const auto& [answer, whole] : {std::pair{&first, &fine}, std::pair{&next, &coarse}}) {
+        if (answer->first == 409) {
+          ++cancelled;
+          EXPECT_NE(answer->second.find("cancelled"), std::string::npos) << answer->second;
+        } else {
+          ASSERT_EQ(answer->first, 200) << answer->second;
+          EXPECT_EQ(answer->second, *whole);
+        }
+      }
+      EXPECT_FALSE(first.first == 409 && next.first == 409) << "both cancelled";
+    }
+    // The fine surface takes about 0.1 s and the coarse one is asked for within 21 ms: they overlap.
+    if (*client == 0) {
+      EXPECT_EQ(cancelled, 0) << "anonymous requests cancelled each other";
+    } else {
+      EXPECT_GE(cancelled, 1) << "no request of the page was cancelled";
+    }
+  }
 }
 
 // `adaptiso view GRID.adg` serves a bisection grid loaded in part (OpenGridFile): surfaces within a
