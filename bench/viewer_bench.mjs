@@ -6,12 +6,17 @@
 // surface only once the GPU has drawn the previous one, so "drawn" is on screen, not queued.
 //
 // Usage: node bench/viewer_bench.mjs ADAPTISO_CLI GRID.adg [--budget N | --distance D [--drag-distance D2]
-//                                    [--drag-triangles T] [--collapse R]] [--from F --to T] [--seconds S]
+//                                    [--drag-triangles T] [--collapse R] [--rest-after MS]] [--from F --to T] [--seconds S]
+//                                    [--pause MS]
 // F and T are slider positions (0–1000). --budget drives the error levels (?levels=1: built first,
 // waited for); --distance the surface-adaptive queries of a bisection grid (D at rest; while
 // dragging at least D2, default 2, and coarser to keep near T triangles, the page's default
 // 20,000; a huge T keeps D2; nothing to build; R rounds of edge collapses, the server's default
-// when absent). Prints one JSON object.
+// when absent; --rest-after the page's ?rest-after, the pause in a drag after which it asks for the
+// surface at rest). --pause: how long the slider is held at its last position before the release
+// (default 1000 ms; 0 releases at once); with the distance mode's ?rest-after shorter than it, the
+// surface at rest may be on screen before the release (ms_after_release 0, drawn_before_release).
+// Prints one JSON object.
 import { spawn } from 'node:child_process';
 import { createRequire } from 'node:module';
 import { dirname, join } from 'node:path';
@@ -23,9 +28,11 @@ const [cli, grid] = args;
 const budget = Number(opt('--budget', 150000)), from = Number(opt('--from', 400)), to = Number(opt('--to', 600));
 const seconds = Number(opt('--seconds', 4));
 const distance = opt('--distance', null), dragDistance = opt('--drag-distance', '2');
-const dragTriangles = opt('--drag-triangles', null), collapse = opt('--collapse', null);
+const dragTriangles = opt('--drag-triangles', null), collapse = opt('--collapse', null), restAfter = opt('--rest-after', null);
+const pause = Number(opt('--pause', 1000));
 const query = distance !== null
-  ? `?distance=${distance}&drag-distance=${dragDistance}${dragTriangles ? `&drag-triangles=${dragTriangles}` : ''}${collapse !== null ? `&collapse=${collapse}` : ''}`
+  ? `?distance=${distance}&drag-distance=${dragDistance}${dragTriangles ? `&drag-triangles=${dragTriangles}` : ''}${collapse !== null ? `&collapse=${collapse}` : ''}` +
+    `${restAfter !== null ? `&rest-after=${restAfter}` : ''}`
   : `?levels=1&budget=${budget}`;
 const web = join(dirname(fileURLToPath(import.meta.url)), '..', 'web');
 const { chromium } = createRequire(join(web, 'package.json'))('playwright-core');
@@ -71,13 +78,13 @@ try {
     }, pass === 'warm' ? [from, to, 1] : [to, from, seconds]);
     if (pass === 'warm') await page.waitForTimeout(2000);
   }
-  const dragEnd = await page.evaluate(() => performance.now());
-  await page.waitForTimeout(1000);  // the last answers of the drag arrive
+  const [dragEnd, lastDrag] = await page.evaluate(() => [performance.now(), window.adaptisoSurfaces.length]);
+  if (pause > 0) await page.waitForTimeout(pause);  // held at the last position
+  const released = await page.evaluate(() => { document.getElementById('iso').dispatchEvent(new Event('change')); return performance.now(); });
+  await page.waitForTimeout(Math.max(0, 1000 - pause));  // the last answers of the drag arrive
   const during = await page.evaluate(([n, end]) => window.adaptisoSurfaces.slice(n).filter((r) => r.coarse && r.at <= end + 1000),
                                      [firstMeasured, dragEnd]);
   const blocked = await page.evaluate(([a, b]) => window.benchLongTasks.filter(([t]) => t >= a && t <= b).map(([, d]) => d), [dragStart, dragEnd + 1000]);
-  const lastDrag = await page.evaluate(() => window.adaptisoSurfaces.length);
-  const released = await page.evaluate(() => { document.getElementById('iso').dispatchEvent(new Event('change')); return performance.now(); });
   await page.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), lastDrag, { timeout: 120000 });
   const settled = await page.evaluate((n) => window.adaptisoSurfaces.slice(n).find((r) => !r.coarse), lastDrag);
   const measured = during.slice(Math.floor(during.length / 10));  // drop the first tenth (the drag's start)
@@ -104,7 +111,8 @@ try {
       bytes_per_triangle: median(measured.map((r) => r.bytes / Math.max(r.triangles, 1))),
     },
     rest: {
-      ms_after_release: settled.at - released, error: settled.error, level: settled.level, triangles: settled.triangles,
+      ms_after_release: Math.max(0, settled.at - released), ms_after_last_input: settled.at - dragEnd,
+      drawn_before_release: settled.at <= released, pause_ms: pause, error: settled.error, level: settled.level, triangles: settled.triangles,
       bytes_per_triangle: settled.bytes / Math.max(settled.triangles, 1), server_ms: settled.server, wait_ms: settled.wait,
       encode_ms: settled.encode, request_ms: settled.request,
       decode_ms: settled.decode, draw_ms: settled.draw,

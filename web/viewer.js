@@ -26,6 +26,12 @@ const dragTriangles = Number(params.get('drag-triangles')) || 20000;
 // (the command line's surface) unless ?collapse= is given.
 const collapseGiven = params.has('collapse') ? `&collapse=${encodeURIComponent(params.get('collapse'))}` : '';
 const collapse = collapseGiven || '&collapse=0';
+// While the iso slider is held still this long during a drag (ms), the page asks for the surface
+// at rest without waiting for the release (?rest-after=MS; 0: at the release only), and a release
+// at that iso-value then asks for nothing more. A drag that resumes overtakes it: the page aborts
+// the request and the server cancels the query (docs/API.md), so the dragged surfaces keep coming.
+// On a bisection grid (surfaces within a distance) only.
+const restAfter = params.has('rest-after') ? Number(params.get('rest-after')) : 300;
 // The page's starting state can come from the address too (scripts/figures.sh draws the paper's
 // figures this way): ?iso=V (data units), &error=E (data units, at rest), &show=surface,points,
 // tets,reference, &reference=side|overlay, &camera=X,Y,Z (direction from the centre to the eye),
@@ -280,11 +286,29 @@ function nextDragDistance(d, triangles) {
 // requests never go stale and dragging updates the surface as fast as the server answers. A
 // request while dragging (coarse) asks for the triangle budget; a request at rest for the error.
 let wanted = null, inFlight = false, shownIso = null;
+// The surface at rest last asked for, in flight or drawn ({ url, controller }; controller: its
+// fetch's, while a drag may abort it); null once a dragged surface replaces it.
+let restRequest = null;
 const drawing = [];  // fences of the surfaces handed to the GPU and not yet drawn, oldest first
 const kQueuedTriangles = 100000;
 let statusBeforeBusy = null;  // the status line a "server busy" message replaced
+function surfaceRequest(iso, coarse) {
+  let url = `api/surface?iso=${encodeURIComponent(iso)}&client=${client}&format=compact`;
+  const distance = info.distance ? (coarse ? Math.max(dragDistanceNow, distanceFromSlider()) : distanceFromSlider()) : null;
+  if (info.distance) {
+    url += `&distance=${distance}${collapse}`;
+  } else {
+    if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
+    if (coarse) url += `&budget=${budget}`;
+  }
+  return { url, distance };
+}
 function requestSurface(iso, coarse = false) {
-  wanted = { iso, coarse: coarse && $('lod').checked, input: performance.now() };
+  coarse = coarse && $('lod').checked;
+  // Held still, then released: the surface at rest is on its way or drawn already.
+  if (!coarse && wanted === null && restRequest !== null && restRequest.url === surfaceRequest(iso, false).url) return;
+  wanted = { iso, coarse, input: performance.now() };
+  if (coarse && inFlight && restRequest?.controller) restRequest.controller.abort();  // the drag resumed
   if (!inFlight) pump();
 }
 async function pump() {
@@ -294,15 +318,10 @@ async function pump() {
   inFlight = true;
   try {
     const t0 = performance.now();
-    let url = `api/surface?iso=${encodeURIComponent(iso)}&client=${client}&format=compact`;
-    const distance = info.distance ? (coarse ? Math.max(dragDistanceNow, distanceFromSlider()) : distanceFromSlider()) : null;
-    if (info.distance) {
-      url += `&distance=${distance}${collapse}`;
-    } else {
-      if (info.levels.length > 1) url += `&error=${errorFromSlider()}`;
-      if (coarse) url += `&budget=${budget}`;
-    }
-    const r = await fetch(url);
+    const { url, distance } = surfaceRequest(iso, coarse);
+    const controller = !coarse && info.distance ? new AbortController() : null;
+    restRequest = coarse ? null : { url, controller };
+    const r = await fetch(url, controller ? { signal: controller.signal } : {});
     if (r.status === 503) {  // the server's memory budget is taken for now: ask again (the latest wanted) when it says
       const after = Math.min(10, Number(r.headers.get('Retry-After')) || 1);
       if (statusBeforeBusy === null) statusBeforeBusy = $('status').textContent;
@@ -317,6 +336,7 @@ async function pump() {
       statusBeforeBusy = null;
     }
     const buffer = await r.arrayBuffer();
+    if (restRequest?.url === url) restRequest.controller = null;  // arrived: drawn whatever comes next
     const t1 = performance.now();
     await MeshoptDecoder.ready;
     const geometry = decodeCompact(buffer);
@@ -373,7 +393,8 @@ async function pump() {
     await Promise.all(layers);
     document.body.dataset.ready = '1';
   } catch (e) {
-    showStatus(`error: ${e.message}`);
+    restRequest = null;  // asked for again at the release
+    if (e.name !== 'AbortError') showStatus(`error: ${e.message}`);  // aborted: a drag overtook the surface at rest
   } finally {
     inFlight = false;
     if (wanted !== null) pump();
@@ -487,8 +508,15 @@ async function start() {
   field.value = String(initial);
   // Dragging sends input events (coarse surfaces within the budget); releasing sends change (the
   // surface at the chosen error).
-  slider.addEventListener('input', () => { const v = isoFromSlider(); field.value = String(Number(v.toPrecision(6))); requestSurface(v, true); });
-  slider.addEventListener('change', () => requestSurface(isoFromSlider(), false));
+  let restTimer = null;
+  slider.addEventListener('input', () => {
+    const v = isoFromSlider();
+    field.value = String(Number(v.toPrecision(6)));
+    requestSurface(v, true);
+    clearTimeout(restTimer);
+    if (info.distance && restAfter > 0) restTimer = setTimeout(() => requestSurface(isoFromSlider(), false), restAfter);
+  });
+  slider.addEventListener('change', () => { clearTimeout(restTimer); requestSurface(isoFromSlider(), false); });
   const distanceSlider = $('distance');
   if (info.distance) {  // a bisection grid: the surface within a distance, not an error level
     $('distance-box').hidden = false;

@@ -144,13 +144,15 @@ try {
     args: ['--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'] });
   // Every file a page loads from the server (the API aside, whose answers the checks below read),
   // and every request that failed outright.
-  const assets = new Map(), failed = [];
+  const assets = new Map(), failed = [], aborted = new Set();  // aborted: surfaces held back that the page may drop
   const watch = (p) => {
     p.on('response', (r) => {
       const u = new URL(r.url());
       if (r.url().startsWith(url) && !u.pathname.startsWith('/api/')) assets.set(u.pathname, r.status());
     });
-    p.on('requestfailed', (r) => { if (r.url().startsWith(url)) failed.push(`${r.url()}: ${r.failure()?.errorText}`); });
+    // A surface at rest that a resumed drag overtook is aborted by the page, on purpose.
+    const overtaken = (r) => r.failure()?.errorText === 'net::ERR_ABORTED' && /\/api\/surface\?/.test(r.url()) && aborted.has(r.url());
+    p.on('requestfailed', (r) => { if (r.url().startsWith(url) && !overtaken(r)) failed.push(`${r.url()}: ${r.failure()?.errorText}`); });
     return p;
   };
   const page = watch(await browser.newPage({ viewport: { width: 1000, height: 700 } }));
@@ -241,6 +243,49 @@ try {
   if ((await near.locator('#stats').getAttribute('data-distance')) !== '1') fail('#stats does not say the distance of the surface shown');
   console.log(`distance: ${drags.length} dragged surfaces within 2 voxels (${drags.at(-1).triangles} triangles), at rest within 1 voxel (${rest.at(-1).triangles} triangles)`);
   await near.close();
+  // Held still while dragging (?rest-after=150), the page asks for the surface at rest before the
+  // release, and the release then asks for nothing more. A drag that resumes while that surface is
+  // on its way overtakes it: here its answer is held back 3 s, and the dragged surfaces still come
+  // meanwhile (the page aborted the request; the server cancels the query, tests/view).
+  const holding = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
+  holding.on('pageerror', (e) => errors.push(e.message));
+  await holding.goto(`${url}?distance=1&rest-after=150`);
+  await holding.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
+  const drag = (from, to) => holding.evaluate(async ([a, b]) => {
+    const s = document.getElementById('iso');
+    for (let v = a; a < b ? v <= b : v >= b; v += a < b ? 20 : -20) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
+  }, [from, to]);
+  const rests = async (n) => (await holding.evaluate((k) => window.adaptisoSurfaces.slice(k), n)).filter((r) => !r.coarse);
+  const stillBefore = await holding.evaluate(() => window.adaptisoSurfaces.length);
+  await drag(400, 600);
+  await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), stillBefore, { timeout: 30000 });
+  if ((await rests(stillBefore)).at(-1).distance !== 1) fail('the surface at rest asked for while the slider was held is not within 1 voxel');
+  await holding.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
+  await holding.waitForTimeout(1000);
+  const held = await rests(stillBefore);
+  if (held.length !== 1) fail(`held still and released, the page drew ${held.length} surfaces at rest, not 1`);
+  let delayed = 0;
+  await holding.route(/api\/surface.*distance=1&/, async (route) => {
+    ++delayed;
+    aborted.add(route.request().url());
+    await new Promise((ok) => setTimeout(ok, 3000));
+    await route.continue().catch(() => {});  // aborted by the page meanwhile
+  });
+  await drag(600, 500);
+  await holding.waitForTimeout(400);  // held: the surface at rest is asked for, and held back
+  const resumed = await holding.evaluate(() => window.adaptisoSurfaces.length);
+  const t0 = Date.now();
+  await drag(500, 400);
+  await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => r.coarse), resumed, { timeout: 30000 });
+  const waited = Date.now() - t0;
+  if (!delayed) fail('holding the slider still did not ask for the surface at rest');
+  if (waited > 2500) fail(`a drag that resumed waited ${waited} ms for the surface at rest it overtook`);
+  await holding.unroute(/api\/surface.*distance=1&/);
+  await holding.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
+  await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), resumed, { timeout: 30000 });
+  if (/^error:/.test(await holding.locator('#status').textContent())) fail(`the page shows an error after a drag overtook the surface at rest: ${await holding.locator('#status').textContent()}`);
+  console.log(`held still: the surface at rest drawn once before the release; a resumed drag drew its first surface ${waited} ms after it started, the surface at rest held back`);
+  await holding.close();
   // An intricate surface while dragging: with a target of 300 triangles (the sphere has 1,188
   // within 2 voxels) the dragged surfaces go coarser than ?drag-distance, each stating the
   // distance it was asked at and being the server's surface at that distance.
