@@ -3,8 +3,8 @@
 // flight a page; a drag that resumes overtakes the surface at rest it was waiting for, and the page
 // drops that request). Starting a page's query therefore cancels the page's previous one: its flag
 // is raised and HierarchyQuery::extract_within stops with ExtractCancelled, instead of holding both
-// cores for a surface nobody will draw (0.6 s on the CT bunny at rest, 2.4 s on the 512×512×120 MR
-// head). Thread-safe; a ticket forgets its query when destroyed.
+// cores for a surface nobody will draw (0.6 s on the CT bunny at rest, 1.5–2.4 s on the 512×512×120
+// MR head). Thread-safe; a ticket forgets its query when destroyed.
 #pragma once
 #include <atomic>
 #include <cstddef>
