@@ -242,3 +242,34 @@ def test_memory_limit_refuses_work_that_cannot_fit_with_the_estimate():
     assert "refused:" in out and "needs about" in out and "the memory limit of 1 MB" in out, out
     assert "then: True" in out, out
     assert "negative: set_memory_limit: bytes must be 0 or more" in out, out
+
+
+def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
+    # Python runs signal handlers only on the main thread between bytecodes: a C++ call that
+    # ignored them ran to its end first (on a large volume, seconds; Jupyter's interrupt waited as
+    # long) and KeyboardInterrupt came after. Now the call polls for signals and stops its work.
+    # What tells the two apart is how much of the call ran: SIGINT 0.1 s into a call that takes
+    # about 0.8 s here, against half the time the same call took whole (stopping takes up to 0.05 s
+    # to notice and about as long to unwind: twice that margin; a call run to its end takes all of
+    # it). The next call is whole.
+    out = run_isolated(PRELUDE + """
+    import os, signal
+    rng = np.random.default_rng(1)
+    grid = adaptiso.prepare(adaptiso.Volume(rng.random((72, 72, 72), dtype=np.float32)), max_error=0)
+    for kw in ({"distance": 0.5, "collapse": 0}, {}):
+        t0 = time.perf_counter()
+        n = grid.extract(0.5, **kw).stats["triangles"]
+        whole = time.perf_counter() - t0
+        threading.Timer(0.1, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        t0 = time.perf_counter()
+        try:
+            grid.extract(0.5, **kw)
+            print(kw, "not interrupted")
+        except KeyboardInterrupt:
+            ran = time.perf_counter() - t0
+            print(kw, "stopped early" if ran < whole / 2 else "ran to its end", f"({ran:.2f} of {whole:.2f} s)")
+        if kw:
+            print(kw, "then whole:", grid.extract(0.5, **kw).stats["triangles"] == n)
+    """)
+    assert out.count("stopped early") == 2, out
+    assert "then whole: True" in out, out
