@@ -765,13 +765,15 @@ error measured (stats["error_bound"]) rather than asked for: far fewer triangles
             {
               py::gil_scoped_release release;
               std::lock_guard lock(e.mutex);
-              st = e.last = e.extractor->extract(iso);
+              // Interrupted, the next extract marches afresh (extractor.hpp).
+              interruptible([&](const std::atomic<bool>* cancel) { st = e.last = e.extractor->extract(iso, cancel); });
               copy = e.extractor->mesh();
             }
             return make_mesh(std::move(copy), extract_stats(st));
           },
           py::arg("iso"),
-          "extract(iso) -> Mesh\n\nThe surface at iso (unpacks as vertices, faces, normals); small steps update the previous one.")
+          "extract(iso) -> Mesh\n\nThe surface at iso (unpacks as vertices, faces, normals); small steps update the previous one. "
+          "Ctrl-C stops it (KeyboardInterrupt) within a stage; the next call then marches afresh.")
       .def_property_readonly(
           "last_stats",
           [](py::handle self) {

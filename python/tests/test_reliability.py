@@ -270,6 +270,16 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
             print(kw, "stopped early" if ran < whole / 2 else "ran to its end", f"({ran:.2f} of {whole:.2f} s)")
         if kw:
             print(kw, "then whole:", grid.extract(0.5, **kw).stats["triangles"] == n)
+    # The incremental extractor: interrupted, its next call marches afresh, the same surface.
+    ex = grid.extractor()
+    threading.Timer(0.1, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    t0 = time.perf_counter()
+    try:
+        ex.extract(0.5)
+        print("extractor not interrupted")
+    except KeyboardInterrupt:
+        print("extractor", "stopped early" if time.perf_counter() - t0 < whole / 2 else "ran to its end")
+    print("extractor then whole:", ex.extract(0.5).stats["triangles"] == n)
     """)
-    assert out.count("stopped early") == 2, out
-    assert "then whole: True" in out, out
+    assert out.count("stopped early") == 3, out
+    assert "then whole: True" in out and "extractor then whole: True" in out, out
