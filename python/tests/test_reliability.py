@@ -254,6 +254,9 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
     # it). The next call is whole.
     out = run_isolated(PRELUDE + """
     import os, signal
+    # A process started in the background (nohup, CI) inherits SIGINT ignored, and Python then
+    # leaves it so: the handler Ctrl-C runs in a terminal, installed here.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     rng = np.random.default_rng(1)
     grid = adaptiso.prepare(adaptiso.Volume(rng.random((72, 72, 72), dtype=np.float32)), max_error=0)
     for kw in ({"distance": 0.5, "collapse": 0}, {}):
