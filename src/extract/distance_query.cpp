@@ -743,9 +743,8 @@ public:
   std::size_t round() {
     q_.throw_if_cancelled();
     stars_.build(mesh_);
-    q_.throw_if_cancelled();
     const Stars& s = stars_;
-    const std::vector<Collapse> chosen = choose(s);
+    const std::vector<Collapse> chosen = choose(s);  // checks the flag first thing
     std::vector<std::uint8_t> pass(chosen.size(), 1);
     const std::size_t chunk = 256;
     tbb::parallel_for(std::size_t{0}, (chosen.size() + chunk - 1) / chunk, [&](std::size_t c) {
