@@ -68,9 +68,9 @@ auto file_call(F&& f) {
 // Runs work(cancel) on a worker thread while the calling thread, without the GIL, looks for a
 // signal every 50 ms, so a long extraction answers Ctrl-C (and Jupyter's interrupt): Python runs
 // its signal handlers only on the main thread and with the GIL, never inside a C++ call. A handler
-// that raises (KeyboardInterrupt) raises the work's cancel flag (HierarchyQuery::extract_within,
-// Extractor::extract), the work stops with ExtractCancelled within a stage's part, and the
-// handler's exception is raised here. Called with the GIL released.
+// that raises (KeyboardInterrupt) raises the work's cancel flag (HierarchyQuery's extract and
+// extract_within, Extractor::extract), the work stops with ExtractCancelled within a stage's part,
+// and the handler's exception is raised here. Called with the GIL released.
 template <class F>
 void interruptible(F&& work) {
   std::atomic<bool> cancel{false};
@@ -654,7 +654,8 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
               } else if (max_error) {
                 const double e = relative ? from_fraction(range, *max_error, FractionOf::width, "max_error") : *max_error;
                 query.emplace();
-                mesh = g.hierarchy()->extract(value, e, 0, &*query);
+                const auto hierarchy = g.hierarchy();
+                interruptible([&](const std::atomic<bool>* cancel) { mesh = hierarchy->extract(value, e, 0, &*query, nullptr, cancel); });
               } else {
                 Extractor ex(file_errors([&] { return g.whole(); }));
                 interruptible([&](const std::atomic<bool>* cancel) { full = ex.extract(value, cancel); });

@@ -75,9 +75,11 @@ public:
   // The surface at iso with every tetrahedron within max_error (data units; +∞: the coarsest grid)
   // and, with the displacement criterion, max_displacement voxels (0: the prepared bound). With
   // `used`, also the tetrahedra marched (grid vertex ids, positively oriented).
-  // Thread-safe: any number of queries may run at once.
+  // Thread-safe: any number of queries may run at once. With `cancel`, once *cancel is raised the
+  // query stops within a subtree of the walk or a chunk of the march and throws ExtractCancelled
+  // (extractor.hpp), never a partial surface: Python's Ctrl-C.
   Mesh extract(double iso, double max_error, double max_displacement = 0, HierarchyQueryStats* stats = nullptr,
-               std::vector<std::array<std::uint32_t, 4>>* used = nullptr) const;
+               std::vector<std::array<std::uint32_t, 4>>* used = nullptr, const std::atomic<bool>* cancel = nullptr) const;
 
   // The surface at iso within about `distance` voxels (of the smallest spacing) of the grid's own
   // surface at iso (the one extract gives at the prepared error), with far fewer triangles.

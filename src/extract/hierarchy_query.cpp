@@ -20,6 +20,7 @@
 #include <cmath>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/extractor.hpp"
 #include "extract/hierarchy_index.hpp"
 #include "extract/march_detail.hpp"
 #include "grid/traversal.hpp"
@@ -158,7 +159,7 @@ double HierarchyQuery::prepared_error() const {
 }
 
 Mesh HierarchyQuery::extract(double iso, double max_error, double max_displacement, HierarchyQueryStats* stats,
-                             std::vector<std::array<std::uint32_t, 4>>* used) const {
+                             std::vector<std::array<std::uint32_t, 4>>* used, const std::atomic<bool>* cancel) const {
   using namespace detail;
   using Clock = std::chrono::steady_clock;
   if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
@@ -182,7 +183,9 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
   std::vector<std::vector<Quad>> found(top.roots.size());
   std::vector<double> bound(top.roots.size(), 0);
   std::vector<std::size_t> visited(top.roots.size(), 0);
+  auto cancelled = [cancel] { return cancel && cancel->load(std::memory_order_relaxed); };
   tbb::parallel_for(std::size_t{0}, top.roots.size(), [&](std::size_t f) {
+    if (cancelled()) return;
     auto& out = found[f];
     double worst = 0;
     std::size_t seen = 0;
@@ -205,6 +208,7 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
     bound[f] = worst;
     visited[f] = seen;
   });
+  if (cancelled()) throw ExtractCancelled();  // some subtrees were not walked
   std::vector<Quad> quads;
   std::size_t total = 0;
   for (const auto& part : found) total += part.size();
@@ -213,6 +217,7 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
   const auto t1 = Clock::now();
   Mesh mesh;
   MarchScratch scratch;
+  scratch.cancel = cancel;  // the march throws ExtractCancelled itself
   march_into(g, QuadTets{g, quads}, iso, mesh, scratch, nullptr, nullptr);
   if (used) *used = quads;
   if (stats) {

@@ -68,8 +68,9 @@ struct MarchScratch {
   std::vector<std::uint64_t> first_triangle, order;
   std::vector<MarchChunk> chunks;
   std::size_t parallel_min_tetrahedra = 65536;  // below this many tetrahedra (about as many triangles), one chunk
-  // The Extractor's cancel flag (extractor.hpp): the march's first, longest phase stops at its
-  // next batch once it is raised, and throws ExtractCancelled before anything reads its output.
+  // A cancel flag (Extractor::extract, HierarchyQuery::extract): the march's first, longest phase
+  // stops at its next batch once it is raised, and throws ExtractCancelled before anything reads
+  // its output.
   const std::atomic<bool>* cancel = nullptr;
 };
 

@@ -5,7 +5,10 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <random>
+#include <thread>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
@@ -170,4 +173,32 @@ TEST(Coarsen, GivesTheGridPreparedAtThatErrorWithoutTheVolume) {
         EXPECT_EQ(coarse.index.by_min, direct->index.by_min);
       }
     }
+}
+
+TEST(HierarchyQuery, ACancelledQueryThrowsAndNeverReturnsAPartialSurface) {
+  // Python's Ctrl-C raises the flag (interruptible, adaptiso_module.cpp). Before the flag was
+  // taken, grid.extract(iso, max_error=...) ran to its end whatever the user pressed.
+  const Volume v = make_synthetic("marschner-lobb", 65, ScalarType::f32);
+  const auto grid = testutil::prepared_at(v, 0.002, false);
+  const HierarchyQuery query(grid);
+  const Mesh reference = query.extract(0.4, 0);
+  std::atomic<bool> raised{true};
+  EXPECT_THROW(query.extract(0.4, 0, 0, nullptr, nullptr, &raised), ExtractCancelled);
+  std::atomic<bool> lowered{false};
+  EXPECT_EQ(query.extract(0.4, 0, 0, nullptr, nullptr, &lowered).triangles, reference.triangles);
+  // Raised from another thread at some point of the query: whole or cancelled, nothing between.
+  for (int delay_us : {0, 200, 1000, 3000, 10000}) {
+    std::atomic<bool> flag{false};
+    std::thread raiser([&] {
+      std::this_thread::sleep_for(std::chrono::microseconds(delay_us));
+      flag = true;
+    });
+    try {
+      const Mesh m = query.extract(0.4, 0, 0, nullptr, nullptr, &flag);
+      EXPECT_EQ(m.triangles, reference.triangles) << delay_us;
+      EXPECT_EQ(m.positions, reference.positions) << delay_us;
+    } catch (const ExtractCancelled&) {  // the thread's timing decides which: both are right
+    }
+    raiser.join();
+  }
 }
