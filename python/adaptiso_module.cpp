@@ -680,7 +680,7 @@ by the same tests (a quarter fewer triangles a round on the CT scans measured, 1
 thick slices; a round removing under a sixteenth is the last; default 2); 0 keeps every triangle
 inside its tetrahedron. ValueError outside 0..16.
 relative: iso (and max_error) as fractions of the value range. Safe to call from several threads.
-Ctrl-C stops it (KeyboardInterrupt) within about 0.1 s, except with max_error.)")
+Ctrl-C stops it (KeyboardInterrupt) within about 0.1 s.)")
       .def(
           "extractor",
           [](py::handle self) {

@@ -7,12 +7,15 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <map>
@@ -21,6 +24,7 @@
 #include <numeric>
 
 #include "adaptiso/delaunay.hpp"
+#include "adaptiso/extractor.hpp"
 #include "adaptiso/gradients.hpp"
 #include "adaptiso/interval_tree.hpp"
 #include "adaptiso/mesh.hpp"
@@ -178,6 +182,27 @@ inline std::shared_ptr<const adaptiso::PreparedGrid> prepared_at(const adaptiso:
   o.max_error = max_error;
   o.relative = relative;
   return std::make_shared<const adaptiso::PreparedGrid>(adaptiso::prepare(v, o));
+}
+
+// Runs query(&flag) while another thread raises the flag after delay_us: a cancellable query
+// must then give the reference surface whole or throw ExtractCancelled, nothing between (which of
+// the two, the thread's timing decides).
+template <class Query>
+void expect_whole_or_cancelled(Query&& query, const adaptiso::Mesh& reference, int delay_us) {
+  std::atomic<bool> flag{false};
+  struct Raiser {
+    std::thread thread;
+    ~Raiser() { thread.join(); }  // also when the query throws something else
+  } raiser{std::thread([&flag, delay_us] {
+    std::this_thread::sleep_for(std::chrono::microseconds(delay_us));
+    flag = true;
+  })};
+  try {
+    const adaptiso::Mesh m = query(&flag);
+    EXPECT_EQ(m.triangles, reference.triangles) << delay_us;
+    EXPECT_EQ(m.positions, reference.positions) << delay_us;
+  } catch (const adaptiso::ExtractCancelled&) {
+  }
 }
 
 // The Delaunay grid of a volume's kept voxels with least-squares gradients (the paper's grid, as

@@ -10,12 +10,10 @@
 
 #include <algorithm>
 #include <atomic>
-#include <chrono>
 #include <cmath>
 #include <functional>
 #include <random>
 #include <set>
-#include <thread>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
@@ -248,18 +246,9 @@ TEST(DistanceQuery, ACancelledQueryThrowsAndLeavesTheNextOnesWhole) {
   EXPECT_EQ(query.extract_within(0.4, 0.5, nullptr, kDefaultCollapseRounds, &lowered).triangles, reference.triangles);
   // Raised from another thread at some point of the query: whole or cancelled, nothing between.
   for (int delay_us : {0, 200, 1000, 3000, 10000, 30000}) {
-    std::atomic<bool> flag{false};
-    std::thread raiser([&] {
-      std::this_thread::sleep_for(std::chrono::microseconds(delay_us));
-      flag = true;
-    });
-    try {
-      const Mesh m = query.extract_within(0.4, 0.5, nullptr, kDefaultCollapseRounds, &flag);
-      EXPECT_EQ(m.triangles, reference.triangles) << delay_us;
-      EXPECT_EQ(m.positions, reference.positions) << delay_us;
-    } catch (const ExtractCancelled&) {  // the thread's timing decides which: both are right
-    }
-    raiser.join();
+    testutil::expect_whole_or_cancelled(
+        [&](const std::atomic<bool>* flag) { return query.extract_within(0.4, 0.5, nullptr, kDefaultCollapseRounds, flag); }, reference,
+        delay_us);
     const Mesh after = query.extract_within(0.4, 0.5);
     EXPECT_EQ(after.triangles, reference.triangles) << delay_us;
     EXPECT_EQ(after.positions, reference.positions) << delay_us;
