@@ -159,11 +159,14 @@ void CommShare::serve(const Setup& setup) {
       py::gil_scoped_release release;
       std::optional<RegionReader> reader;
       if (!in.volume) route = reader.emplace(open_file(in.path)).route();
+      // Rank 0 sends the padded lattice it builds on (prepare.hpp: pad_lattice); every rank pads alike.
       const Dims& d = in.volume ? in.volume->dims : reader->header().dims;
-      if (d != dims)
-        throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, {}×{}×{} on rank 0", d[0], d[1], d[2], rank_, dims[0],
-                                     dims[1], dims[2]));
-      const ReaderSource read = reader ? reader_source(*reader) : ReaderSource{region_source(*in.volume), {}};
+      const Dims lattice = bisection_lattice_dims(d);
+      if (lattice != dims)
+        throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, a lattice of {}×{}×{} on rank 0", d[0], d[1], d[2], rank_,
+                                     dims[0], dims[1], dims[2]));
+      const ReaderSource read =
+          reader ? reader_source(*reader, lattice, range) : ReaderSource{padded_source(region_source(*in.volume), d, range), {}};
       bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, read.source, range, displacement, read.hold));
     }
     check_message_size(bytes.size(), rank_);

@@ -228,7 +228,13 @@ inline std::shared_ptr<const adaptiso::PreparedGrid> prepared(adaptiso::TetGrid 
 
 // The largest |value − linear interpolation| over every voxel in the given tetrahedra (closed,
 // exact barycentric coordinates in index space), each checked positively oriented.
-inline double largest_error(const adaptiso::Volume& v, const adaptiso::TetGrid& g, const std::vector<std::array<std::uint32_t, 4>>& tets) {
+// On a padded lattice (prepare's default) the voxels of the padding count too, as pad_volume
+// makes them: the bound holds for them as for the volume's.
+inline double largest_error(const adaptiso::Volume& volume, const adaptiso::TetGrid& g,
+                            const std::vector<std::array<std::uint32_t, 4>>& tets) {
+  const adaptiso::Volume padded =
+      g.source.padded() ? adaptiso::pad_volume(volume, g.source.dims, {g.source.min, g.source.max}) : adaptiso::Volume{};
+  const adaptiso::Volume& v = g.source.padded() ? padded : volume;
   double worst = 0;
   for (const auto& t : tets) {
     std::int64_t P[4][3];

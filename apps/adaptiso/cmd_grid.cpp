@@ -28,8 +28,10 @@ namespace {
 void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
   RegionReader reader(in.path, in.read_options());
-  const ReaderSource read = reader_source(reader);
-  distributed_errors(ranks, reader.header().dims, read.source, {}, brick_side, options.max_displacement > 0, {}, ignored, read.hold);
+  const Dims lattice = bisection_lattice_dims(reader.header().dims);  // the lattice rank 0 pads its volume to (prepare.hpp)
+  distributed_errors(
+      ranks, lattice, [&](const ValueRange& range) { return reader_source(reader, lattice, range); }, {}, brick_side,
+      options.max_displacement > 0, {}, ignored);
 }
 
 // The error hierarchy in bricks of `side`: over the ranks under mpirun, else on this process. The
@@ -38,7 +40,12 @@ std::function<BisectionErrors(const Volume&, const ValueRange&, bool, const Prog
                                                                                                        DistributedStats& stats) {
   if (ranks.distributed())
     return [&ranks, side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
-      return distributed_errors(ranks, v.dims, region_source(v), range, side, displacement, progress, stats);
+      return distributed_errors(
+          ranks, v.dims,
+          [&v](const ValueRange&) {
+            return ReaderSource{region_source(v), {}};
+          },
+          range, side, displacement, progress, stats);
     };
   return [side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
     const BrickGrid bricks = brick_grid(v.dims, side);

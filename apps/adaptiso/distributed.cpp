@@ -44,8 +44,9 @@ nlohmann::json DistributedStats::to_json(int ranks) const {
   return j;
 }
 
-BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionSource& source, ValueRange range, std::int64_t brick_side,
-                                   bool displacement, const Progress& progress, DistributedStats& stats, const HoldSlices& hold) {
+BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const std::function<ReaderSource(const ValueRange&)>& read,
+                                   ValueRange range, std::int64_t brick_side, bool displacement, const Progress& progress,
+                                   DistributedStats& stats) {
   // Rank 0's range on every rank, bit for bit (the codes are relative to it); only rank 0 reads
   // the whole volume.
   range.min = std::bit_cast<double>(ranks.broadcast(std::bit_cast<std::uint64_t>(range.min)));
@@ -55,7 +56,9 @@ BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionS
   stats.bricks = bricks.size();
   const auto t0 = Clock::now();
   report(progress, "error hierarchy (bricks)", 0);
-  std::vector<BrickErrors> results = bisection_share_errors(bricks, ranks.rank(), ranks.size(), source, range, displacement, hold);
+  const ReaderSource source = read(range);
+  std::vector<BrickErrors> results =
+      bisection_share_errors(bricks, ranks.rank(), ranks.size(), source.source, range, displacement, source.hold);
   stats.brick_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   const std::uint64_t sent_before = ranks.bytes_exchanged();
   auto all = ranks.gather(ranks.root() ? std::vector<std::byte>{} : pack(results, peak_resident_bytes()));

@@ -8,6 +8,7 @@
 // selection, gradients and the index run on rank 0.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <string>
 
@@ -33,11 +34,14 @@ struct DistributedStats {
 };
 
 // The error hierarchy of a volume of `dims` over the ranks: each computes its bricks, reading them
-// from `source` (with `hold`: slab after slab, front to back); rank 0 receives the others' and
-// returns the combined hierarchy, the others return an empty one. The value range is rank 0's (the
-// others' is not looked at). Collective: every rank calls it with the same dimensions, side and
-// criterion.
-BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const RegionSource& source, ValueRange range, std::int64_t brick_side,
-                                   bool displacement, const Progress& progress, DistributedStats& stats, const HoldSlices& hold = {});
+// from the source `read` makes (with its hold: slab after slab, front to back); rank 0 receives the
+// others' and returns the combined hierarchy, the others return an empty one. The value range is
+// rank 0's (the others' is not looked at). Collective: every rank calls it with the same
+// dimensions, side and criterion.
+// `read` makes the rank's source of bricks once the range is known (a padded source reflects
+// within it).
+BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const std::function<ReaderSource(const ValueRange&)>& read,
+                                   ValueRange range, std::int64_t brick_side, bool displacement, const Progress& progress,
+                                   DistributedStats& stats);
 
 }  // namespace adaptiso::cli

@@ -14,7 +14,11 @@
 // (index units) and no tetrahedron reaches outside it. Diamonds whose cubes cross the box's far
 // faces are always split, so the far faces are reached by the finest tetrahedra that fit (where a
 // far face lies at an odd index, tetrahedra of unit size line it); cubes wholly outside the box are
-// never visited. Near faces lie at index 0, on every cube's boundary. Anisotropic spacing changes
+// never visited. Near faces lie at index 0, on every cube's boundary. prepare() therefore builds
+// the grid on a padded lattice (bisection_lattice_dims, below): each far face moved out to a
+// multiple of 8 voxels with copies of the volume's last slices, where tetrahedra 8 voxels across
+// meet it; its surfaces are clipped back to the volume's box (GridSource::volume_dims). A smooth
+// 64³ volume then costs what its 65³ neighbour does, not 7.6× as much. Anisotropic spacing changes
 // nothing here: the hierarchy lives in index space, and the grid frame scales it. A dimension of 1
 // leaves no volume to tile and is refused (InputError).
 //
@@ -122,6 +126,13 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
                                const Progress& progress = {});
 
 BisectionGrid bisection_grid(const Volume& v, const ValueRange& range, const BisectionOptions& options, const Progress& progress = {});
+
+// The lattice prepare() builds a volume's bisection grid on: per axis, dims − 1 rounded up to a
+// multiple of a step, 8 voxels or less on small volumes (the largest power of two ≤ (dims − 1)/4,
+// so a small volume is padded by at most a quarter), plus one. The root cube never grows: it
+// covers dims − 1 rounded up to a power of two ≥ the step. Pad the volume with pad_volume
+// (volume.hpp).
+Dims bisection_lattice_dims(const Dims& volume);
 
 // The grid at a coarser bound from a bisection grid and its hierarchy, without the volume: the
 // same grid bisection_grid gives at that bound (vertices, tetrahedra and their order), gradients

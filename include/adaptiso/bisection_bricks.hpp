@@ -95,6 +95,11 @@ BisectionErrors bisection_combine_bricks(const BrickGrid& bricks, std::vector<Br
 using RegionSource = std::function<Volume(const VoxelBox&)>;
 // Regions copied out of a volume in memory (which must outlive the source).
 RegionSource region_source(const Volume& v);
+// Regions of the volume padded past its far faces (pad_volume, volume.hpp: the lattice prepare
+// builds a bisection grid on) from a source of the volume's own, of dims `volume` and value range
+// `range` (the whole volume's): a region reaching past a far face reads what its reflection needs
+// inside and pads it, the same values pad_volume gives the whole volume.
+RegionSource padded_source(RegionSource source, const Dims& volume, const ValueRange& range);
 
 // Both steps: the bricks in parallel, each reading its region from `source`. The same bytes as
 // bisection_errors(volume, range, displacement). bytes_exchanged, when given, receives the sum

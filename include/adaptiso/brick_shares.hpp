@@ -45,12 +45,15 @@ std::vector<BrickErrors> bisection_share_errors(const BrickGrid& bricks, int pro
                                                 const ValueRange& range, bool displacement = false, const HoldSlices& hold = {});
 
 // Bricks read from a file by `reader`'s route: the source, and with a stream the hold that reads
-// it slab by slab (both refer to `reader`, which must outlive them).
+// it slab by slab (both refer to `reader`, which must outlive them). With `lattice` (the padded
+// lattice prepare builds a bisection grid on, bisection_lattice_dims), regions of the volume
+// padded to it within the whole volume's value range (padded_source, bisection_bricks.hpp).
 struct ReaderSource {
   RegionSource source;
   HoldSlices hold;
 };
 ReaderSource reader_source(RegionReader& reader);
+ReaderSource reader_source(RegionReader& reader, const Dims& lattice, const ValueRange& range);
 
 // A process's results as one flat message, and back.
 std::vector<std::byte> pack_brick_errors(const std::vector<BrickErrors>& bricks);

@@ -27,6 +27,7 @@
 #include <string>
 #include <vector>
 
+#include "adaptiso/marching_tetrahedra.hpp"
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/prepared_grid.hpp"
 
@@ -84,7 +85,8 @@ public:
   const std::vector<std::uint32_t>& active() const;
   // Per mesh vertex, its cut edge as (below vertex << 32 | above vertex), grid vertex ids; the
   // same edge in every grid of the volume is grid().grid.lattice_edge(key >> 32, key & 0xffffffff)
-  // (tet_grid.hpp: global lattice keys).
+  // (tet_grid.hpp: global lattice keys). kClippedVertex for a vertex the clip to the volume's box
+  // made on one of its far faces (a padded lattice, tet_grid.hpp), which lies on no grid edge.
   const std::vector<std::uint64_t>& vertex_edges() const;
   bool last_was_incremental() const;
   const PreparedGrid& grid() const;

@@ -25,8 +25,13 @@ struct MarchOptions {
   std::size_t parallel_min_tetrahedra = 65536;  // below this many, one thread numbers the vertices
 };
 
-// The surface cut by `active` (each must be cut at iso: min < iso <= max). With vertex_edges, also
-// each mesh vertex's grid edge as (below vertex << 32 | above vertex).
+// A vertex the clip to the volume's box made (a padded lattice, tet_grid.hpp): it lies on one of
+// the box's far faces, on no grid edge.
+inline constexpr std::uint64_t kClippedVertex = ~std::uint64_t{0};
+
+// The surface cut by `active` (each must be cut at iso: min < iso <= max), clipped to the volume's
+// box on a padded lattice. With vertex_edges, also each mesh vertex's grid edge as (below vertex
+// << 32 | above vertex), or kClippedVertex.
 Mesh march_tetrahedra(const TetGrid& grid, std::span<const std::uint32_t> active, double iso, const MarchOptions& options = {},
                       std::vector<std::uint64_t>* vertex_edges = nullptr);
 

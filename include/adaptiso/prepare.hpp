@@ -71,8 +71,14 @@ struct PrepareOptions {
   std::string source_name;  // informational: the source's file name (folders are dropped)
   // Bisection grid: computes its error hierarchy (bisection.hpp) in place of bisection_errors on
   // this process, e.g. brick by brick or over MPI ranks (bisection_bricks.hpp); it must return the
-  // same bytes. Unset: bisection_errors.
+  // same bytes. Unset: bisection_errors. It is handed the padded volume (below): bricks read from
+  // a file are padded alike (padded_source, bisection_bricks.hpp).
   std::function<BisectionErrors(const Volume&, const ValueRange&, bool displacement, const Progress&)> error_hierarchy;
+  // Bisection grid: built on the padded lattice (bisection_lattice_dims, bisection.hpp), its
+  // surfaces clipped to the volume's box. false: on the volume's own box, its far faces lined with
+  // the finest tetrahedra that fit (what tests that compare a grid with its volume voxel by voxel
+  // use).
+  bool pad_lattice = true;
 };
 
 // The default bound for a volume with this value range, in the unit `relative` implies: a fraction

@@ -6,7 +6,8 @@
 // spacing ⊙ ijk[v] (physical units, before the volume's rotation and origin, see volume.hpp), its
 // scalar is values[v] (the voxel's value, exact) and gradients[v] the gradient in value units per
 // physical unit (grid frame). tets[t] holds 4 vertex indices, positively oriented in the grid frame
-// (positive volume), with no zero-volume tetrahedron; together they tile the volume's box exactly.
+// (positive volume), with no zero-volume tetrahedron; together they tile the lattice's box
+// [0, source.dims − 1] exactly (the volume's, or a padded one: GridSource::volume_dims).
 // Vertices are numbered in ascending linear voxel index (x fastest).
 //
 // Global lattice keys. Vertex ids (indices into ijk) are the grid's own; a lattice key names a
@@ -49,7 +50,12 @@ inline LatticeEdge lattice_edge(LatticeKey a, LatticeKey b) { return a < b ? Lat
 
 // What the grid was built from and how (kept with the grid, and in the grid file).
 struct GridSource {
-  Dims dims{};
+  Dims dims{};  // the lattice's: the grid's vertices lie in [0, dims − 1]
+  // The volume's own dims, where they differ from the lattice's (zeros: the same). prepare() pads
+  // a bisection grid's lattice past the volume's far faces with copies of its last slices
+  // (bisection.hpp: bisection_lattice_dims), so the tetrahedra there need not be the finest; its
+  // surfaces are clipped to the volume's box [0, volume_dims − 1] on every extraction route.
+  Dims volume_dims{};
   Vec3 spacing{1, 1, 1};
   Vec3 origin{0, 0, 0};
   std::array<double, 9> direction{1, 0, 0, 0, 1, 0, 0, 0, 1};
@@ -59,6 +65,9 @@ struct GridSource {
   double max_error = 0;     // the absolute error bound asked for (data units)
   double threshold = 0;     // structural analysis: the absolute gradient threshold used
   std::string file;         // the source's file name (no folders), informational
+
+  Dims volume_box() const { return volume_dims[0] > 0 ? volume_dims : dims; }  // the volume's dims
+  bool padded() const { return volume_box() != dims; }
 };
 
 // The geometry and value range of a volume; method, bounds and file are left for the builder.

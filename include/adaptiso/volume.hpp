@@ -177,9 +177,17 @@ struct VoxelBox {
   }
 };
 
+// The volume extended to `dims` (at least its own along every axis) past its far faces by odd
+// reflection about its last slices, axis after axis (x, then y, then z): along x, voxel X − 1 + k
+// is 2·v(X − 1) − v(max(X − 1 − k, 0)), clamped to `range` (the volume's value range: a grid's
+// values stay within its source's); likewise along y over the padded rows and along z over the
+// padded slices. The field goes on with its slope, so a smooth field stays smooth across the face
+// (copies of the last slice would put a kink there, which a grid refines). Geometry kept. Throws
+// std::invalid_argument for smaller dims. (bisection.hpp: the padded lattice.)
 struct ValueRange {
   double min = 0, max = 0;
 };
+Volume pad_volume(const Volume& v, const Dims& dims, const ValueRange& range);
 // Parallel min/max over all voxels.
 ValueRange value_range(const Volume& v);
 

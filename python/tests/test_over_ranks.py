@@ -118,8 +118,8 @@ def test_a_volume_of_other_dimensions_on_one_rank_raises_on_every_rank(tmp_path)
     out = tmp_path / "ranks.adg"
     lines = mpi_run(tmp_path, 3, {"npy": str(tmp_path / "f.npy"), "spacing": (1, 1, 1), "options": {}, "route": "prepare",
                                   "brick_side": 8, "output": str(out), "other_shape_rank": 2})
-    assert lines[0] == "rank 0: ValueError: comm: rank 2: the volume has 5×4×3 voxels on rank 2, 37×29×23 on rank 0", lines
-    assert lines[2] == "rank 2: ValueError: the volume has 5×4×3 voxels on rank 2, 37×29×23 on rank 0", lines
+    assert lines[0] == "rank 0: ValueError: comm: rank 2: the volume has 5×4×3 voxels on rank 2, a lattice of 41×29×25 on rank 0", lines
+    assert lines[2] == "rank 2: ValueError: the volume has 5×4×3 voxels on rank 2, a lattice of 41×29×25 on rank 0", lines
     assert lines[1] == "rank 1: ok"  # its part done; rank 0 reports the failure
     assert not out.exists()
 

@@ -59,6 +59,7 @@
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
+#include "extract/box_clip.hpp"
 #include "extract/hierarchy_index.hpp"
 #include "extract/march_detail.hpp"
 #include "extract/triangle_cover.hpp"
@@ -507,6 +508,7 @@ private:
     if (longest2 <= 3 * d2) return false;
     const bool mid_above = q_.above(mid.value);
     if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value) && longest2 > 4 * d2) return true;  // hidden between
+    if (sheets_between(n, i, j, 4 * d2)) return true;
     const Case& cs = kCases[code];
     Point tris[2][3];
     for (int k = 0; k < cs.triangles; ++k)
@@ -520,6 +522,33 @@ private:
     (void)others;
     for (int k = 0; k < cs.triangles; ++k)
       if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
+    return false;
+  }
+
+  // Two sheets across another edge longer than 2·distance whose ends agree: the grid's value at
+  // its midpoint lies on the other side. The tetrahedron's own surface then joins what the grid
+  // keeps apart (nested spheres 7 voxels apart came out as one surface with handles at 1 voxel).
+  // No probe needed: every edge of the hierarchy is some diamond's refinement edge, centred at its
+  // midpoint; where the grid splits that diamond the midpoint is a grid vertex, and where it does
+  // not the edge is one of the grid's, its interpolant linear, its midpoint on the ends' side.
+  bool sheets_between(const Node& n, int i, int j, double longer2) const {
+    for (int a = 0; a < 4; ++a)
+      for (int b = a + 1; b < 4; ++b) {
+        if ((a == i && b == j) || (a == j && b == i)) continue;
+        const bool end = q_.above(n.c[a].value);
+        if (q_.above(n.c[b].value) != end) continue;
+        double d2 = 0;
+        Coord mid;
+        bool lattice = true;
+        for (int k = 0; k < 3; ++k) {
+          d2 += std::pow((n.t[a][k] - n.t[b][k]) * q_.unit[k], 2);
+          lattice &= (n.t[a][k] + n.t[b][k]) % 2 == 0;
+          mid[k] = (n.t[a][k] + n.t[b][k]) / 2;
+        }
+        if (d2 <= longer2 || !lattice || !q_.lat.in_box(mid)) continue;
+        const std::int64_t voxel = q_.lat.index(mid);
+        if (q_.numbers.used(voxel) && q_.above(q_.g.values[q_.numbers.id(voxel)]) != end) return true;
+      }
     return false;
   }
 
@@ -996,6 +1025,10 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
   for (const Found& f : found) marched += f.leaves, visited += f.visited;
   std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
   const auto t3 = Clock::now();
+  // Clipped before the collapses: its cut points on the volume's far faces are border vertices,
+  // which the collapses keep as they keep every border, so the surface still ends on the box.
+  clip_to_volume_box(mesh, g.source);
+  const auto t4 = Clock::now();
   const std::size_t collapsed = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds) : 0;
   if (stats) {
     stats->iso = iso;
@@ -1010,9 +1043,9 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
     stats->in_range = iso >= g.source.min && iso <= g.source.max;
     stats->refine_seconds = std::chrono::duration<double>(t1 - t0).count();
     stats->walk_seconds = std::chrono::duration<double>(t2 - t1).count();
-    stats->march_seconds = std::chrono::duration<double>(t3 - t2).count();
+    stats->march_seconds = std::chrono::duration<double>(t4 - t2).count();  // the clip with the march
     stats->collapsed = collapsed;
-    stats->collapse_seconds = std::chrono::duration<double>(Clock::now() - t3).count();
+    stats->collapse_seconds = std::chrono::duration<double>(Clock::now() - t4).count();
   }
   return mesh;
 }

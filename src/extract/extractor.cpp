@@ -498,11 +498,13 @@ Extractor::~Extractor() = default;
 Extractor::Extractor(Extractor&&) noexcept = default;
 Extractor& Extractor::operator=(Extractor&&) noexcept = default;
 
-const Mesh& Extractor::mesh() const { return state_->mesh; }
+const Mesh& Extractor::mesh() const { return state_->clipped_valid ? state_->clipped : state_->mesh; }
 const std::vector<std::uint32_t>& Extractor::active() const { return state_->active; }
 
-const std::vector<std::uint32_t>& Extractor::triangles_in_march_order() const {
-  auto& s = *state_;  // the answer and the sort's buffers are scratch of the state
+namespace {
+
+// The unclipped mesh's march order (see triangles_in_march_order).
+const std::vector<std::uint32_t>& march_order(detail::ExtractorState& s) {
   const std::size_t T = s.mesh.triangle_count();
   auto& order = s.march_order;
   detail::resize_big(order, T);
@@ -527,7 +529,31 @@ const std::vector<std::uint32_t>& Extractor::triangles_in_march_order() const {
   return order;
 }
 
-const std::vector<std::uint64_t>& Extractor::vertex_edges() const { return state_->keys; }
+}  // namespace
+
+const std::vector<std::uint32_t>& Extractor::triangles_in_march_order() const {
+  auto& s = *state_;  // the answer and the sort's buffers are scratch of the state
+  const auto& order = march_order(s);
+  if (!s.clipped_valid) return order;
+  // A clipped triangle's pieces are consecutive: each triangle in order gives its pieces.
+  auto& clipped = s.clipped_order;
+  clipped.clear();
+  clipped.reserve(s.clipped.triangle_count());
+  for (std::uint32_t t : order)
+    for (std::uint32_t k = s.clip.first[t]; k < s.clip.first[t + 1]; ++k) clipped.push_back(k);
+  return clipped;
+}
+
+const std::vector<std::uint64_t>& Extractor::vertex_edges() const {
+  auto& s = *state_;
+  if (!s.clipped_valid) return s.keys;
+  s.clipped_keys.resize(s.clipped.vertex_count());
+  for (std::size_t v = 0; v < s.clipped_keys.size(); ++v) {
+    const std::uint32_t from = s.clip.vertex_from[v];
+    s.clipped_keys[v] = from == detail::ClipMap::kNew ? kClippedVertex : s.keys[from];
+  }
+  return s.clipped_keys;
+}
 bool Extractor::last_was_incremental() const { return state_->incremental; }
 const PreparedGrid& Extractor::grid() const { return *state_->prepared; }
 
@@ -547,18 +573,20 @@ ExtractStats Extractor::extract(double iso, const std::atomic<bool>* cancel) {
   // Should anything below throw, the state is half updated: the next call then starts afresh.
   const bool had_previous = s.valid;
   s.valid = false;
+  s.clipped_valid = false;
   s.scratch.cancel = cancel;
   s.checkpoint();
   s.incremental = had_previous && s.step(iso);
   if (!s.incremental) s.fresh(iso);
   s.valid = true;
   s.scratch.cancel = nullptr;
+  s.clipped_valid = detail::clip_to_volume_box(s.mesh, s.grid.source, s.clipped, &s.clip);
   const auto t2 = Clock::now();
   st.walked = s.sweep.walked;
   st.active = s.active.size();
   st.marched = s.marched;
-  st.triangles = s.mesh.triangle_count();
-  st.vertices = s.mesh.vertex_count();
+  st.triangles = mesh().triangle_count();
+  st.vertices = mesh().vertex_count();
   st.incremental = s.incremental;
   st.sweep_seconds = std::chrono::duration<double>(t1 - t0).count();
   st.march_seconds = std::chrono::duration<double>(t2 - t1).count();

@@ -10,6 +10,7 @@
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/interval_tree.hpp"
+#include "extract/box_clip.hpp"
 #include "extract/march_detail.hpp"
 
 namespace adaptiso::detail {
@@ -53,6 +54,13 @@ struct ExtractorState {
   std::vector<std::uint32_t> march_order;
   std::vector<std::uint64_t> march_order_keys, march_order_scratch;
   std::size_t marched = 0;
+  // On a padded lattice, the mesh clipped to the volume's box (box_clip.hpp) when it reaches past
+  // it: what Extractor::mesh() then gives. `mesh` stays whole for the next step.
+  bool clipped_valid = false;
+  Mesh clipped;
+  ClipMap clip;
+  std::vector<std::uint32_t> clipped_order;
+  std::vector<std::uint64_t> clipped_keys;
 
   // Per slot (one per active tetrahedron): its id, case, case interval and triangle places.
   std::vector<std::uint32_t> active;

@@ -21,6 +21,7 @@
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
+#include "extract/box_clip.hpp"
 #include "extract/hierarchy_index.hpp"
 #include "extract/march_detail.hpp"
 #include "grid/traversal.hpp"
@@ -219,6 +220,7 @@ Mesh HierarchyQuery::extract(double iso, double max_error, double max_displaceme
   MarchScratch scratch;
   scratch.cancel = cancel;  // the march throws ExtractCancelled itself
   march_into(g, QuadTets{g, quads}, iso, mesh, scratch, nullptr, nullptr);
+  clip_to_volume_box(mesh, g.source);
   if (used) *used = quads;
   if (stats) {
     stats->iso = iso;

@@ -15,6 +15,7 @@
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/marching_tetrahedra.hpp"
+#include "extract/box_clip.hpp"
 #include "extract/march_detail.hpp"
 
 namespace adaptiso::detail {
@@ -250,8 +251,18 @@ Mesh march_tetrahedra(const TetGrid& grid, std::span<const std::uint32_t> active
   scratch.parallel_min_tetrahedra = options.parallel_min_tetrahedra;
   Mesh mesh;
   detail::march_tetrahedra_into(grid, active, iso, mesh, scratch, nullptr, nullptr);
-  if (vertex_edges) *vertex_edges = std::move(scratch.order);
-  return mesh;
+  Mesh clipped;
+  detail::ClipMap map;
+  if (!detail::clip_to_volume_box(mesh, grid.source, clipped, &map)) {
+    if (vertex_edges) *vertex_edges = std::move(scratch.order);
+    return mesh;
+  }
+  if (vertex_edges) {
+    vertex_edges->resize(clipped.vertex_count());
+    for (std::size_t v = 0; v < vertex_edges->size(); ++v)
+      (*vertex_edges)[v] = map.vertex_from[v] == detail::ClipMap::kNew ? kClippedVertex : scratch.order[map.vertex_from[v]];
+  }
+  return clipped;
 }
 
 }  // namespace adaptiso

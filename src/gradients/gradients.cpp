@@ -87,14 +87,19 @@ void least_squares_gradients(TetGrid& grid, const Progress& progress) {
 void central_difference_gradients(TetGrid& grid, const Volume& vol, const Progress& progress) {
   const std::size_t n = grid.vertex_count();
   detail::resize_big(grid.gradients, n);
-  const Dims d = vol.dims;
-  const std::int64_t stride[3] = {1, d[0], d[0] * d[1]};
+  // On a padded lattice (tet_grid.hpp) the volume's own box: its far faces take one-sided
+  // differences as an unpadded grid's do, and a vertex in the padding the gradient of the voxel it
+  // copies.
+  Dims d = grid.source.volume_box();
+  for (int a = 0; a < 3; ++a) d[a] = std::min(d[a], vol.dims[a]);
+  const std::int64_t stride[3] = {1, vol.dims[0], vol.dims[0] * vol.dims[1]};
   visit_values(vol, [&]<class T>(std::span<const T> values) {
     const T* f = values.data();
     std::atomic<std::size_t> done{0};
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const tbb::blocked_range<std::size_t>& r) {
       for (std::size_t v = r.begin(); v < r.end(); ++v) {
-        const auto& p = grid.ijk[v];
+        std::array<std::int64_t, 3> p;
+        for (int a = 0; a < 3; ++a) p[a] = std::min<std::int64_t>(grid.ijk[v][a], d[a] - 1);
         const std::int64_t i = vol.index(p[0], p[1], p[2]);
         std::array<float, 3> out{0, 0, 0};
         for (int a = 0; a < 3; ++a) {

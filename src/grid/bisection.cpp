@@ -19,6 +19,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <bit>
 #include <stdexcept>
 
 #include "adaptiso/error.hpp"
@@ -77,6 +79,17 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
 BisectionGrid bisection_grid(const Volume& v, const ValueRange& range, const BisectionOptions& options, const Progress& progress) {
   detail::check_bounds(options);  // before the error hierarchy, not after it
   return bisection_select(v, range, bisection_errors(v, range, options.max_displacement > 0, progress), options, progress);
+}
+
+Dims bisection_lattice_dims(const Dims& volume) {
+  Dims out = volume;
+  for (int a = 0; a < 3; ++a) {
+    const std::int64_t steps = volume[a] - 1;  // voxel steps
+    if (steps < 4) continue;
+    const std::int64_t step = std::min<std::int64_t>(8, std::bit_floor(static_cast<std::uint64_t>(steps / 4)));
+    out[a] = (steps + step - 1) / step * step + 1;
+  }
+  return out;
 }
 
 }  // namespace adaptiso

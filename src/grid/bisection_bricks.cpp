@@ -350,6 +350,29 @@ RegionSource region_source(const Volume& v) {
   };
 }
 
+RegionSource padded_source(RegionSource source, const Dims& volume, const ValueRange& range) {
+  return [source = std::move(source), volume, range](const VoxelBox& box) {
+    // The reflection of the voxels past a far face reaches as far inside: read from there to the
+    // face, pad that as pad_volume pads the whole (the same values), keep the box.
+    VoxelBox read = box;
+    bool past = false;
+    for (int a = 0; a < 3; ++a) {
+      const std::int64_t last = volume[a] - 1;
+      if (box.hi[a] <= last) continue;
+      past = true;
+      read.lo[a] = std::max<std::int64_t>(0, std::min(box.lo[a], 2 * last - box.hi[a]));
+      read.hi[a] = last;
+    }
+    if (!past) return source(box);
+    Dims reach{};
+    for (int a = 0; a < 3; ++a) reach[a] = std::max(box.hi[a], read.hi[a]) - read.lo[a] + 1;
+    const Volume padded = pad_volume(source(read), reach, range);
+    VoxelBox keep;
+    for (int a = 0; a < 3; ++a) keep.lo[a] = box.lo[a] - read.lo[a], keep.hi[a] = box.hi[a] - read.lo[a];
+    return detail::copy_box(padded, keep);
+  };
+}
+
 BisectionErrors bisection_errors_bricked(const Dims& dims, const ValueRange& range, std::int64_t brick_side, const RegionSource& source,
                                          bool displacement, const Progress& progress, std::uint64_t* bytes_exchanged) {
   const BrickGrid bricks = brick_grid(dims, brick_side);

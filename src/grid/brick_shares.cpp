@@ -131,6 +131,18 @@ ReaderSource reader_source(RegionReader& reader) {
   return r;
 }
 
+ReaderSource reader_source(RegionReader& reader, const Dims& lattice, const ValueRange& range) {
+  ReaderSource r = reader_source(reader);
+  const Dims volume = reader.header().dims;
+  if (lattice == volume) return r;
+  r.source = padded_source(std::move(r.source), volume, range);
+  if (r.hold)
+    r.hold = [hold = std::move(r.hold), last = volume[2] - 1](std::int64_t z0, std::int64_t z1) {
+      hold(std::min(z0, last), std::min(z1, last));
+    };
+  return r;
+}
+
 std::vector<std::byte> pack_brick_errors(const std::vector<BrickErrors>& bricks) {
   Writer w;
   w.put(static_cast<std::uint64_t>(bricks.size()));

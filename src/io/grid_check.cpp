@@ -416,6 +416,17 @@ GridSource grid_source_from_json(const nlohmann::json& s, const std::string& pat
   }
   if (static_cast<std::uint64_t>(g.dims[0]) * static_cast<std::uint64_t>(g.dims[1]) > kMaxVoxels / static_cast<std::uint64_t>(g.dims[2]))
     fail(fmt::format("\"dims\" {} x {} x {} are more voxels than any volume (2^48)", g.dims[0], g.dims[1], g.dims[2]));
+  if (s.contains("volume_dims")) {
+    const auto& vd = s["volume_dims"];
+    if (!vd.is_array() || vd.size() != 3) fail("\"volume_dims\" must be 3 whole numbers");
+    for (int a = 0; a < 3; ++a) {
+      const auto& d = vd[static_cast<std::size_t>(a)];
+      if (!d.is_number_integer() || d.get<std::int64_t>() < 2 || d.get<std::int64_t>() > g.dims[a])
+        fail(fmt::format("\"volume_dims\" must be 3 whole numbers from 2 to the lattice's \"dims\" {} x {} x {}", g.dims[0], g.dims[1],
+                         g.dims[2]));
+      g.volume_dims[a] = d.get<std::int64_t>();
+    }
+  }
   numbers("spacing", g.spacing);
   numbers("origin", g.origin);
   numbers("direction", g.direction);

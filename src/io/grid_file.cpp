@@ -44,9 +44,13 @@ std::uint64_t body_bytes(std::uint64_t N, std::uint64_t T, std::uint64_t nodes, 
 }
 
 nlohmann::json source_json(const GridSource& s) {
-  return {{"dims", s.dims}, {"spacing", s.spacing}, {"origin", s.origin}, {"direction", s.direction}, {"type", s.type},
-          {"min", s.min},   {"max", s.max},         {"method", s.method}, {"max_error", s.max_error}, {"threshold", s.threshold},
-          {"file", s.file}};
+  nlohmann::json j = {
+      {"dims", s.dims}, {"spacing", s.spacing}, {"origin", s.origin},       {"direction", s.direction}, {"type", s.type}, {"min", s.min},
+      {"max", s.max},   {"method", s.method},   {"max_error", s.max_error}, {"threshold", s.threshold}, {"file", s.file}};
+  // Only a padded lattice writes it: files of unpadded grids keep their bytes. A build older than
+  // the padding ignores it and shows the padding's surfaces unclipped.
+  if (s.padded()) j["volume_dims"] = s.volume_dims;
+  return j;
 }
 
 class CrcWriter {

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <filesystem>
 #include <limits>
+#include <optional>
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/delaunay.hpp"
@@ -129,23 +130,36 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
   StageClock clock(stats);
   const bool bisection = o.grid == GridKind::bisection;
   stats.grid = bisection ? "bisection" : "delaunay";
-  p.grid = bisection ? bisection_pipeline(v, range, o, clock, p, progress) : delaunay_pipeline(v, range, o, clock, stats, progress);
+  stats.voxels = v.voxel_count();
+  const Dims volume_dims = v.dims;
+  // The padded lattice's volume; the volume itself goes at once when the caller gave it up.
+  std::optional<Volume> padded;
+  if (bisection && o.pad_lattice && bisection_lattice_dims(v.dims) != v.dims) {
+    const Dims lattice = bisection_lattice_dims(v.dims);
+    check_memory(static_cast<std::uint64_t>(lattice[0] * lattice[1] * lattice[2]) * scalar_size(v.type),
+                 fmt::format("the volume padded to {} x {} x {} voxels", lattice[0], lattice[1], lattice[2]), "",
+                 "crop or subsample the volume");
+    padded = clock.run("pad", [&] { return pad_volume(v, lattice, range); });
+    if (release) release->bytes = VoxelBuffer();
+  }
+  const Volume& lv = padded ? *padded : v;
+  p.grid = bisection ? bisection_pipeline(lv, range, o, clock, p, progress) : delaunay_pipeline(v, range, o, clock, stats, progress);
+  p.grid.source.volume_dims = volume_dims;
   p.grid.source.file = std::filesystem::path(o.source_name).filename().string();
   const bool central = o.gradients == GradientMethod::central || (o.gradients == GradientMethod::automatic && bisection);
   clock.run("gradients", [&] {
     if (central)
-      central_difference_gradients(p.grid, v, progress);
+      central_difference_gradients(p.grid, lv, progress);
     else
       least_squares_gradients(p.grid, progress);
   });
   if (!bisection || o.verify) {
-    const ReconstructionError pl = clock.run("pl_error", [&] { return piecewise_linear_error(v, p.grid, progress); });
+    const ReconstructionError pl = clock.run("pl_error", [&] { return piecewise_linear_error(lv, p.grid, progress); });
     stats.pl_max_error = pl.max;
     stats.pl_rms_error = pl.rms;
     if (bisection && pl.max > stats.error_bound + error_tolerance(range, stats.error_bound))
       throw std::logic_error(fmt::format("bisection grid: error {} exceeds its guaranteed bound {}", pl.max, stats.error_bound));
   }
-  stats.voxels = v.voxel_count();
   stats.kept = p.grid.vertex_count();
   stats.tetrahedra = p.grid.tet_count();
   if (release) release->bytes = VoxelBuffer();

@@ -377,7 +377,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
     if (!failure.empty()) j["error"] = failure;
     if (grid) {
       const auto& s = grid->grid.source;
-      j.update({{"dims", s.dims},
+      j.update({{"dims", s.volume_box()},  // the volume's: a padded lattice's surfaces are clipped to it
                 {"spacing", s.spacing},
                 {"origin", s.origin},
                 {"direction", s.direction},

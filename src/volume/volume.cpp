@@ -2,13 +2,16 @@
 #include "adaptiso/volume.hpp"
 
 #include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <unistd.h>
 
 #include <fmt/format.h>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <stdexcept>
 
 namespace adaptiso {
 
@@ -154,6 +157,57 @@ Volume make_volume(Dims dims, ScalarType type) {
   v.type = type;
   v.bytes.assign(n, 0);
   return v;
+}
+
+namespace {
+
+// Odd reflection about the last voxel: 2·last − inner, within the value range (which lies within
+// the type's).
+template <class T>
+T reflected(T last, T inner, const ValueRange& range) {
+  return static_cast<T>(std::clamp(2 * static_cast<double>(last) - static_cast<double>(inner), range.min, range.max));
+}
+
+}  // namespace
+
+Volume pad_volume(const Volume& v, const Dims& dims, const ValueRange& range) {
+  for (int a = 0; a < 3; ++a)
+    if (dims[a] < v.dims[a] || v.dims[a] < 1) throw std::invalid_argument("pad_volume: the dims are smaller than the volume's");
+  if (!(range.min <= range.max)) throw std::invalid_argument("pad_volume: an empty value range");
+  Volume out = make_volume(dims, v.type);
+  out.spacing = v.spacing;
+  out.origin = v.origin;
+  out.direction = v.direction;
+  const Dims n = v.dims;
+  visit_values(v, [&]<class T>(std::span<const T> in) {
+    std::span<T> o = out.values<T>();
+    // Index x mirrored about the last voxel (at the first, for a padding longer than the volume).
+    auto mirror = [](std::int64_t x, std::int64_t count) { return std::max<std::int64_t>(2 * (count - 1) - x, 0); };
+    // The volume's rows, each extended in x; then the rows past its last y, then the slices past
+    // its last z, each reflected from the padded rows and slices before it.
+    tbb::parallel_for(std::int64_t{0}, n[2], [&](std::int64_t z) {
+      for (std::int64_t y = 0; y < n[1]; ++y) {
+        const T* from = &in[static_cast<std::size_t>(v.index(0, y, z))];
+        T* to = &o[static_cast<std::size_t>(out.index(0, y, z))];
+        std::copy(from, from + n[0], to);
+        for (std::int64_t x = n[0]; x < dims[0]; ++x) to[x] = reflected(to[n[0] - 1], to[mirror(x, n[0])], range);
+      }
+      for (std::int64_t y = n[1]; y < dims[1]; ++y) {
+        T* to = &o[static_cast<std::size_t>(out.index(0, y, z))];
+        const T* last = &o[static_cast<std::size_t>(out.index(0, n[1] - 1, z))];
+        const T* inner = &o[static_cast<std::size_t>(out.index(0, mirror(y, n[1]), z))];
+        for (std::int64_t x = 0; x < dims[0]; ++x) to[x] = reflected(last[x], inner[x], range);
+      }
+    });
+    const auto slice = static_cast<std::size_t>(dims[0] * dims[1]);
+    for (std::int64_t z = n[2]; z < dims[2]; ++z) {
+      T* to = &o[static_cast<std::size_t>(z) * slice];
+      const T* last = &o[static_cast<std::size_t>(n[2] - 1) * slice];
+      const T* inner = &o[static_cast<std::size_t>(mirror(z, n[2])) * slice];
+      for (std::size_t i = 0; i < slice; ++i) to[i] = reflected(last[i], inner[i], range);
+    }
+  });
+  return out;
 }
 
 ValueRange value_range(const Volume& v) {

@@ -1,0 +1,241 @@
+// Surfaces clipped to the volume's box (see box_clip.hpp).
+#include "extract/box_clip.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <unordered_map>
+
+namespace adaptiso::detail {
+namespace {
+
+// The faces to clip at: axis a's last index, or none (+∞) where the lattice is not padded.
+struct Faces {
+  std::array<double, 3> last;
+  double slack = 0;  // voxels: a few float roundings of a world position, in index units
+  bool outside(const Vec3& u) const {
+    for (int a = 0; a < 3; ++a)
+      if (u[a] > last[a] + slack) return true;
+    return false;
+  }
+};
+
+// A cut point: the plane's axis and the edge's ends, the smaller id first.
+struct CutKey {
+  std::uint32_t lo, hi;
+  int axis;
+  bool operator==(const CutKey&) const = default;
+};
+struct CutKeyHash {
+  std::size_t operator()(const CutKey& k) const {
+    return std::hash<std::uint64_t>()((std::uint64_t{k.lo} << 32 | k.hi) * 3 + static_cast<std::uint64_t>(k.axis));
+  }
+};
+
+class Clipper {
+public:
+  Clipper(const Mesh& in, const GridSource& s) : in_(in) {
+    geometry_.dims = s.dims;
+    geometry_.spacing = s.spacing;
+    geometry_.origin = s.origin;
+    geometry_.direction = s.direction;
+    const Dims box = s.volume_box();
+    for (int a = 0; a < 3; ++a)
+      faces_.last[a] = box[a] < s.dims[a] ? static_cast<double>(box[a] - 1) : std::numeric_limits<double>::infinity();
+    // Positions are floats: a vertex on a face plane comes back from its world position off it by
+    // up to half a float step of the largest coordinate, over the smallest spacing. Four steps: far
+    // below the march's margin (1/1024 of an edge), which keeps other vertices off the planes.
+    double largest = 0;
+    for (int corner = 0; corner < 8; ++corner) {
+      const Vec3 w =
+          geometry_.voxel_to_world(corner & 1 ? s.dims[0] - 1 : 0, corner & 2 ? s.dims[1] - 1 : 0, corner & 4 ? s.dims[2] - 1 : 0);
+      for (double c : w) largest = std::max(largest, std::abs(c));
+    }
+    const double spacing = std::min({std::abs(s.spacing[0]), std::abs(s.spacing[1]), std::abs(s.spacing[2])});
+    faces_.slack = 4 * std::numeric_limits<float>::epsilon() * (largest + 1) / spacing;
+  }
+
+  // Index coordinates of every vertex; false when none lies past the box.
+  bool locate() {
+    const std::size_t V = in_.vertex_count();
+    u_.resize(V);
+    std::atomic<bool> any{false};
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 8192), [&](const auto& r) {
+      bool mine = false;
+      for (std::size_t v = r.begin(); v < r.end(); ++v) {
+        const auto& p = in_.positions[v];
+        u_[v] = geometry_.world_to_voxel({p[0], p[1], p[2]});
+        mine = mine || faces_.outside(u_[v]);
+      }
+      if (mine) any.store(true, std::memory_order_relaxed);
+    });
+    return any.load();
+  }
+
+  void clip(Mesh& out, ClipMap* map) {
+    const std::size_t V = in_.vertex_count(), T = in_.triangle_count();
+    // Per triangle: kept whole (1), dropped (0) or cut (its pieces, sequentially below).
+    std::vector<std::uint32_t> count(T + 1, 0);
+    std::vector<std::uint8_t> crosses(T, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 8192), [&](const auto& r) {
+      for (std::size_t t = r.begin(); t < r.end(); ++t) {
+        int out_of_box = 0;
+        for (std::uint32_t v : in_.triangles[t]) out_of_box += faces_.outside(u_[v]);
+        if (out_of_box == 0)
+          count[t] = 1;
+        else
+          crosses[t] = 1;
+      }
+    });
+    std::vector<std::array<std::uint32_t, 3>> pieces;  // of cut triangles, in triangle order; ids ≥ V are cut points
+    for (std::size_t t = 0; t < T; ++t)
+      if (crosses[t]) count[t] = cut(in_.triangles[t], V, pieces);
+    // Output triangles: first[t] = sum of the counts before t.
+    std::vector<std::uint32_t> first(T + 1);
+    std::uint32_t sum = 0;
+    for (std::size_t t = 0; t <= T; ++t) {
+      first[t] = sum;
+      if (t < T) sum += count[t];
+    }
+    // The vertices still used, in their order, then the cut points in theirs.
+    const std::size_t N = V + cut_u_.size();
+    std::vector<std::uint8_t> used(N, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 8192), [&](const auto& r) {
+      for (std::size_t t = r.begin(); t < r.end(); ++t)
+        if (!crosses[t])
+          for (std::uint32_t v : in_.triangles[t]) used[v] = 1;  // the same byte from any thread
+    });
+    for (const auto& p : pieces)
+      for (std::uint32_t v : p) used[v] = 1;
+    std::vector<std::uint32_t> id(N, ClipMap::kNew);
+    std::uint32_t next = 0;
+    for (std::size_t v = 0; v < N; ++v)
+      if (used[v]) id[v] = next++;
+    const bool normals = in_.normals.size() == V;
+    Mesh m;
+    m.positions.resize(next);
+    if (normals) m.normals.resize(next);
+    m.triangles.resize(sum);
+    std::vector<std::uint32_t> from(next);
+    for (std::size_t v = 0; v < N; ++v) {
+      if (!used[v]) continue;
+      const std::uint32_t i = id[v];
+      if (v < V) {
+        m.positions[i] = in_.positions[v];
+        if (normals) m.normals[i] = in_.normals[v];
+        from[i] = static_cast<std::uint32_t>(v);
+      } else {
+        const Vec3 w = geometry_.voxel_to_world(cut_u_[v - V][0], cut_u_[v - V][1], cut_u_[v - V][2]);
+        m.positions[i] = {static_cast<float>(w[0]), static_cast<float>(w[1]), static_cast<float>(w[2])};
+        if (normals) m.normals[i] = cut_n_[v - V];
+        from[i] = ClipMap::kNew;
+      }
+    }
+    std::size_t piece = 0;
+    for (std::size_t t = 0; t < T; ++t) {
+      if (!crosses[t]) {
+        if (count[t]) {
+          const auto& tri = in_.triangles[t];
+          m.triangles[first[t]] = {id[tri[0]], id[tri[1]], id[tri[2]]};
+        }
+        continue;
+      }
+      for (std::uint32_t k = 0; k < count[t]; ++k, ++piece) {
+        const auto& p = pieces[piece];
+        m.triangles[first[t] + k] = {id[p[0]], id[p[1]], id[p[2]]};
+      }
+    }
+    out = std::move(m);
+    if (map) {
+      map->first = std::move(first);
+      map->vertex_from = std::move(from);
+    }
+  }
+
+private:
+  const Vec3& at(std::uint32_t v) const { return v < u_.size() ? u_[v] : cut_u_[v - u_.size()]; }
+
+  // The cut point of edge (p, q) with axis a's face plane, made once.
+  std::uint32_t cut_point(std::uint32_t p, std::uint32_t q, int a, std::size_t V) {
+    const CutKey key{std::min(p, q), std::max(p, q), a};
+    const auto [it, fresh] = cuts_.try_emplace(key, static_cast<std::uint32_t>(V + cut_u_.size()));
+    if (!fresh) return it->second;
+    const Vec3 &lo = at(key.lo), &hi = at(key.hi);
+    const double t = std::clamp((faces_.last[a] - lo[a]) / (hi[a] - lo[a]), 0.0, 1.0);
+    Vec3 u;
+    for (int k = 0; k < 3; ++k) u[k] = lo[k] + t * (hi[k] - lo[k]);
+    u[a] = faces_.last[a];
+    cut_u_.push_back(u);
+    std::array<float, 3> n{0, 0, 0};
+    if (!in_.normals.empty()) {
+      const auto &nl = normal(key.lo), &nh = normal(key.hi);
+      double m[3], len = 0;
+      for (int k = 0; k < 3; ++k) {
+        m[k] = (1 - t) * nl[k] + t * nh[k];
+        len += m[k] * m[k];
+      }
+      len = std::sqrt(len);
+      for (int k = 0; k < 3; ++k) n[k] = len > 0 ? static_cast<float>(m[k] / len) : nl[k];
+    }
+    cut_n_.push_back(n);
+    return it->second;
+  }
+  const std::array<float, 3>& normal(std::uint32_t v) const {
+    return v < in_.normals.size() ? in_.normals[v] : cut_n_[v - in_.normals.size()];
+  }
+
+  // The triangle cut by the face planes (Sutherland–Hodgman) and fanned; returns its pieces.
+  std::uint32_t cut(const std::array<std::uint32_t, 3>& tri, std::size_t V, std::vector<std::array<std::uint32_t, 3>>& pieces) {
+    std::vector<std::uint32_t>& poly = poly_;
+    std::vector<std::uint32_t>& next = next_;
+    poly.assign(tri.begin(), tri.end());
+    for (int a = 0; a < 3 && poly.size() >= 3; ++a) {
+      if (!std::isfinite(faces_.last[a])) continue;
+      const double limit = faces_.last[a] + faces_.slack;
+      next.clear();
+      for (std::size_t i = 0; i < poly.size(); ++i) {
+        const std::uint32_t p = poly[i], q = poly[(i + 1) % poly.size()];
+        const bool p_in = at(p)[a] <= limit, q_in = at(q)[a] <= limit;
+        if (p_in) next.push_back(p);
+        if (p_in != q_in) next.push_back(cut_point(p, q, a, V));
+      }
+      poly.swap(next);
+      // A piece with no point off this face plane has no area: a triangle of the padding touching it.
+      if (std::all_of(poly.begin(), poly.end(), [&](std::uint32_t v) { return at(v)[a] >= faces_.last[a] - faces_.slack; })) poly.clear();
+    }
+    if (poly.size() < 3) return 0;
+    for (std::size_t i = 1; i + 1 < poly.size(); ++i) pieces.push_back({poly[0], poly[i], poly[i + 1]});
+    return static_cast<std::uint32_t>(poly.size() - 2);
+  }
+
+  const Mesh& in_;
+  Volume geometry_;  // the grid frame alone: no samples
+  Faces faces_{};
+  std::vector<Vec3> u_;
+  std::vector<Vec3> cut_u_;
+  std::vector<std::array<float, 3>> cut_n_;
+  std::unordered_map<CutKey, std::uint32_t, CutKeyHash> cuts_;
+  std::vector<std::uint32_t> poly_, next_;
+};
+
+}  // namespace
+
+bool clip_to_volume_box(const Mesh& in, const GridSource& source, Mesh& out, ClipMap* map) {
+  if (!source.padded()) return false;
+  Clipper c(in, source);
+  if (!c.locate()) return false;
+  c.clip(out, map);
+  return true;
+}
+
+void clip_to_volume_box(Mesh& mesh, const GridSource& source) {
+  Mesh out;
+  if (clip_to_volume_box(mesh, source, out)) mesh = std::move(out);
+}
+
+}  // namespace adaptiso::detail
