@@ -10,7 +10,7 @@
 //   that coarsest one comes last in the ladder;
 // - floored levels, between them: the grid coarsened to e0 under a cell floor of 2^f voxels
 //   (coarsen_floored), f = 2 … log2(S) − 4 for the hierarchy's root cube of side S (at least 16
-//   cells across it; coarser floors leave little but the fine tetrahedra lining the box's far
+//   cells across it; coarser floors leave little but the tetrahedra that meet the lattice's far
 //   faces). A coarser bound alone may leave a noisy scan's surface at millions of triangles up to
 //   errors of half the range, and the next level is then a blob of a few hundred; a floor cuts a
 //   surface some 4× a step on any data. Their bounds are measured when they are built (bound()),

@@ -37,6 +37,17 @@ struct CutKeyHash {
   }
 };
 
+// In place: each entry becomes the sum of those before it (the last, a sentinel, the total).
+std::uint32_t exclusive_scan(std::vector<std::uint32_t>& counts) {
+  std::uint32_t sum = 0;
+  for (auto& c : counts) {
+    const std::uint32_t n = c;
+    c = sum;
+    sum += n;
+  }
+  return counts.back();
+}
+
 class Clipper {
 public:
   Clipper(const Mesh& in, const GridSource& s) : in_(in) {
@@ -58,19 +69,28 @@ public:
     }
     const double spacing = std::min({std::abs(s.spacing[0]), std::abs(s.spacing[1]), std::abs(s.spacing[2])});
     faces_.slack = 4 * std::numeric_limits<float>::epsilon() * (largest + 1) / spacing;
+    // The direction's inverse, once (world_to_voxel computes it on every call): column a is the
+    // index coordinates of the world's unit vector a, scaled back by the spacing.
+    for (int a = 0; a < 3; ++a) {
+      Vec3 w = geometry_.origin;
+      w[a] += 1;
+      const Vec3 g = geometry_.world_to_voxel(w);
+      for (int k = 0; k < 3; ++k) inverse_[3 * k + a] = g[k] * geometry_.spacing[k];
+    }
   }
 
-  // Index coordinates of every vertex; false when none lies past the box.
+  // Which vertices lie past the box; false when none does. (Their index coordinates are made
+  // again where a cut needs them: a few triangles, where an array of them all would be fresh
+  // memory on every extraction.)
   bool locate() {
     const std::size_t V = in_.vertex_count();
-    u_.resize(V);
+    outside_.resize(V);
     std::atomic<bool> any{false};
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 8192), [&](const auto& r) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 16384), [&](const auto& r) {
       bool mine = false;
       for (std::size_t v = r.begin(); v < r.end(); ++v) {
-        const auto& p = in_.positions[v];
-        u_[v] = geometry_.world_to_voxel({p[0], p[1], p[2]});
-        mine = mine || faces_.outside(u_[v]);
+        outside_[v] = faces_.outside(index_of(in_.positions[v]));
+        mine = mine || outside_[v];
       }
       if (mine) any.store(true, std::memory_order_relaxed);
     });
@@ -79,78 +99,70 @@ public:
 
   void clip(Mesh& out, ClipMap* map) {
     const std::size_t V = in_.vertex_count(), T = in_.triangle_count();
-    // Per triangle: kept whole (1), dropped (0) or cut (its pieces, sequentially below).
-    std::vector<std::uint32_t> count(T + 1, 0);
+    // Per triangle: kept whole (1), dropped (0) or cut (its pieces, one thread below: they are few).
+    std::vector<std::uint32_t> first(T + 1, 0);
     std::vector<std::uint8_t> crosses(T, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 8192), [&](const auto& r) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t t = r.begin(); t < r.end(); ++t) {
-        int out_of_box = 0;
-        for (std::uint32_t v : in_.triangles[t]) out_of_box += faces_.outside(u_[v]);
-        if (out_of_box == 0)
-          count[t] = 1;
-        else
+        const auto& tri = in_.triangles[t];
+        if (outside_[tri[0]] | outside_[tri[1]] | outside_[tri[2]])
           crosses[t] = 1;
+        else
+          first[t] = 1;
       }
     });
     std::vector<std::array<std::uint32_t, 3>> pieces;  // of cut triangles, in triangle order; ids ≥ V are cut points
     for (std::size_t t = 0; t < T; ++t)
-      if (crosses[t]) count[t] = cut(in_.triangles[t], V, pieces);
-    // Output triangles: first[t] = sum of the counts before t.
-    std::vector<std::uint32_t> first(T + 1);
-    std::uint32_t sum = 0;
-    for (std::size_t t = 0; t <= T; ++t) {
-      first[t] = sum;
-      if (t < T) sum += count[t];
-    }
+      if (crosses[t]) first[t] = cut(in_.triangles[t], V, pieces);
+    const std::uint32_t triangles = exclusive_scan(first);  // first[t]: the pieces before t
     // The vertices still used, in their order, then the cut points in theirs.
     const std::size_t N = V + cut_u_.size();
     std::vector<std::uint8_t> used(N, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 8192), [&](const auto& r) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t t = r.begin(); t < r.end(); ++t)
-        if (!crosses[t])
-          for (std::uint32_t v : in_.triangles[t]) used[v] = 1;  // the same byte from any thread
+        if (!crosses[t] && first[t + 1] > first[t])
+          for (std::uint32_t v : in_.triangles[t]) std::atomic_ref<std::uint8_t>(used[v]).store(1, std::memory_order_relaxed);
     });
     for (const auto& p : pieces)
       for (std::uint32_t v : p) used[v] = 1;
-    std::vector<std::uint32_t> id(N, ClipMap::kNew);
-    std::uint32_t next = 0;
-    for (std::size_t v = 0; v < N; ++v)
-      if (used[v]) id[v] = next++;
+    std::vector<std::uint32_t> id(N + 1);
+    for (std::size_t v = 0; v < N; ++v) id[v] = used[v];
+    const std::uint32_t vertices = exclusive_scan(id);  // id[v]: v's place when used
     const bool normals = in_.normals.size() == V;
-    Mesh m;
-    m.positions.resize(next);
-    if (normals) m.normals.resize(next);
-    m.triangles.resize(sum);
-    std::vector<std::uint32_t> from(next);
-    for (std::size_t v = 0; v < N; ++v) {
-      if (!used[v]) continue;
-      const std::uint32_t i = id[v];
-      if (v < V) {
-        m.positions[i] = in_.positions[v];
-        if (normals) m.normals[i] = in_.normals[v];
-        from[i] = static_cast<std::uint32_t>(v);
-      } else {
-        const Vec3 w = geometry_.voxel_to_world(cut_u_[v - V][0], cut_u_[v - V][1], cut_u_[v - V][2]);
-        m.positions[i] = {static_cast<float>(w[0]), static_cast<float>(w[1]), static_cast<float>(w[2])};
-        if (normals) m.normals[i] = cut_n_[v - V];
-        from[i] = ClipMap::kNew;
-      }
-    }
-    std::size_t piece = 0;
-    for (std::size_t t = 0; t < T; ++t) {
-      if (!crosses[t]) {
-        if (count[t]) {
-          const auto& tri = in_.triangles[t];
-          m.triangles[first[t]] = {id[tri[0]], id[tri[1]], id[tri[2]]};
+    out.positions.resize(vertices);
+    out.normals.resize(normals ? vertices : 0);
+    out.triangles.resize(triangles);
+    std::vector<std::uint32_t> from(map ? vertices : 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, N, 16384), [&](const auto& r) {
+      for (std::size_t v = r.begin(); v < r.end(); ++v) {
+        if (!used[v]) continue;
+        const std::uint32_t i = id[v];
+        if (v < V) {
+          out.positions[i] = in_.positions[v];
+          if (normals) out.normals[i] = in_.normals[v];
+        } else {
+          const Vec3& u = cut_u_[v - V];
+          const Vec3 w = geometry_.voxel_to_world(u[0], u[1], u[2]);
+          out.positions[i] = {static_cast<float>(w[0]), static_cast<float>(w[1]), static_cast<float>(w[2])};
+          if (normals) out.normals[i] = cut_n_[v - V];
         }
-        continue;
+        if (map) from[i] = v < V ? static_cast<std::uint32_t>(v) : ClipMap::kNew;
       }
-      for (std::uint32_t k = 0; k < count[t]; ++k, ++piece) {
-        const auto& p = pieces[piece];
-        m.triangles[first[t] + k] = {id[p[0]], id[p[1]], id[p[2]]};
-      }
-    }
-    out = std::move(m);
+    });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
+      for (std::size_t t = r.begin(); t < r.end(); ++t)
+        if (!crosses[t] && first[t + 1] > first[t]) {
+          const auto& tri = in_.triangles[t];
+          out.triangles[first[t]] = {id[tri[0]], id[tri[1]], id[tri[2]]};
+        }
+    });
+    std::size_t piece = 0;
+    for (std::size_t t = 0; t < T; ++t)
+      if (crosses[t])
+        for (std::uint32_t k = first[t]; k < first[t + 1]; ++k, ++piece) {
+          const auto& p = pieces[piece];
+          out.triangles[k] = {id[p[0]], id[p[1]], id[p[2]]};
+        }
     if (map) {
       map->first = std::move(first);
       map->vertex_from = std::move(from);
@@ -158,14 +170,22 @@ public:
   }
 
 private:
-  const Vec3& at(std::uint32_t v) const { return v < u_.size() ? u_[v] : cut_u_[v - u_.size()]; }
+  Vec3 index_of(const std::array<float, 3>& p) const {
+    const auto& o = geometry_.origin;
+    const double w[3] = {p[0] - o[0], p[1] - o[1], p[2] - o[2]};
+    Vec3 u;
+    for (int a = 0; a < 3; ++a)
+      u[a] = (inverse_[3 * a] * w[0] + inverse_[3 * a + 1] * w[1] + inverse_[3 * a + 2] * w[2]) / geometry_.spacing[a];
+    return u;
+  }
+  Vec3 at(std::uint32_t v) const { return v < outside_.size() ? index_of(in_.positions[v]) : cut_u_[v - outside_.size()]; }
 
   // The cut point of edge (p, q) with axis a's face plane, made once.
   std::uint32_t cut_point(std::uint32_t p, std::uint32_t q, int a, std::size_t V) {
     const CutKey key{std::min(p, q), std::max(p, q), a};
     const auto [it, fresh] = cuts_.try_emplace(key, static_cast<std::uint32_t>(V + cut_u_.size()));
     if (!fresh) return it->second;
-    const Vec3 &lo = at(key.lo), &hi = at(key.hi);
+    const Vec3 lo = at(key.lo), hi = at(key.hi);
     const double t = std::clamp((faces_.last[a] - lo[a]) / (hi[a] - lo[a]), 0.0, 1.0);
     Vec3 u;
     for (int k = 0; k < 3; ++k) u[k] = lo[k] + t * (hi[k] - lo[k]);
@@ -216,7 +236,8 @@ private:
   const Mesh& in_;
   Volume geometry_;  // the grid frame alone: no samples
   Faces faces_{};
-  std::vector<Vec3> u_;
+  std::array<double, 9> inverse_{};  // the direction's inverse, row-major
+  std::vector<std::uint8_t> outside_;
   std::vector<Vec3> cut_u_;
   std::vector<std::array<float, 3>> cut_n_;
   std::unordered_map<CutKey, std::uint32_t, CutKeyHash> cuts_;

@@ -119,6 +119,25 @@ TEST(DistanceQuery, SurfacesStayWithinTheDistanceOfTheGridsSurface) {
     }
 }
 
+// Found when the padded lattice landed: on a 49³ box (its far faces at 48, a multiple of 16, so
+// no forced splits near the spheres) nested spheres 7 voxels apart came out as one surface with
+// three handles at 1, 2 and 4 voxels. A large tetrahedron with a corner in each sphere's inside
+// and its other long edges crossed twice by the shell kept its own quad, which joins them.
+TEST(DistanceQuery, NestedSpheresOnABoxWithoutForcedSplitsStayTwoSurfaces) {
+  const Volume v = field({49, 49, 49}, {1, 1, 1}, [](double x, double y, double z) {
+    const double r = std::hypot(x - 22, y - 22, z - 22);
+    return r < 12 ? 1 - r / 12 + 0.25 : (r - 12) / 16 + 0.25;
+  });
+  const auto grid = testutil::prepared_at(v, 0.005, true);
+  ASSERT_FALSE(grid->grid.source.padded());
+  const HierarchyQuery query(grid);
+  for (double distance : {1.0, 2.0, 4.0}) {
+    const auto census = testutil::edge_census(query.extract_within(0.5, distance), v.dims, v.spacing);
+    EXPECT_EQ(census.boundary, 0u) << distance;
+    EXPECT_EQ(census.euler, 4) << distance;
+  }
+}
+
 TEST(DistanceQuery, ClosedManifoldOrientedWithTheRightEulerCharacteristic) {
   struct Case {
     const char* what;
