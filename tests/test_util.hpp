@@ -215,6 +215,21 @@ inline adaptiso::TetGrid build_grid(const adaptiso::Volume& v, const std::vector
 }
 
 // A grid and its index, shared, as an Extractor or the view server take them.
+// A Delaunay grid of a random kept set (corners always) of a volume with small integer values: many ties, many
+// constant tetrahedra, many vertices exactly at the iso-values tried.
+inline adaptiso::TetGrid random_grid(std::mt19937& rng, int levels) {
+  using namespace adaptiso;
+  Dims d{2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7)};
+  Volume v = make_volume(d, ScalarType::f32);
+  v.spacing = {1.0 + (rng() % 3) * 0.5, 1.0, 0.5 + (rng() % 2)};
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, double(rng() % levels));
+  std::vector<std::int64_t> kept;
+  auto corners = volume_corners(v);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
+    if (rng() % 3 != 0 || std::find(corners.begin(), corners.end(), i) != corners.end()) kept.push_back(i);
+  return build_grid(v, kept);
+}
+
 inline std::shared_ptr<const adaptiso::PreparedGrid> prepared(adaptiso::TetGrid g, adaptiso::IntervalTree index) {
   auto p = std::make_shared<adaptiso::PreparedGrid>();
   p->grid = std::move(g);

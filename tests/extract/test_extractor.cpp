@@ -25,20 +25,6 @@ namespace {
 
 using testutil::all_voxels;
 
-// A random kept set (corners always) of a volume with small integer values: many ties, many
-// constant tetrahedra, many vertices exactly at the iso-values tried.
-TetGrid random_grid(std::mt19937& rng, int levels) {
-  Dims d{2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7)};
-  Volume v = make_volume(d, ScalarType::f32);
-  v.spacing = {1.0 + (rng() % 3) * 0.5, 1.0, 0.5 + (rng() % 2)};
-  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, double(rng() % levels));
-  std::vector<std::int64_t> kept;
-  auto corners = volume_corners(v);
-  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
-    if (rng() % 3 != 0 || std::find(corners.begin(), corners.end(), i) != corners.end()) kept.push_back(i);
-  return testutil::build_grid(v, kept);
-}
-
 std::vector<std::uint32_t> sorted(std::vector<std::uint32_t> a) {
   std::sort(a.begin(), a.end());
   return a;
@@ -96,7 +82,7 @@ TEST(IntervalTree, IncrementalFreshAndScanAgreeOnRandomSequences) {
   std::mt19937 rng(5);
   for (int trial = 0; trial < 60; ++trial) {
     const int levels = 2 + static_cast<int>(rng() % 6);
-    TetGrid g = random_grid(rng, levels);
+    TetGrid g = testutil::random_grid(rng, levels);
     const std::uint32_t depth = rng() % 7;
     IntervalTree tree = build_interval_tree(g, depth);
     ASSERT_NO_THROW(validate_interval_tree(tree, g, "test"));

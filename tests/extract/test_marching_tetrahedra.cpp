@@ -18,20 +18,6 @@ namespace {
 
 using testutil::all_voxels;
 
-// A random kept set (corners always) of a volume with small integer values: many ties, many
-// constant tetrahedra, many vertices exactly at the iso-values tried.
-TetGrid random_grid(std::mt19937& rng, int levels) {
-  Dims d{2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7), 2 + std::int64_t(rng() % 7)};
-  Volume v = make_volume(d, ScalarType::f32);
-  v.spacing = {1.0 + (rng() % 3) * 0.5, 1.0, 0.5 + (rng() % 2)};
-  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, double(rng() % levels));
-  std::vector<std::int64_t> kept;
-  auto corners = volume_corners(v);
-  for (std::int64_t i = 0; i < v.voxel_count(); ++i)
-    if (rng() % 3 != 0 || std::find(corners.begin(), corners.end(), i) != corners.end()) kept.push_back(i);
-  return testutil::build_grid(v, kept);
-}
-
 testutil::EdgeCensus topology(const Mesh& m, const GridSource& s) { return testutil::edge_census(m, s.dims, s.spacing); }
 
 double triangle_area(const Mesh& m, const std::array<std::uint32_t, 3>& t) {
@@ -124,7 +110,7 @@ TEST(MarchingTets, RandomGridsAreWatertightInsideTheBoxWithoutDegenerateTriangle
   std::mt19937 rng(17);
   std::size_t meshes = 0;
   for (int trial = 0; trial < 80; ++trial) {
-    TetGrid g = random_grid(rng, 2 + static_cast<int>(rng() % 5));
+    TetGrid g = testutil::random_grid(rng, 2 + static_cast<int>(rng() % 5));
     IntervalTree tree = build_interval_tree(g, rng() % 6);
     Extractor ex(testutil::prepared(g, tree));
     Mesh m;

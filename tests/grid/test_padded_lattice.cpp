@@ -21,7 +21,8 @@
 
 using namespace adaptiso;
 
-namespace {
+// Helpers and tests in a namespace of their own: the test sources are compiled in unity batches.
+namespace padded_lattice_test {
 
 // A quadratic bowl centred near the far corner: its iso-surfaces (spheres) cross all three far
 // faces, and no diamond anywhere has zero error (every midpoint lies off the chord), so error 0
@@ -119,8 +120,6 @@ void expect_ends_on_the_box(const Mesh& m, const Volume& v, const std::string& r
   EXPECT_EQ(c.off_box, 0u);
   EXPECT_GT(c.on_far_faces, 0u);  // the surface does reach the far faces: the clip was exercised
 }
-
-}  // namespace
 
 TEST(PaddedLattice, FarFacesMoveOutToMultiplesOfASmallStepAndTheRootCubeNeverGrows) {
   EXPECT_EQ(bisection_lattice_dims({64, 512, 361}), (Dims{65, 513, 361}));
@@ -298,3 +297,5 @@ TEST(PaddedLattice, GridFileKeepsTheVolumesBoxAndItsSurfaces) {
   EXPECT_EQ(testutil::read_bytes(t / "plain.adg").find("volume_dims"), std::string::npos);
   EXPECT_NE(testutil::read_bytes(t / "g.adg").find("volume_dims"), std::string::npos);
 }
+
+}  // namespace padded_lattice_test
