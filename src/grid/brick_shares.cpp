@@ -136,8 +136,11 @@ ReaderSource reader_source(RegionReader& reader, const Dims& lattice, const Valu
   const Dims volume = reader.header().dims;
   if (lattice == volume) return r;
   r.source = padded_source(std::move(r.source), volume, range);
+  // A slab reaching past the far z face reads, for its reflection, as far below the face as it
+  // reaches past it (padded_source): those slices are held too.
   if (r.hold)
     r.hold = [hold = std::move(r.hold), last = volume[2] - 1](std::int64_t z0, std::int64_t z1) {
+      if (z1 > last) z0 = std::max<std::int64_t>(0, std::min(z0, 2 * last - z1));
       hold(std::min(z0, last), std::min(z1, last));
     };
   return r;

@@ -12,11 +12,13 @@
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/bisection_bricks.hpp"
+#include "adaptiso/brick_shares.hpp"
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_tetrahedra.hpp"
 #include "adaptiso/prepare.hpp"
+#include "adaptiso/volume_regions.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
@@ -277,6 +279,27 @@ TEST(PaddedLattice, BricksReadThroughThePaddedSourceGiveThePaddedVolumesHierarch
       EXPECT_EQ(bricked.code, whole.code) << side;
       EXPECT_EQ(bricked.displacement_code, whole.displacement_code) << side;
     }
+  }
+}
+
+// A compressed file is read slab by slab: the padded source reads the reflection's slices below
+// a slab at the far z face, so the hold announced for the slab must reach them too (it was clamped
+// at the face only, and a small brick side then read slices the stream no longer held).
+TEST(PaddedLattice, StreamedBricksHoldTheSlicesTheReflectionReads) {
+  testutil::TempDir t("padded_stream");
+  const Volume v = bowl({13, 11, 34}, {1, 1, 1}, ScalarType::i16);
+  testutil::write_bytes(t / "v.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 13 11 34\nendian: little\nencoding: gzip\n\n" +
+                                          testutil::compress(testutil::bytes_of(v), true));
+  RegionReader reader(t / "v.nrrd");
+  ASSERT_TRUE(reader.streams());
+  const Dims lattice = bisection_lattice_dims(v.dims);
+  ASSERT_EQ(lattice[2], 41);  // 7 slices past the last (33), which reflect slices 26 to 32
+  const ValueRange range = value_range(v);
+  const BisectionErrors whole = bisection_errors(pad_volume(v, lattice, range), range);
+  for (std::int64_t side : {2, 4}) {
+    const ReaderSource read = reader_source(reader, lattice, range);
+    const auto bricks = bisection_share_errors(brick_grid(lattice, side), 0, 1, read.source, range, false, read.hold);
+    EXPECT_EQ(bisection_combine_bricks(brick_grid(lattice, side), bricks, range).code, whole.code) << side;
   }
 }
 
