@@ -96,7 +96,8 @@ inline bool loaded_in_part(const PreparedGrid& g) { return g.grid.tets.empty() &
 inline std::uint64_t tetrahedron_count(const PreparedGrid& g) { return loaded_in_part(g) ? g.stats.tetrahedra : g.grid.tet_count(); }
 
 // VTK XML UnstructuredGrid (.vtu), appended raw binary: world-coordinate points, tetrahedra,
-// point data "value" and "gradient" (world frame). Written atomically.
+// point data "value" and "gradient" (world frame), and for a padded lattice "in_volume" (1 for the
+// volume's voxels, 0 for the copies of its last slices past its far faces). Written atomically.
 void write_vtu(const TetGrid& grid, const std::string& path);
 
 }  // namespace adaptiso

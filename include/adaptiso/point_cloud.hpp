@@ -12,7 +12,8 @@ namespace adaptiso {
 
 void write_points_ply(const std::string& path, const Volume& v, const std::vector<std::int64_t>& kept);
 
-// The vertices of a tetrahedral grid, same layout, in the grid's vertex order.
+// The vertices of a tetrahedral grid, same layout, in the grid's vertex order: those inside the
+// volume's box (a padded lattice's copies of the last slices are left out, tet_grid.hpp).
 struct TetGrid;
 void write_points_ply(const std::string& path, const TetGrid& grid);
 

@@ -86,6 +86,11 @@ struct TetGrid {
     return {source.spacing[0] * ijk[v][0], source.spacing[1] * ijk[v][1], source.spacing[2] * ijk[v][2]};
   }
   Vec3 world_position(std::uint32_t v) const { return grid_to_world(source.origin, source.direction, position(v)); }
+  // Inside the volume's box [0, volume_box() − 1]: every vertex but a padded lattice's copies.
+  bool in_volume_box(std::uint32_t v) const {
+    const Dims box = source.volume_box();
+    return ijk[v][0] < box[0] && ijk[v][1] < box[1] && ijk[v][2] < box[2];
+  }
   // The global lattice keys (see above) of vertex v and of the edge between vertices a and b, in
   // the lattice of source.dims.
   LatticeKey lattice_key(std::uint32_t v) const { return adaptiso::lattice_key(source.dims, ijk[v]); }

@@ -407,6 +407,14 @@ void write_vtu(const TetGrid& grid, const std::string& path) {
   };
   std::vector<Arr> arrays = {{pts.data(), pts.size() * 4}, {grid.tets.data(), t * 16},    {offsets.data(), t * 8}, {types.data(), t},
                              {grid.values.data(), n * 8},  {grad.data(), grad.size() * 4}};
+  // A padded lattice (tet_grid.hpp) tiles more than the volume: its vertices say which are the
+  // volume's voxels, so a viewer can threshold the copies of the last slices away.
+  std::vector<std::uint8_t> in_volume;
+  if (grid.source.padded()) {
+    in_volume.resize(n);
+    for (std::uint64_t v = 0; v < n; ++v) in_volume[v] = grid.in_volume_box(static_cast<std::uint32_t>(v));
+    arrays.push_back({in_volume.data(), n});
+  }
   std::vector<std::uint64_t> off;
   std::uint64_t o = 0;
   for (const auto& a : arrays) {
@@ -427,6 +435,8 @@ void write_vtu(const TetGrid& grid, const std::string& path) {
         << fmt::format("<DataArray type=\"Float64\" Name=\"value\" format=\"appended\" offset=\"{}\"/>\n", off[4])
         << fmt::format("<DataArray type=\"Float32\" Name=\"gradient\" NumberOfComponents=\"3\" format=\"appended\" offset=\"{}\"/>\n",
                        off[5])
+        << (in_volume.empty() ? std::string()
+                              : fmt::format("<DataArray type=\"UInt8\" Name=\"in_volume\" format=\"appended\" offset=\"{}\"/>\n", off[6]))
         << "</PointData>\n</Piece>\n</UnstructuredGrid>\n<AppendedData encoding=\"raw\">\n_";
     for (const auto& a : arrays) {
       out.write(reinterpret_cast<const char*>(&a.bytes), 8);

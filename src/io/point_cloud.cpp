@@ -54,13 +54,20 @@ void write_points_ply(const std::string& path, const Volume& v, const std::vecto
 
 void write_points_ply(const std::string& path, const TetGrid& grid) {
   Volume geometry;  // geometry only: no voxels
-  geometry.dims = grid.source.dims;
+  geometry.dims = grid.source.volume_box();
   geometry.spacing = grid.source.spacing;
   geometry.origin = grid.source.origin;
   geometry.direction = grid.source.direction;
-  write_points(path, geometry, grid.vertex_count(), [&](std::size_t n, std::int32_t* ijk, double& value) {
-    for (int a = 0; a < 3; ++a) ijk[a] = static_cast<std::int32_t>(grid.ijk[n][a]);
-    value = grid.values[n];
+  // A padded lattice's copies of the last slices are no voxels of the volume: left out.
+  std::vector<std::uint32_t> inside;
+  if (grid.source.padded())
+    for (std::uint32_t v = 0; v < grid.vertex_count(); ++v)
+      if (grid.in_volume_box(v)) inside.push_back(v);
+  const std::size_t count = grid.source.padded() ? inside.size() : grid.vertex_count();
+  write_points(path, geometry, count, [&](std::size_t n, std::int32_t* ijk, double& value) {
+    const std::uint32_t v = grid.source.padded() ? inside[n] : static_cast<std::uint32_t>(n);
+    for (int a = 0; a < 3; ++a) ijk[a] = static_cast<std::int32_t>(grid.ijk[v][a]);
+    value = grid.values[v];
   });
 }
 

@@ -134,8 +134,7 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
   const Dims volume_dims = v.dims;
   // The padded lattice's volume; the volume itself goes at once when the caller gave it up.
   std::optional<Volume> padded;
-  if (bisection && o.pad_lattice && bisection_lattice_dims(v.dims) != v.dims) {
-    const Dims lattice = bisection_lattice_dims(v.dims);
+  if (const Dims lattice = bisection_lattice_dims(v.dims); bisection && o.pad_lattice && lattice != v.dims) {
     check_memory(static_cast<std::uint64_t>(lattice[0] * lattice[1] * lattice[2]) * scalar_size(v.type),
                  fmt::format("the volume padded to {} x {} x {} voxels", lattice[0], lattice[1], lattice[2]), "",
                  "crop or subsample the volume");

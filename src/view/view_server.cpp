@@ -125,6 +125,18 @@ nlohmann::json histogram_json(const Histogram& h, const char* of) {
 }
 
 constexpr int kHistogramBins = 128;
+
+// The histogram of the grid's vertex values inside the volume's box: a padded lattice's copies of
+// the last slices would count those slices again (tet_grid.hpp).
+Histogram vertex_histogram(const TetGrid& grid) {
+  const ValueRange range{grid.source.min, grid.source.max};
+  if (!grid.source.padded()) return histogram(grid.values, range, kHistogramBins);
+  std::vector<double> inside;
+  for (std::uint32_t v = 0; v < grid.vertex_count(); ++v)
+    if (grid.in_volume_box(v)) inside.push_back(grid.values[v]);
+  return histogram(inside, range, kHistogramBins);
+}
+
 constexpr std::size_t kMaxWireframeEdges = 20'000'000;
 // Memory of an export beyond its surface: the copy, the simplification's working set and the file
 // (bytes per triangle; simplify_mesh's quadrics and heap dominate).
@@ -324,7 +336,7 @@ void ViewServer::Impl::install(std::shared_ptr<const PreparedGrid> g, std::funct
     if (volume) hist = histogram;
   }
   if (hist.is_null())  // no volume: the histogram of the grid's vertex values
-    hist = histogram_json(adaptiso::histogram(g->grid.values, {g->grid.source.min, g->grid.source.max}, kHistogramBins), "vertices");
+    hist = histogram_json(vertex_histogram(g->grid), "vertices");
   auto q = g->hierarchy ? std::make_shared<const HierarchyQuery>(g) : nullptr;
   sessions.set_grid(g);
   std::lock_guard lock(state_mutex);

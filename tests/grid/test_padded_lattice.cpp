@@ -3,12 +3,15 @@
 // lining), the clipped surface at the finest level against the unpadded grid's triangle for
 // triangle, every extraction route's surface inside the volume's box with its boundary on the
 // box's faces, the bricks read through a padded source against the padded volume, the grid file.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstring>
 #include <map>
+#include <random>
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/bisection_bricks.hpp"
@@ -17,6 +20,7 @@
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_tetrahedra.hpp"
+#include "adaptiso/point_cloud.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/volume_regions.hpp"
 #include "test_util.hpp"
@@ -319,6 +323,48 @@ TEST(PaddedLattice, GridFileKeepsTheVolumesBoxAndItsSurfaces) {
   save_grid(*prepared(v, 1.5, false), t / "plain.adg");
   EXPECT_EQ(testutil::read_bytes(t / "plain.adg").find("volume_dims"), std::string::npos);
   EXPECT_NE(testutil::read_bytes(t / "g.adg").find("volume_dims"), std::string::npos);
+}
+
+// Noise at error 0: every voxel off the far faces' last slices is a vertex (the odd reflection
+// makes some of those slices' voxels the midpoints of straight edges, which need none). The points
+// written are the grid's vertices inside the volume's box, each voxel at most once with its value,
+// none from the padding; the .vtu flags the padded grid's vertices, an unpadded grid's has no flag.
+TEST(PaddedLattice, ExportsTellTheVolumesVoxelsFromTheCopiesPastItsFarFaces) {
+  testutil::TempDir t("padded_lattice");
+  Volume v = make_volume({13, 10, 7}, ScalarType::f32);
+  v.spacing = {0.7, 1.0, 1.9};
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> noise(0, 100);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, noise(rng));
+  const auto g = prepared(v, 0, true);
+  ASSERT_TRUE(g->grid.source.padded());
+  std::size_t past = 0;  // vertices with a coordinate past the volume's far faces
+  for (const auto& c : g->grid.ijk) past += c[0] >= 13 || c[1] >= 10 || c[2] >= 7;
+  ASSERT_GT(past, 0u);
+  const std::size_t count = g->grid.vertex_count() - past;
+  write_points_ply(t / "p.ply", g->grid);
+  const std::string ply = testutil::read_bytes(t / "p.ply");
+  const std::size_t body = ply.find("end_header\n") + 11;
+  ASSERT_NE(ply.find(fmt::format("element vertex {}\n", count)), std::string::npos);
+  ASSERT_EQ(ply.size() - body, count * 28);  // x y z i j k value
+  std::vector<int> seen(std::size_t(v.voxel_count()), 0);
+  for (std::size_t r = 0; r < count; ++r) {
+    std::int32_t ijk[3];
+    float value;
+    std::memcpy(ijk, ply.data() + body + 28 * r + 12, 12);
+    std::memcpy(&value, ply.data() + body + 28 * r + 24, 4);
+    ASSERT_TRUE(ijk[0] >= 0 && ijk[0] < v.dims[0] && ijk[1] >= 0 && ijk[1] < v.dims[1] && ijk[2] >= 0 && ijk[2] < v.dims[2]) << r;
+    const std::int64_t voxel = v.index(ijk[0], ijk[1], ijk[2]);
+    ASSERT_EQ(++seen[std::size_t(voxel)], 1) << r;
+    EXPECT_EQ(value, float(v.at(voxel))) << r;
+  }
+  for (std::int64_t k = 0; k + 1 < v.dims[2]; ++k)
+    for (std::int64_t j = 0; j + 1 < v.dims[1]; ++j)
+      for (std::int64_t i = 0; i + 1 < v.dims[0]; ++i) EXPECT_EQ(seen[std::size_t(v.index(i, j, k))], 1) << i << " " << j << " " << k;
+  write_vtu(g->grid, t / "g.vtu");
+  EXPECT_NE(testutil::read_bytes(t / "g.vtu").find("Name=\"in_volume\""), std::string::npos);
+  write_vtu(prepared(v, 0, false)->grid, t / "plain.vtu");
+  EXPECT_EQ(testutil::read_bytes(t / "plain.vtu").find("in_volume"), std::string::npos);
 }
 
 }  // namespace padded_lattice_test

@@ -633,3 +633,25 @@ TEST(ViewServer, AGridLoadedInPartReadsItsTetrahedraOnceWhenARouteNeedsThem) {
   EXPECT_EQ(failures, 1);
   EXPECT_EQ(c.Get("/api/surface?iso=0.45&client=a&distance=1")->status, 200);
 }
+
+// Without a volume the histogram is the grid's vertex values: of a padded lattice, those inside the
+// volume's box, not the copies of its last slices past the far faces.
+TEST(ViewServer, AGridsHistogramCountsTheVolumesVoxelsNotThePaddingsCopies) {
+  const Volume v = make_synthetic("noise", 14, ScalarType::f32);
+  PrepareOptions o;
+  o.max_error = 0;
+  const auto g = std::make_shared<const PreparedGrid>(prepare(v, o));
+  ASSERT_TRUE(g->grid.source.padded());
+  std::int64_t inside = 0;
+  for (const auto& c : g->grid.ijk) inside += c[0] < 14 && c[1] < 14 && c[2] < 14;
+  ASSERT_LT(inside, std::int64_t(g->grid.vertex_count()));
+  EXPECT_GE(inside, 13 * 13 * 13);  // noise at error 0: every voxel off the last slices
+  Running run(testutil::server_options());
+  run.server.set_grid(g);
+  auto c = run.client();
+  const auto j = nlohmann::json::parse(c.Get("/api/info")->body);
+  ASSERT_EQ(j["histogram"]["of"], "vertices");
+  std::int64_t total = 0;
+  for (const auto& n : j["histogram"]["counts"]) total += n.get<std::int64_t>();
+  EXPECT_EQ(total, inside);
+}
