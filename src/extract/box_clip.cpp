@@ -120,7 +120,7 @@ public:
     std::vector<std::uint8_t> used(N, 0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t t = r.begin(); t < r.end(); ++t)
-        if (!crosses[t] && first[t + 1] > first[t])
+        if (!crosses[t])
           for (std::uint32_t v : in_.triangles[t]) std::atomic_ref<std::uint8_t>(used[v]).store(1, std::memory_order_relaxed);
     });
     for (const auto& p : pieces)
@@ -151,7 +151,7 @@ public:
     });
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t t = r.begin(); t < r.end(); ++t)
-        if (!crosses[t] && first[t + 1] > first[t]) {
+        if (!crosses[t]) {
           const auto& tri = in_.triangles[t];
           out.triangles[first[t]] = {id[tri[0]], id[tri[1]], id[tri[2]]};
         }
@@ -257,6 +257,11 @@ bool clip_to_volume_box(const Mesh& in, const GridSource& source, Mesh& out, Cli
 void clip_to_volume_box(Mesh& mesh, const GridSource& source) {
   Mesh out;
   if (clip_to_volume_box(mesh, source, out)) mesh = std::move(out);
+}
+
+void carry_vertex_keys(const ClipMap& map, const std::vector<std::uint64_t>& keys, std::uint64_t cut, std::vector<std::uint64_t>& out) {
+  out.resize(map.vertex_from.size());
+  for (std::size_t v = 0; v < out.size(); ++v) out[v] = map.vertex_from[v] == ClipMap::kNew ? cut : keys[map.vertex_from[v]];
 }
 
 }  // namespace adaptiso::detail

@@ -37,4 +37,7 @@ bool clip_to_volume_box(const Mesh& in, const GridSource& source, Mesh& out, Cli
 // The same in place.
 void clip_to_volume_box(Mesh& mesh, const GridSource& source);
 
+// Per-vertex keys of the input mesh carried to the clipped mesh's vertices: a cut point gets `cut`.
+void carry_vertex_keys(const ClipMap& map, const std::vector<std::uint64_t>& keys, std::uint64_t cut, std::vector<std::uint64_t>& out);
+
 }  // namespace adaptiso::detail

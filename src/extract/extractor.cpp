@@ -547,11 +547,7 @@ const std::vector<std::uint32_t>& Extractor::triangles_in_march_order() const {
 const std::vector<std::uint64_t>& Extractor::vertex_edges() const {
   auto& s = *state_;
   if (!s.clipped_valid) return s.keys;
-  s.clipped_keys.resize(s.clipped.vertex_count());
-  for (std::size_t v = 0; v < s.clipped_keys.size(); ++v) {
-    const std::uint32_t from = s.clip.vertex_from[v];
-    s.clipped_keys[v] = from == detail::ClipMap::kNew ? kClippedVertex : s.keys[from];
-  }
+  detail::carry_vertex_keys(s.clip, s.keys, kClippedVertex, s.clipped_keys);
   return s.clipped_keys;
 }
 bool Extractor::last_was_incremental() const { return state_->incremental; }

@@ -20,8 +20,8 @@ namespace adaptiso::detail {
 // box; a diamond across the box's far faces is always split and its tetrahedra there have none.
 // Without them a query walks the whole lining of the far faces (on the CT bunny most of the
 // tetrahedra a query met, before prepare padded the lattice: bisection.hpp; a lattice whose far
-// faces lie at multiples of 8 still has such diamonds above that size). Kept per diamond centre (a lattice point, in or beyond the box), in
-// an open-addressing table.
+// faces lie at multiples of 8 still has such diamonds above that size). Kept per diamond centre
+// (a lattice point, in or beyond the box), in an open-addressing table.
 class LiningSpans {
 public:
   void build(const Lattice& lat, const VertexNumbers& numbers, const TetGrid& grid, const BisectionHierarchy& h);

@@ -257,11 +257,7 @@ Mesh march_tetrahedra(const TetGrid& grid, std::span<const std::uint32_t> active
     if (vertex_edges) *vertex_edges = std::move(scratch.order);
     return mesh;
   }
-  if (vertex_edges) {
-    vertex_edges->resize(clipped.vertex_count());
-    for (std::size_t v = 0; v < vertex_edges->size(); ++v)
-      (*vertex_edges)[v] = map.vertex_from[v] == detail::ClipMap::kNew ? kClippedVertex : scratch.order[map.vertex_from[v]];
-  }
+  if (vertex_edges) detail::carry_vertex_keys(map, scratch.order, kClippedVertex, *vertex_edges);
   return clipped;
 }
 
