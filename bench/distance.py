@@ -63,7 +63,8 @@ def main():
     ap.add_argument("--collapse", default="0,2", help="rounds of edge collapses after the query, one row each")
     ap.add_argument("--repeat", type=int, default=3, help="runs per timing (fastest kept)")
     ap.add_argument("--query-only", action="store_true",
-                    help="only flying edges, the grid's surface, the query at each D and OpenVDB (no simplification rows: minutes less on large volumes)")
+                    help="the grid's surface, the query at each D and the peers (flying edges, flying edges + meshoptimizer at each D, OpenVDB); "
+                         "no rows of our simplification (the tandem, mc --simplify): minutes less on large volumes")
     ap.add_argument("--out")
     ap.add_argument("datasets", nargs="*")
     a = ap.parse_args()
@@ -126,6 +127,9 @@ def main():
                     s = fastest([exe, "extract", grid, "--iso", f"{iso:g}", "--distance", f"{d:g}", "--collapse", str(rounds), "-o", mesh,
                                  "--json", "--quiet"], a.repeat, lambda r: r["surfaces"][0]["seconds"])["surfaces"][0]
                     record(f"adaptiso --distance --collapse {rounds}", d, mesh, s["triangles"], s["seconds"], True)
+                if fe_rec:
+                    one = last_json(run([simplify, fe, repr(d * voxel), "0", mesh]))
+                    record("flying edges + meshoptimizer", d, mesh, one["triangles_after"], fe_rec["seconds"] + one["seconds"], False)
                 if a.query_only:
                     continue
                 # Tandem: half the distance to the query, half to a simplification of its surface,
@@ -136,9 +140,6 @@ def main():
                                 lambda r: r["surfaces"][0]["seconds"] + r["surfaces"][0]["simplify"]["seconds"])["surfaces"][0]
                     record("adaptiso --distance D/2 --simplify D/2" + (" --checked" if checked else ""), d, mesh,
                            t["simplify"]["triangles_after"], t["seconds"] + t["simplify"]["seconds"], True)
-                if fe_rec:
-                    one = last_json(run([simplify, fe, repr(d * voxel), "0", mesh]))
-                    record("flying edges + meshoptimizer", d, mesh, one["triangles_after"], fe_rec["seconds"] + one["seconds"], False)
                 m = fastest([exe, "mc", src, "--iso", f"{iso:g}", "-o", mesh, "--json", "--quiet", "--simplify", f"{d:g}"], a.repeat,
                             lambda r: r["surfaces"][0]["seconds"] + r["surfaces"][0]["simplify"]["seconds"])["surfaces"][0]
                 record("adaptiso mc --simplify", d, mesh, m["simplify"]["triangles_after"], m["seconds"] + m["simplify"]["seconds"], False)

@@ -51,6 +51,27 @@ struct TempDir {
   std::string operator/(const std::string& f) const { return (path / f).string(); }
 };
 
+// A mesh's triangles as their corners' positions (with_normals: then the corners' normals), each
+// rotated to start at its smallest corner (the orientation kept), sorted: equal for two meshes of
+// the same surface whatever their numbering.
+template <bool with_normals = false>
+std::vector<std::array<std::array<float, 3>, with_normals ? 6 : 3>> sorted_triangles(const adaptiso::Mesh& m) {
+  std::vector<std::array<std::array<float, 3>, with_normals ? 6 : 3>> out;
+  out.reserve(m.triangles.size());
+  for (const auto& t : m.triangles) {
+    int k = 0;
+    for (int i = 1; i < 3; ++i)
+      if (m.positions[t[i]] < m.positions[t[k]]) k = i;
+    auto& tri = out.emplace_back();
+    for (int i = 0; i < 3; ++i) {
+      tri[i] = m.positions[t[(i + k) % 3]];
+      if constexpr (with_normals) tri[3 + i] = m.normals[t[(i + k) % 3]];
+    }
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
 inline void write_bytes(const std::string& path, const std::string& data) {
   std::ofstream out(path, std::ios::binary);
   out.write(data.data(), static_cast<std::streamsize>(data.size()));

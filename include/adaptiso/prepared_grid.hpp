@@ -24,7 +24,9 @@ struct StageStats {
 struct PrepareStats {
   std::string grid;  // "bisection" or "delaunay"
   std::int64_t voxels = 0;
-  std::uint64_t kept = 0, tetrahedra = 0;
+  std::uint64_t kept = 0;      // the volume's voxels the grid keeps as vertices
+  std::uint64_t vertices = 0;  // all its vertices: kept and, on a padded lattice, the copies past the far faces
+  std::uint64_t tetrahedra = 0;
   double max_error = 0;                         // the absolute bound asked for
   double threshold = 0;                         // the absolute structural threshold used
   double error_bound = -1;                      // bisection: the guaranteed max-norm error (< 0: no guarantee)
@@ -36,7 +38,7 @@ struct PrepareStats {
   double seconds(const std::string& stage) const;  // 0 when the stage did not run
 };
 
-// One JSON object: grid, voxels, kept, ratio, tetrahedra, max_error, pl_max_error, pl_rms_error,
+// One JSON object: grid, voxels, kept, ratio (kept / voxels), vertices (when counted), tetrahedra, max_error, pl_max_error, pl_rms_error,
 // error_bound, index_depth, grid_bytes_per_vertex, seconds{stage}, peak_bytes{stage}; and back (fields that
 // are missing keep their defaults, so older grid files load).
 std::string to_json(const PrepareStats& stats);

@@ -91,6 +91,13 @@ struct TetGrid {
     const Dims box = source.volume_box();
     return ijk[v][0] < box[0] && ijk[v][1] < box[1] && ijk[v][2] < box[2];
   }
+  // How many vertices are in the volume's box: the volume's voxels the grid keeps.
+  std::size_t volume_vertex_count() const {
+    if (!source.padded()) return vertex_count();
+    std::size_t n = 0;
+    for (std::uint32_t v = 0; v < vertex_count(); ++v) n += in_volume_box(v);
+    return n;
+  }
   // The global lattice keys (see above) of vertex v and of the edge between vertices a and b, in
   // the lattice of source.dims.
   LatticeKey lattice_key(std::uint32_t v) const { return adaptiso::lattice_key(source.dims, ijk[v]); }

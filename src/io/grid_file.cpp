@@ -369,6 +369,12 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
       remember->checksum = stored;
     }
   }
+  // A padded lattice's counts from its checked vertices, not from the metadata: until 2026-11-29
+  // prepare counted the copies past the far faces as kept voxels.
+  if (grid.source.padded()) {
+    p.stats.kept = grid.volume_vertex_count();
+    p.stats.vertices = grid.vertex_count();
+  }
   if (!keep_tets) {
     p.index = IntervalTree{};
     if (p.stats.tetrahedra == 0) p.stats.tetrahedra = T;  // an older file's metadata without them

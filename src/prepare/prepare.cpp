@@ -159,7 +159,8 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
     if (bisection && pl.max > stats.error_bound + error_tolerance(range, stats.error_bound))
       throw std::logic_error(fmt::format("bisection grid: error {} exceeds its guaranteed bound {}", pl.max, stats.error_bound));
   }
-  stats.kept = p.grid.vertex_count();
+  stats.kept = p.grid.volume_vertex_count();
+  stats.vertices = p.grid.vertex_count();
   stats.tetrahedra = p.grid.tet_count();
   if (release) release->bytes = VoxelBuffer();
   release_free_heap();  // what the selection freed in the heap's arenas (the MR head: 9 MiB)
@@ -237,7 +238,8 @@ PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, c
   p.index = clock.run("index", [&] { return build_interval_tree(p.grid, fine.index.depth ? fine.index.depth : kDefaultTreeDepth); });
   p.stats.grid = "bisection";
   p.stats.voxels = fine.stats.voxels;
-  p.stats.kept = p.grid.vertex_count();
+  p.stats.kept = p.grid.volume_vertex_count();
+  p.stats.vertices = p.grid.vertex_count();
   p.stats.tetrahedra = p.grid.tet_count();
   p.stats.max_error = p.grid.source.max_error;
   p.stats.error_bound = grid.error_bound;

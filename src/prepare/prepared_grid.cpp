@@ -36,6 +36,7 @@ std::string to_json(const PrepareStats& s) {
                       {"grid_bytes_per_vertex", s.grid_bytes_per_vertex},
                       {"seconds", seconds},
                       {"peak_bytes", peak}};
+  if (s.vertices) j["vertices"] = s.vertices;  // files before 2026-11-29 did not count them
   if (s.error_bound >= 0) j["error_bound"] = s.error_bound;
   if (s.max_displacement > 0) j["max_displacement"] = s.max_displacement;
   if (s.pl_max_error >= 0) {
@@ -65,6 +66,7 @@ PrepareStats prepare_stats_from_json(const std::string& text) {
   if (auto it = j.find("grid"); it != j.end() && it->is_string()) s.grid = it->get<std::string>();
   get("voxels", s.voxels);
   get("kept", s.kept);
+  get("vertices", s.vertices);
   get("tetrahedra", s.tetrahedra);
   get("max_error", s.max_error);
   if (auto it = j.find("max_error"); it != j.end() && it->is_null())

@@ -94,17 +94,21 @@ const char* content_type(const fs::path& p) {
   return nullptr;
 }
 
-// u32 N, f32 positions[3N] (world), f32 values[N]
+// u32 N, f32 positions[3N] (world), f32 values[N]: the vertices in the volume's box (a padded
+// lattice's copies past the far faces are not the volume's voxels; export's points file skips them too).
 std::string encode_points(const TetGrid& grid) {
-  const std::uint32_t N = static_cast<std::uint32_t>(grid.vertex_count());
+  const std::uint32_t N = static_cast<std::uint32_t>(grid.volume_vertex_count());
   std::string out(4 + 16 * std::size_t{N}, '\0');
   std::memcpy(out.data(), &N, 4);
-  for (std::uint32_t i = 0; i < N; ++i) {
-    const Vec3 w = grid.world_position(i);
+  std::size_t k = 0;
+  for (std::uint32_t v = 0; v < grid.vertex_count(); ++v) {
+    if (!grid.in_volume_box(v)) continue;
+    const Vec3 w = grid.world_position(v);
     float rec[3] = {static_cast<float>(w[0]), static_cast<float>(w[1]), static_cast<float>(w[2])};
-    const float value = static_cast<float>(grid.values[i]);
-    std::memcpy(out.data() + 4 + 12 * std::size_t{i}, rec, 12);
-    std::memcpy(out.data() + 4 + 12 * std::size_t{N} + 4 * std::size_t{i}, &value, 4);
+    const float value = static_cast<float>(grid.values[v]);
+    std::memcpy(out.data() + 4 + 12 * k, rec, 12);
+    std::memcpy(out.data() + 4 + 12 * std::size_t{N} + 4 * k, &value, 4);
+    ++k;
   }
   return out;
 }
@@ -396,7 +400,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
                 {"min", s.min},
                 {"max", s.max},
                 {"type", s.type},
-                {"kept", grid->grid.vertex_count()},
+                {"kept", grid->grid.volume_vertex_count()},
                 {"tetrahedra", tetrahedron_count(*grid)},
                 {"histogram", histogram},
                 {"reference", volume != nullptr},

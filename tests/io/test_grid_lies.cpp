@@ -128,19 +128,7 @@ std::uint32_t vertex_at(const TetGrid& g, std::uint32_t x, std::uint32_t y, std:
 using Corner = std::array<float, 3>;
 using Triangle = std::array<Corner, 3>;
 
-// Triangles as their corner positions, each rotated to start at its smallest corner (the
-// orientation kept), sorted: equal for two meshes of the same surface whatever the numbering.
-std::vector<Triangle> triangles_of(const Mesh& m) {
-  std::vector<Triangle> out;
-  for (const auto& t : m.triangles) {
-    Triangle tri{m.positions[t[0]], m.positions[t[1]], m.positions[t[2]]};
-    const int k = static_cast<int>(std::min_element(tri.begin(), tri.end()) - tri.begin());
-    std::rotate(tri.begin(), tri.begin() + k, tri.end());
-    out.push_back(tri);
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
+std::vector<Triangle> triangles_of(const Mesh& m) { return testutil::sorted_triangles(m); }
 
 }  // namespace
 

@@ -635,8 +635,9 @@ TEST(ViewServer, AGridLoadedInPartReadsItsTetrahedraOnceWhenARouteNeedsThem) {
 }
 
 // Without a volume the histogram is the grid's vertex values: of a padded lattice, those inside the
-// volume's box, not the copies of its last slices past the far faces.
-TEST(ViewServer, AGridsHistogramCountsTheVolumesVoxelsNotThePaddingsCopies) {
+// volume's box, not the copies of its last slices past the far faces. The same for the kept count
+// (the info's and the facts') and the point cloud, which counted and drew the copies too.
+TEST(ViewServer, AGridsHistogramKeptCountAndPointsAreTheVolumesVoxelsNotThePaddingsCopies) {
   const Volume v = make_synthetic("noise", 14, ScalarType::f32);
   PrepareOptions o;
   o.max_error = 0;
@@ -654,4 +655,18 @@ TEST(ViewServer, AGridsHistogramCountsTheVolumesVoxelsNotThePaddingsCopies) {
   std::int64_t total = 0;
   for (const auto& n : j["histogram"]["counts"]) total += n.get<std::int64_t>();
   EXPECT_EQ(total, inside);
+  EXPECT_EQ(j["kept"].get<std::int64_t>(), inside);
+  EXPECT_EQ(j["facts"]["kept"].get<std::int64_t>(), inside);
+  EXPECT_EQ(j["facts"]["vertices"].get<std::size_t>(), g->grid.vertex_count());
+  const auto pts = c.Get("/api/points");
+  ASSERT_EQ(pts->status, 200);
+  std::uint32_t n = 0;
+  std::memcpy(&n, pts->body.data(), 4);
+  ASSERT_EQ(std::int64_t(n), inside);
+  ASSERT_EQ(pts->body.size(), 4 + 16 * std::size_t{n});
+  for (std::size_t i = 0; i < 3 * std::size_t{n}; ++i) {
+    float x;
+    std::memcpy(&x, pts->body.data() + 4 + 4 * i, 4);
+    ASSERT_TRUE(x >= 0 && x <= 13) << i << " " << x;  // unit spacing, origin 0: the box is [0, 13]
+  }
 }
