@@ -38,9 +38,10 @@ struct PrepareStats {
   double seconds(const std::string& stage) const;  // 0 when the stage did not run
 };
 
-// One JSON object: grid, voxels, kept, ratio (kept / voxels), vertices (when counted), tetrahedra, max_error, pl_max_error, pl_rms_error,
-// error_bound, index_depth, grid_bytes_per_vertex, seconds{stage}, peak_bytes{stage}; and back (fields that
-// are missing keep their defaults, so older grid files load).
+// One JSON object: grid, voxels, kept, ratio (kept / voxels), vertices (when counted), tetrahedra,
+// max_error, pl_max_error, pl_rms_error, error_bound, index_depth, grid_bytes_per_vertex,
+// seconds{stage}, peak_bytes{stage}; and back (fields that are missing keep their defaults, so older
+// grid files load).
 std::string to_json(const PrepareStats& stats);
 PrepareStats prepare_stats_from_json(const std::string& json);
 
