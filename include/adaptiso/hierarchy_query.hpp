@@ -84,8 +84,9 @@ public:
   // The surface at iso within about `distance` voxels (of the smallest spacing) of the grid's own
   // surface at iso (the one extract gives at the prepared error), with far fewer triangles.
   // Refinement follows this surface only (distance_query.cpp): from the 6 root tetrahedra, one the
-  // surface may cross is split while a test finds it too coarse (a triangle's centre farther than
-  // the distance from the grid's surface, or a cut point its split adds farther than the distance
+  // surface may cross is split while a test finds it too coarse (a triangle's centre, or for a
+  // triangle longer than 3·distance one of its corner quarters' centres, farther than the
+  // distance from the grid's surface, or a cut point its split adds farther than the distance
   // from its triangles, or a surface hidden beneath it while its longest edge exceeds
   // 2·distance, kept only when the surface shows beneath it); the splits are then closed under
   // their parents, so the mesh stays conforming.
@@ -99,9 +100,10 @@ public:
   // 82,286 at 0.5 voxels, 75,024 → 56,816 → 42,968 at 2), on MR with thick slices 1–2 % at 0.5.
   // Guaranteed: every mesh vertex is a vertex of the grid's own surface, bit for bit (the cut of a
   // coarse edge is placed on the grid's cut edge inside it); the surface is watertight and
-  // 2-manifold where the grid's is, oriented, and the same for any thread count; the centre of
-  // every triangle of a tetrahedron whose longest edge exceeds the distance, and of every triangle
-  // a collapse made, was found within it of the grid's surface along the triangle's normal (most
+  // 2-manifold where the grid's is, oriented, and the same for any thread count; the centre (and
+  // when longer than 3·distance the corner quarters' centres) of every triangle of a tetrahedron
+  // whose longest edge exceeds the distance, and the centre of every triangle a collapse made,
+  // was found within it of the grid's surface along the triangle's normal (most
   // triangles: those of tetrahedra split only to stay conforming are not tested). Without
   // collapses (collapse_rounds 0) each triangle lies in its tetrahedron, so the surface is free
   // of self-intersections; collapses move triangles out of their tetrahedra and, in thin

@@ -15,7 +15,8 @@
 // split when
 // - its surface (one or two triangles through its edges' cut points, which lie on the grid's
 //   surface) is too far: a triangle's centre farther than the distance from the grid's surface
-//   (the grid's interpolant has the same sign at both ends of centre ± distance·normal), or a cut
+//   (the grid's interpolant has the same sign at both ends of centre ± distance·normal), or, in a
+//   triangle longer than 3·distance, one of its corner quarters' centres (triangle_far), or a cut
 //   point the split adds (on the edges from the refinement edge's midpoint to the other two
 //   corners) farther than the distance from its triangles;
 // - or a surface hides beneath and its longest edge exceeds 2·distance: no corner shows it, or
