@@ -21,6 +21,9 @@
 //   corners) farther than the distance from its triangles;
 // - or a surface hides beneath and its longest edge exceeds 2·distance: no corner shows it, or
 //   the midpoint differs from both ends of the refinement edge.
+// - or it shows the surface, passes those tests, its longest edge exceeds 2·distance and the half
+//   of it whose corners all lie on one side hides a surface (look_beneath): a speck of surface at
+//   one corner must not hide the rest of the tetrahedron.
 // Smaller hidden parts are left out, and so are the splits made to look for them: a split for a
 // hidden surface is kept only when some tetrahedron beneath it shows the surface at its corners,
 // so a part left out costs its neighbours no closure. Tetrahedra whose longest edge is within the
@@ -474,7 +477,8 @@ private:
       if (cut[s]) added[s] = q_.cut(mid, n.c[others[s]]).p;
     }
     const bool shows = shows_surface(n);
-    if (!(q_.forced(id) || q_.everything || splits(n, mid, i, j, others, added, cut))) return shows;
+    const bool split = q_.forced(id) || q_.everything || splits(n, mid, i, j, others, added, cut);
+    if (!split && !(shows && longest2(n) > 4 * q_.distance * q_.distance)) return shows;
     const auto& e = order_table::kTable[n.order];
     Node a = n, b = n;  // a: the midpoint in slot j; b: in slot i
     a.parent = b.parent = &n;
@@ -491,6 +495,7 @@ private:
       a.cut[kEdgeOf[i][j]] = q_.cut(n.c[i], mid).p;
       b.cut[kEdgeOf[i][j]] = q_.cut(mid, n.c[j]).p;
     }
+    if (!split) return look_beneath(a, b, m, depth) || shows;
     bool found[2] = {false, false};
     both(
         depth, [&] { found[0] = node(a, depth + 1); }, [&] { found[1] = node(b, depth + 1); });
@@ -499,16 +504,38 @@ private:
     return keep;
   }
 
-  // The tests of the top of this file.
-  bool splits(const Node& n, const Corner& mid, int i, int j, const int others[2], const Point added[2], const bool cut[2]) const {
-    ++q_.tested.local();
-    double longest2 = 0;
+  // A tetrahedron larger than 2·distance that shows the surface and passes the tests may still
+  // hide other parts of it: in the half of it whose corners all lie on one side (at most one
+  // half's do). That half is searched as a tetrahedron whose corners show nothing would be, and
+  // the split is kept, the other half refined in turn, when the search finds a surface. Without
+  // it a coarse tetrahedron showing a speck of surface at one corner hid everything else inside:
+  // on the padded lattice, whose far faces no longer force the top levels' splits, the chest CT at
+  // D = 2 lost its thin vessels across whole 128-voxel tetrahedra (p95 from the grid's surface
+  // 7.5 voxels).
+  bool look_beneath(const Node& a, const Node& b, const Coord& m, int depth) const {
+    const bool a_hides = !shows_surface(a), b_hides = !shows_surface(b);
+    if (!a_hides && !b_hides) return false;
+    if (!node(a_hides ? a : b, depth + 1)) return false;
+    node(a_hides ? b : a, depth + 1);
+    if (q_.split.mark(q_.lat.index(m))) q_.marked.local().push_back(q_.lat.index(m));
+    return true;
+  }
+
+  double longest2(const Node& n) const {
+    double longest = 0;
     for (int a = 0; a < 4; ++a)
       for (int b = a + 1; b < 4; ++b) {
         double d2 = 0;
         for (int k = 0; k < 3; ++k) d2 += std::pow((n.t[a][k] - n.t[b][k]) * q_.unit[k], 2);
-        longest2 = std::max(longest2, d2);
+        longest = std::max(longest, d2);
       }
+    return longest;
+  }
+
+  // The tests of the top of this file.
+  bool splits(const Node& n, const Corner& mid, int i, int j, const int others[2], const Point added[2], const bool cut[2]) const {
+    ++q_.tested.local();
+    const double longest2 = this->longest2(n);
     const auto code = static_cast<std::uint8_t>(q_.above(n.c[0].value) | (q_.above(n.c[1].value) << 1) | (q_.above(n.c[2].value) << 2) |
                                                 (q_.above(n.c[3].value) << 3));
     const double d2 = q_.distance * q_.distance;
