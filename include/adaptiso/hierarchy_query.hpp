@@ -89,8 +89,7 @@ public:
   // distance from the grid's surface, or a cut point its split adds farther than the distance
   // from its triangles, or a surface hidden beneath it, or beneath its half whose corners show
   // none, while its longest edge exceeds 2·distance, kept only when the surface shows beneath
-  // it); the splits are then closed under
-  // their parents, so the mesh stays conforming.
+  // it); the splits are then closed under their parents, so the mesh stays conforming.
   // Then up to `collapse_rounds` rounds of edge collapses (distance_query.cpp): an edge is collapsed
   // into one of its ends when the same tests pass on the result (every new triangle's centre
   // within the distance of the grid's surface along its normal, unless its edges are within
