@@ -511,7 +511,9 @@ private:
   // it a coarse tetrahedron showing a speck of surface at one corner hid everything else inside:
   // on the padded lattice, whose far faces no longer force the top levels' splits, the chest CT at
   // D = 2 lost its thin vessels across whole 128-voxel tetrahedra (p95 from the grid's surface
-  // 7.5 voxels).
+  // 7.5 voxels; 1.34 so, as on the unpadded grid). When both halves show the surface nothing is
+  // searched: following the speck down to 2·distance in every leaf would search along every
+  // surface the query makes.
   bool look_beneath(const Node& a, const Node& b, const Coord& m, int depth) const {
     const bool a_hides = !shows_surface(a), b_hides = !shows_surface(b);
     if (!a_hides && !b_hides) return false;
