@@ -477,8 +477,9 @@ private:
       if (cut[s]) added[s] = q_.cut(mid, n.c[others[s]]).p;
     }
     const bool shows = shows_surface(n);
-    const bool split = q_.forced(id) || q_.everything || splits(n, mid, i, j, others, added, cut);
-    if (!split && !(shows && longest2(n) > 4 * q_.distance * q_.distance)) return shows;
+    const double longest2 = this->longest2(n);
+    const bool split = q_.forced(id) || q_.everything || splits(n, longest2, mid, i, j, added, cut);
+    if (!split && !(shows && longest2 > 4 * q_.distance * q_.distance)) return shows;
     const auto& e = order_table::kTable[n.order];
     Node a = n, b = n;  // a: the midpoint in slot j; b: in slot i
     a.parent = b.parent = &n;
@@ -535,9 +536,9 @@ private:
   }
 
   // The tests of the top of this file.
-  bool splits(const Node& n, const Corner& mid, int i, int j, const int others[2], const Point added[2], const bool cut[2]) const {
+  // longest2: the squared length of the tetrahedron's longest edge.
+  bool splits(const Node& n, double longest2, const Corner& mid, int i, int j, const Point added[2], const bool cut[2]) const {
     ++q_.tested.local();
-    const double longest2 = this->longest2(n);
     const auto code = static_cast<std::uint8_t>(q_.above(n.c[0].value) | (q_.above(n.c[1].value) << 1) | (q_.above(n.c[2].value) << 2) |
                                                 (q_.above(n.c[3].value) << 3));
     const double d2 = q_.distance * q_.distance;
@@ -557,7 +558,6 @@ private:
       for (int k = 0; k < cs.triangles; ++k) best = std::min(best, distance2_to_triangle(added[s], tris[k][0], tris[k][1], tris[k][2]));
       if (best > d2) return true;
     }
-    (void)others;
     for (int k = 0; k < cs.triangles; ++k)
       if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
     return false;
