@@ -510,7 +510,8 @@ BothWays p95_both_ways_on_the_default_grid(const std::string& path, double iso, 
 // voxels (0.47 before the padding); probed at its corner quarters' centres too, 0.42.
 TEST(DistanceQuery, ALargeTriangleIsProbedNearItsCornersNotOnlyAtItsCentre) {
   REQUIRE_DATA(data);
-  const auto p95 = p95_both_ways_on_the_default_grid(data + "/mr_head_HeadMRVolume/HeadMRVolume.mhd", 40.5, 0.5, 4'000'000);
+  const auto p95 =
+      p95_both_ways_on_the_default_grid(data + "/mr_head_HeadMRVolume/HeadMRVolume.mhd", 40.5, 0.5, DistanceOptions{}.max_samples);
   EXPECT_LE(p95.grid_to_query, 0.5);
   EXPECT_LE(p95.query_to_grid, 0.5);
 }
