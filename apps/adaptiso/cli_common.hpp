@@ -21,6 +21,21 @@ inline CLI::Validator finite_number() {
   return CLI::Validator([](std::string& s) -> std::string { return parse_finite(s) ? "" : "'" + s + "' is not a finite number"; },
                         "FINITE");
 }
+// A finite number ≥ 0 (> 0 with `positive`), refused in one short line: CLI11's NonNegativeNumber
+// and PositiveNumber print their range's upper end, the largest double, in all its 309 digits,
+// and combined with finite_number() both messages.
+inline CLI::Validator finite_sign(bool positive) {
+  return CLI::Validator(
+      [positive](std::string& s) -> std::string {
+        const auto x = parse_finite(s);
+        if (!x) return "'" + s + "' is not a finite number";
+        if (positive ? *x > 0 : *x >= 0) return "";
+        return (positive ? "must be positive, got " : "must not be negative, got ") + s;
+      },
+      positive ? "POSITIVE" : "NON-NEGATIVE");
+}
+inline CLI::Validator non_negative_number() { return finite_sign(false); }
+inline CLI::Validator positive_number() { return finite_sign(true); }
 
 struct VolumeInput {
   std::string path;

@@ -20,7 +20,7 @@ void add_compare(CLI::App& app) {
   cmd->add_option("B", *b, "Second mesh (.ply)")->required();
   cmd->add_option("--voxel", *voxel, "Length of a voxel in the meshes' units, for the figures in voxels")
       ->capture_default_str()
-      ->check(finite_number() & CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--samples", *samples, "Minimum samples per direction (at least 4 per triangle are taken)")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{1000}, std::size_t{100'000'000}));

@@ -37,7 +37,7 @@ struct MeshOutputFlags {
     auto* s = app->add_option("--simplify", simplify,
                               "Simplify each mesh so that it moves about this far (voxels of the smallest spacing; meshoptimizer's error "
                               "estimate, borders locked, kept vertices unmoved)")
-                  ->check(finite_number() & CLI::NonNegativeNumber);
+                  ->check(non_negative_number());
     app->add_flag("--checked", checked,
                   "With --simplify: check each region's result both ways (vertices and triangle centres within the distance) and "
                   "simplify smaller regions where it fails; slower, more triangles on noisy surfaces")
@@ -182,7 +182,7 @@ struct DistanceFlags {
     auto* d = cmd->add_option("--distance", distance,
                               "Bisection grids: the fewest triangles within about this distance of the grid's surface (voxels of the "
                               "smallest spacing), refined where this surface needs it")
-                  ->check(finite_number() & CLI::NonNegativeNumber);
+                  ->check(non_negative_number());
     cmd->add_option("--collapse", collapse,
                     fmt::format("With --distance: up to this many rounds of edge collapses after the march, each checked by the same "
                                 "tests (a quarter fewer triangles a round on the CT scans measured, 1-2 % on MR with thick slices; a "

@@ -75,9 +75,9 @@ void add_prepare(CLI::App& app) {
   cmd->add_option("--brick-side", *brick_side,
                   "Bisection grid: compute the error hierarchy in bricks of this many voxels a side (a power of two >= 2; the same "
                   "grid, byte for byte). Under mpirun the bricks are shared out over the ranks (default 128 there)")
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   auto threads = std::make_shared<int>(0);
-  cmd->add_option("--threads", *threads, "Threads this process uses (default: every core)")->check(CLI::PositiveNumber);
+  cmd->add_option("--threads", *threads, "Threads this process uses (default: every core)")->check(positive_number());
   cmd->callback([=] {
     PrepareOptions options = pf->options(in->path);  // a typo fails before the volume is read
     refuse_same_file(in->path, *output, "-o");

@@ -51,7 +51,7 @@ void add_view(CLI::App& app) {
   cmd->add_option("--idle-seconds", opt->idle_seconds,
                   "A page's surface unused this long is dropped, the levels of detail unused 5x as long")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--allow-origin", opt->allowed_origins,
                   "Let web pages of this origin (http://host:port; * for any) use the API; others are refused (repeatable)");
   cmd->callback([=] {

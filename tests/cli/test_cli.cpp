@@ -617,6 +617,29 @@ TEST(HostileArguments, SubnormalIsoIsAcceptedAndNanVoxelIsRefused) {
   EXPECT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error inf -o " + (t / "g.adg")).code, 2);
 }
 
+// CLI11's NonNegativeNumber and PositiveNumber named their range's upper end in full: "Value -1 not
+// in range 0.000000 to 1797693134862315…" (309 digits), and "inf" got two messages joined by AND.
+TEST(HostileArguments, NegativeOrZeroWhereAPositiveNumberIsAskedGivesAShortLine) {
+  TempDir t("hostile");
+  ASSERT_EQ(testutil::run_cli("generate sphere --size 8 -o " + (t / "s.nrrd")).code, 0);
+  const std::string volume = t / "s.nrrd", mesh = t / "m.ply";
+  const std::pair<std::string, std::string> cases[] = {
+      {"run " + volume + " --iso 0.5 --distance -1 -o " + mesh, "--distance: must not be negative, got -1"},
+      {"run " + volume + " --iso 0.5 --distance inf -o " + mesh, "--distance: 'inf' is not a finite number"},
+      {"mc " + volume + " --iso 0.5 --simplify -0.5 -o " + mesh, "--simplify: must not be negative, got -0.5"},
+      {"prepare " + volume + " --threads 0 -o " + (t / "g.adg"), "--threads: must be positive, got 0"},
+      {"prepare " + volume + " --brick-side -8 -o " + (t / "g.adg"), "--brick-side: must be positive, got -8"},
+      {"compare " + mesh + " " + mesh + " --voxel -1", "--voxel: must be positive, got -1"},
+  };
+  for (const auto& [args, message] : cases) {
+    const auto r = testutil::run_cli(args);
+    EXPECT_EQ(r.code, 2) << args;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
+    EXPECT_LT(r.err.size(), 120u) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+}
+
 TEST(HostileArguments, GridRangeOfPlusMinus1e308WithRelativeNamesTheFileAndOption) {
   TempDir t("hostile");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 12 -o " + (t / "s.nrrd")).code, 0);
