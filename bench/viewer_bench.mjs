@@ -6,14 +6,15 @@
 // surface only once the GPU has drawn the previous one, so "drawn" is on screen, not queued.
 //
 // Usage: node bench/viewer_bench.mjs ADAPTISO_CLI GRID.adg [--budget N | --distance D [--drag-distance D2]
-//                                    [--drag-triangles T] [--collapse R] [--rest-after MS]] [--from F --to T] [--seconds S]
+//                                    [--drag-triangles T] [--collapse R] [--rest-after MS] [--drag-scale S]] [--from F --to T] [--seconds S]
 //                                    [--pause MS]
 // F and T are slider positions (0–1000). --budget drives the error levels (?levels=1: built first,
 // waited for); --distance the surface-adaptive queries of a bisection grid (D at rest; while
 // dragging at least D2, default 2, and coarser to keep near T triangles, the page's default
 // 20,000; a huge T keeps D2; nothing to build; R rounds of edge collapses, the server's default
 // when absent; --rest-after the page's ?rest-after, the pause in a drag after which it asks for the
-// surface at rest). --pause: how long the slider is held at its last position before the release
+// surface at rest; --drag-scale the page's ?drag-scale, the resolution dragged surfaces are drawn
+// at, default 0.5 with software rendering). --pause: how long the slider is held at its last position before the release
 // (default 1000 ms; 0 releases at once); with the distance mode's ?rest-after shorter than it, the
 // surface at rest may be on screen before the release (ms_after_release 0, drawn_before_release).
 // Prints one JSON object.
@@ -29,10 +30,11 @@ const budget = Number(opt('--budget', 150000)), from = Number(opt('--from', 400)
 const seconds = Number(opt('--seconds', 4));
 const distance = opt('--distance', null), dragDistance = opt('--drag-distance', '2');
 const dragTriangles = opt('--drag-triangles', null), collapse = opt('--collapse', null), restAfter = opt('--rest-after', null);
+const dragScale = opt('--drag-scale', null);
 const pause = Number(opt('--pause', 1000));
 const query = distance !== null
   ? `?distance=${distance}&drag-distance=${dragDistance}${dragTriangles ? `&drag-triangles=${dragTriangles}` : ''}${collapse !== null ? `&collapse=${collapse}` : ''}` +
-    `${restAfter !== null ? `&rest-after=${restAfter}` : ''}`
+    `${restAfter !== null ? `&rest-after=${restAfter}` : ''}${dragScale !== null ? `&drag-scale=${dragScale}` : ''}`
   : `?levels=1&budget=${budget}`;
 const web = join(dirname(fileURLToPath(import.meta.url)), '..', 'web');
 const { chromium } = createRequire(join(web, 'package.json'))('playwright-core');

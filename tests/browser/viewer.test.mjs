@@ -234,6 +234,16 @@ try {
   const drags = nearShown.filter((r) => r.coarse), rest = nearShown.filter((r) => !r.coarse);
   if (!drags.length || drags.some((r) => r.distance !== 2)) fail(`dragged surfaces are not within 2 voxels: ${JSON.stringify(drags.map((r) => r.distance))}`);
   if (rest.at(-1).distance !== 1) fail(`the surface at rest is not within the distance chosen (1): ${rest.at(-1).distance}`);
+  // SwiftShader here: the dragged surfaces are drawn at half the canvas's resolution, the surface
+  // at rest at full resolution (the page's 800×600).
+  const software = await near.evaluate(() => /swiftshader|llvmpipe|software/i.test(String((() => {
+    const gl = document.createElement('canvas').getContext('webgl2');
+    const info = gl?.getExtension('WEBGL_debug_renderer_info');
+    return gl ? gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER) : '';
+  })())));
+  const full = JSON.stringify([800, 600]), half = JSON.stringify([400, 300]);
+  if (JSON.stringify(rest.at(-1).pixels) !== full) fail(`the surface at rest was drawn at ${rest.at(-1).pixels}, not ${full}`);
+  if (software && drags.some((r) => JSON.stringify(r.pixels) !== half)) fail(`dragged surfaces were drawn at ${JSON.stringify(drags.map((r) => r.pixels))}, not ${half}`);
   const restIso = Number(await near.locator('#stats').getAttribute('data-iso'));
   if (rest.at(-1).triangles !== await apiTriangles(restIso, 1)) fail(`the surface at rest has ${rest.at(-1).triangles} triangles, the API ${await apiTriangles(restIso, 1)}`);
   // Each dragged surface is the server's at its own iso-value and 2 voxels (the last drag may stop
@@ -241,7 +251,7 @@ try {
   const lastDrag = drags.at(-1);
   if (lastDrag.triangles !== await apiTriangles(lastDrag.iso, 2)) fail(`the last dragged surface has ${lastDrag.triangles} triangles, the API ${await apiTriangles(lastDrag.iso, 2)} at iso ${lastDrag.iso}, distance 2`);
   if ((await near.locator('#stats').getAttribute('data-distance')) !== '1') fail('#stats does not say the distance of the surface shown');
-  console.log(`distance: ${drags.length} dragged surfaces within 2 voxels (${drags.at(-1).triangles} triangles), at rest within 1 voxel (${rest.at(-1).triangles} triangles)`);
+  console.log(`distance: ${drags.length} dragged surfaces within 2 voxels (${drags.at(-1).triangles} triangles, drawn at ${drags.at(-1).pixels.join('×')}), at rest within 1 voxel (${rest.at(-1).triangles} triangles, ${rest.at(-1).pixels.join('×')})`);
   await near.close();
   // Held still while dragging (?rest-after=150), the page asks for the surface at rest before the
   // release, and the release then asks for nothing more. A drag that resumes while that surface is
