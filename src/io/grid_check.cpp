@@ -324,13 +324,16 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
   SpanCheck spans(h.value_span, n);
   const bool narrow = narrow_lattice(g.source.dims);
   const TetHash hash = TetHash::draw();
+  // The leaves' hashes are for tetrahedra read now, or later against the walk (check_tets_walked).
+  const bool hashing = !file_leaves || walked;
   tbb::parallel_for(std::size_t{0}, roots, [&](std::size_t f) {
     std::uint64_t count = 0, sum = 0;
     Wide volume = 0;
     root_spans[f] = walk.visit(
         top.roots[f], numbers, g.values,
         [&](const Tet& t, const Corners& c, std::int64_t) {
-          sum += hash(count++, c.id);
+          if (hashing) sum += hash(count, c.id);
+          ++count;
           for (std::uint32_t id : c.id) mark(used, id);
           volume += six_volume(t, narrow);
           return ValueSpan{std::min({c.value[0], c.value[1], c.value[2], c.value[3]}),
