@@ -15,11 +15,12 @@
 
 namespace adaptiso::cli {
 
+// The refusal of every finite-number check below.
+inline std::string not_finite(const std::string& s) { return "'" + s + "' is not a finite number"; }
 // For every floating-point option: CLI11 would take "nan" and "inf" as numbers. Subnormals such
 // as 1e-320 are finite and pass.
 inline CLI::Validator finite_number() {
-  return CLI::Validator([](std::string& s) -> std::string { return parse_finite(s) ? "" : "'" + s + "' is not a finite number"; },
-                        "FINITE");
+  return CLI::Validator([](std::string& s) -> std::string { return parse_finite(s) ? "" : not_finite(s); }, "FINITE");
 }
 // A finite number ≥ 0 (> 0 with `positive`), refused in one short line: CLI11's NonNegativeNumber
 // and PositiveNumber print their range's upper end, the largest double, in all its 309 digits,
@@ -28,7 +29,7 @@ inline CLI::Validator finite_sign(bool positive) {
   return CLI::Validator(
       [positive](std::string& s) -> std::string {
         const auto x = parse_finite(s);
-        if (!x) return "'" + s + "' is not a finite number";
+        if (!x) return not_finite(s);
         if (positive ? *x > 0 : *x >= 0) return "";
         return (positive ? "must be positive, got " : "must not be negative, got ") + s;
       },
