@@ -398,7 +398,7 @@ async function pump() {
     // the next request rewrites stats before a dragged surface is drawn.
     const entry = { iso, coarse, level: stats.level, error: stats.error, distance: stats.distance, triangles: stats.triangles, bytes: stats.bytes,
                     request: t1 - t0, server: 1000 * stats.extract, wait: stats.wait, encode: stats.encode, decode: t2 - t1,
-                    gpuWait: t2b - t2, fromInput: t2 - input, fromInputUploaded: t2b - input, scale: drawScale,
+                    gpuWait: t2b - t2, fromInput: t2 - input, fromInputUploaded: t2b - input,
                     pixels: [renderer.domElement.width, renderer.domElement.height] };
     const note = () => {
       const t3 = performance.now();
