@@ -476,6 +476,7 @@ TEST(DistanceQuery, ASmallTriangleInALargeTetrahedronIsStillProbed) {
   const Mesh m = query.extract_within(iso, 2, nullptr, 0);
   DistanceOptions sampling;
   sampling.min_samples = 20'000;
+  sampling.max_samples = 200'000;  // the grid's surface has 470 k triangles: the figures move by 0.01
   const SurfaceDistance sd = surface_distance(m, query.extract(iso, 0), sampling);
   EXPECT_LE(sd.b_to_a.mean, 0.48);
   EXPECT_LE(sd.b_to_a.p95, 1.3);

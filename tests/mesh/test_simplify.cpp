@@ -89,11 +89,39 @@ double to_triangle(const P& p, const P& a, const P& b, const P& c) {
   return std::min({to_segment(p, a, b), to_segment(p, b, c), to_segment(p, c, a)});
 }
 P at(const Mesh& m, std::uint32_t v) { return {m.positions[v][0], m.positions[v][1], m.positions[v][2]}; }
-double to_mesh(const P& p, const Mesh& m) {
-  double best = std::numeric_limits<double>::infinity();
-  for (const auto& t : m.triangles) best = std::min(best, to_triangle(p, at(m, t[0]), at(m, t[1]), at(m, t[2])));
-  return best;
-}
+// The distance from a point to the nearest triangle of a mesh, every triangle tried but those whose
+// bounding box is farther than the nearest found so far (the last point's nearest triangle first:
+// the points come in mesh order).
+class ToMesh {
+public:
+  explicit ToMesh(const Mesh& m) : m_(m), boxes_(m.triangle_count()) {
+    for (std::size_t t = 0; t < boxes_.size(); ++t)
+      for (int k = 0; k < 3; ++k) {
+        const auto& tri = m.triangles[t];
+        boxes_[t].first[k] = std::min({at(m, tri[0])[k], at(m, tri[1])[k], at(m, tri[2])[k]});
+        boxes_[t].second[k] = std::max({at(m, tri[0])[k], at(m, tri[1])[k], at(m, tri[2])[k]});
+      }
+  }
+  double operator()(const P& p) {
+    double best = distance(p, last_);
+    for (std::size_t t = 0; t < boxes_.size(); ++t) {
+      double gap2 = 0;
+      for (int k = 0; k < 3; ++k) gap2 += std::pow(std::max({boxes_[t].first[k] - p[k], p[k] - boxes_[t].second[k], 0.0}), 2);
+      if (gap2 >= best * best) continue;
+      if (const double d = distance(p, t); d < best) best = d, last_ = t;
+    }
+    return best;
+  }
+
+private:
+  double distance(const P& p, std::size_t t) const {
+    const auto& tri = m_.triangles[t];
+    return to_triangle(p, at(m_, tri[0]), at(m_, tri[1]), at(m_, tri[2]));
+  }
+  const Mesh& m_;
+  std::vector<std::pair<P, P>> boxes_;
+  std::size_t last_ = 0;
+};
 
 // The largest distance from `from`'s vertices to `to` (those of closed pieces of `from` that `to`
 // dropped whole and that span at most `small` left out), and from `to`'s triangle centres to `from`.
@@ -114,15 +142,16 @@ std::pair<double, double> checked_points(const Mesh& from, const Mesh& to, doubl
     if (kept.count(from.positions[v])) survives.insert(r);
   }
   double vertices = 0, centres = 0;
+  ToMesh to_to(to), to_from(from);
   for (std::uint32_t v = 0; v < from.vertex_count(); ++v) {
     const auto& [lo, hi] = box[find(v)];
     if (!survives.count(find(v)) && std::hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) <= small) continue;
-    vertices = std::max(vertices, to_mesh(at(from, v), to));
+    vertices = std::max(vertices, to_to(at(from, v)));
   }
   for (const auto& t : to.triangles) {
     P c{};
     for (int k = 0; k < 3; ++k) c[k] = (at(to, t[0])[k] + at(to, t[1])[k] + at(to, t[2])[k]) / 3;
-    centres = std::max(centres, to_mesh(c, from));
+    centres = std::max(centres, to_from(c));
   }
   return {vertices, centres};
 }
