@@ -12,6 +12,12 @@ cd "$(dirname "$0")/.."
 # clang and its sanitizer runtimes: the ASan + UBSan build and the fuzz targets.
 ./scripts/deps.sh python3-vtk9 clang libclang-rt-14-dev
 JOBS=$(nproc)
+# The tests' scratch files in memory when a tmpfs with room is at hand (4 GiB free; a container's
+# /dev/shm is often 64 MB): one test writes and loads a grid file truncated at each of its 53 k
+# lengths, 15.5 s on this machine's disk against 3.5 s in /dev/shm. TMPDIR set by the caller wins.
+if [ -z "${TMPDIR:-}" ] && [ -d /dev/shm ] && [ -w /dev/shm ] && [ "$(df -Pk /dev/shm | awk 'NR == 2 { print $4 }')" -gt 4194304 ]; then
+  export TMPDIR=/dev/shm
+fi
 # Unity builds (batches of sources compiled as one): a fresh tree compiles in about half the time
 # (Release: 224 s against 418 s on 2 cores); incremental work in a tree of your own need not use them.
 COMMON=(-G Ninja -DCMAKE_UNITY_BUILD=ON -DADAPTISO_BUILD_TESTS=ON -DADAPTISO_BUILD_APPS=ON -DADAPTISO_BUILD_PEERS=OFF)

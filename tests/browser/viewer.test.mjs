@@ -4,7 +4,8 @@
 // blank, checks every file the pages load answers 200, and saves a screenshot.
 // Usage: node viewer.test.mjs ADAPTISO_CLI ARTIFACT_DIR [installed]
 // With `installed`, ADAPTISO_CLI is an installed program and serves the page it finds beside itself
-// (no --web). Exit code 77 (skipped) only when node modules or chromium are missing.
+// (no --web), and the drags at a distance (which load no file) are left to the source tree's run.
+// Exit code 77 (skipped) only when node modules or chromium are missing.
 import { spawn, execFileSync } from 'node:child_process';
 import { createRequire } from 'node:module';
 import { existsSync, mkdirSync, mkdtempSync, readFileSync, rmSync } from 'node:fs';
@@ -217,107 +218,111 @@ try {
   const after = await pixels();
   const changed = after.filter((v, i) => Math.abs(v - unturned[i]) > 8).length;
   if (changed < 0.01 * after.length) fail(`turning the view with the mouse did not redraw the canvas (${changed} values changed)`);
-  // Distances: dragging shows surfaces within 2 voxels, releasing settles on the distance chosen
-  // (?distance=1 here), each the server's surface at that distance, coarse first.
-  const near = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
-  near.on('pageerror', (e) => errors.push(e.message));
-  await near.goto(`${url}?distance=1`);
-  await near.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
-  const nearBefore = await near.evaluate(() => window.adaptisoSurfaces.length);
-  await near.evaluate(async () => {  // a drag: input events 30 ms apart, then the release
-    const s = document.getElementById('iso');
-    for (let v = 400; v <= 700; v += 20) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
-    s.dispatchEvent(new Event('change'));
-  });
-  await near.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), nearBefore, { timeout: 30000 });
-  const nearShown = await near.evaluate((n) => window.adaptisoSurfaces.slice(n), nearBefore);
-  const drags = nearShown.filter((r) => r.coarse), rest = nearShown.filter((r) => !r.coarse);
-  if (!drags.length || drags.some((r) => r.distance !== 2)) fail(`dragged surfaces are not within 2 voxels: ${JSON.stringify(drags.map((r) => r.distance))}`);
-  if (rest.at(-1).distance !== 1) fail(`the surface at rest is not within the distance chosen (1): ${rest.at(-1).distance}`);
-  // SwiftShader here: the dragged surfaces are drawn at half the canvas's resolution, the surface
-  // at rest at full resolution (the page's 800×600).
-  const software = await near.evaluate(() => /swiftshader|llvmpipe|software/i.test(String((() => {
-    const gl = document.createElement('canvas').getContext('webgl2');
-    const info = gl?.getExtension('WEBGL_debug_renderer_info');
-    return gl ? gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER) : '';
-  })())));
-  const full = JSON.stringify([800, 600]), half = JSON.stringify([400, 300]);
-  if (JSON.stringify(rest.at(-1).pixels) !== full) fail(`the surface at rest was drawn at ${rest.at(-1).pixels}, not ${full}`);
-  if (software && drags.some((r) => JSON.stringify(r.pixels) !== half)) fail(`dragged surfaces were drawn at ${JSON.stringify(drags.map((r) => r.pixels))}, not ${half}`);
-  const restIso = Number(await near.locator('#stats').getAttribute('data-iso'));
-  if (rest.at(-1).triangles !== await apiTriangles(restIso, 1)) fail(`the surface at rest has ${rest.at(-1).triangles} triangles, the API ${await apiTriangles(restIso, 1)}`);
-  // Each dragged surface is the server's at its own iso-value and 2 voxels (the last drag may stop
-  // short of the release's iso-value, so its count is not compared with the surface at rest's).
-  const lastDrag = drags.at(-1);
-  if (lastDrag.triangles !== await apiTriangles(lastDrag.iso, 2)) fail(`the last dragged surface has ${lastDrag.triangles} triangles, the API ${await apiTriangles(lastDrag.iso, 2)} at iso ${lastDrag.iso}, distance 2`);
-  if ((await near.locator('#stats').getAttribute('data-distance')) !== '1') fail('#stats does not say the distance of the surface shown');
-  console.log(`distance: ${drags.length} dragged surfaces within 2 voxels (${drags.at(-1).triangles} triangles, drawn at ${drags.at(-1).pixels.join('×')}), at rest within 1 voxel (${rest.at(-1).triangles} triangles, ${rest.at(-1).pixels.join('×')})`);
-  await near.close();
-  // Held still while dragging (?rest-after=150), the page asks for the surface at rest before the
-  // release, and the release then asks for nothing more. A drag that resumes while that surface is
-  // on its way overtakes it: here its answer is held back 3 s, and the dragged surfaces still come
-  // meanwhile (the page aborted the request; the server cancels the query, tests/view).
-  const holding = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
-  holding.on('pageerror', (e) => errors.push(e.message));
-  await holding.goto(`${url}?distance=1&rest-after=150`);
-  await holding.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
-  const drag = (from, to) => holding.evaluate(async ([a, b]) => {
-    const s = document.getElementById('iso');
-    for (let v = a; a < b ? v <= b : v >= b; v += a < b ? 20 : -20) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
-  }, [from, to]);
-  const rests = async (n) => (await holding.evaluate((k) => window.adaptisoSurfaces.slice(k), n)).filter((r) => !r.coarse);
-  const stillBefore = await holding.evaluate(() => window.adaptisoSurfaces.length);
-  await drag(400, 600);
-  await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), stillBefore, { timeout: 30000 });
-  if ((await rests(stillBefore)).at(-1).distance !== 1) fail('the surface at rest asked for while the slider was held is not within 1 voxel');
-  await holding.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
-  await holding.waitForTimeout(1000);
-  const held = await rests(stillBefore);
-  if (held.length !== 1) fail(`held still and released, the page drew ${held.length} surfaces at rest, not 1`);
-  let delayed = 0;
-  await holding.route(/api\/surface.*distance=1&/, async (route) => {
-    ++delayed;
-    aborted.add(route.request().url());
-    await new Promise((ok) => setTimeout(ok, 3000));
-    await route.continue().catch(() => {});  // aborted by the page meanwhile
-  });
-  await drag(600, 500);
-  await holding.waitForTimeout(400);  // held: the surface at rest is asked for, and held back
-  const resumed = await holding.evaluate(() => window.adaptisoSurfaces.length);
-  const t0 = Date.now();
-  await drag(500, 400);
-  await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => r.coarse), resumed, { timeout: 30000 });
-  const waited = Date.now() - t0;
-  if (!delayed) fail('holding the slider still did not ask for the surface at rest');
-  if (waited > 2500) fail(`a drag that resumed waited ${waited} ms for the surface at rest it overtook`);
-  await holding.unroute(/api\/surface.*distance=1&/);
-  await holding.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
-  await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), resumed, { timeout: 30000 });
-  if (/^error:/.test(await holding.locator('#status').textContent())) fail(`the page shows an error after a drag overtook the surface at rest: ${await holding.locator('#status').textContent()}`);
-  console.log(`held still: the surface at rest drawn once before the release; a resumed drag drew its first surface ${waited} ms after it started, the surface at rest held back`);
-  await holding.close();
-  // An intricate surface while dragging: with a target of 300 triangles (the sphere has 1,188
-  // within 2 voxels) the dragged surfaces go coarser than ?drag-distance, each stating the
-  // distance it was asked at and being the server's surface at that distance.
-  const lean = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
-  lean.on('pageerror', (e) => errors.push(e.message));
-  await lean.goto(`${url}?distance=1&drag-triangles=300`);
-  await lean.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
-  const leanBefore = await lean.evaluate(() => window.adaptisoSurfaces.length);
-  await lean.evaluate(async () => {
-    const s = document.getElementById('iso');
-    for (let v = 400; v <= 700; v += 10) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
-    s.dispatchEvent(new Event('change'));
-  });
-  await lean.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), leanBefore, { timeout: 30000 });
-  const leanDrags = (await lean.evaluate((n) => window.adaptisoSurfaces.slice(n), leanBefore)).filter((r) => r.coarse);
-  if (!leanDrags.some((r) => r.distance > 2) || leanDrags.some((r) => !(r.distance >= 2 && r.distance <= 64)))
-    fail(`dragged surfaces with a 300-triangle target did not go coarser than 2 voxels (within [2, 64]): ${JSON.stringify(leanDrags.map((r) => r.distance))}`);
-  const leanLast = leanDrags.at(-1);
-  if (leanLast.triangles !== await apiTriangles(leanLast.iso, leanLast.distance))
-    fail(`the last dragged surface has ${leanLast.triangles} triangles, the API ${await apiTriangles(leanLast.iso, leanLast.distance)} at distance ${leanLast.distance}`);
-  console.log(`drag target: distances ${leanDrags.map((r) => r.distance).join(' ')}, last ${leanLast.triangles} triangles`);
-  await lean.close();
+  // The installed page loads the same files as the source tree's (checked below): the drags at a
+  // distance, which load none, run once, on the source tree (they are half this test's time).
+  if (!installed) {
+    // Distances: dragging shows surfaces within 2 voxels, releasing settles on the distance chosen
+    // (?distance=1 here), each the server's surface at that distance, coarse first.
+    const near = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
+    near.on('pageerror', (e) => errors.push(e.message));
+    await near.goto(`${url}?distance=1`);
+    await near.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
+    const nearBefore = await near.evaluate(() => window.adaptisoSurfaces.length);
+    await near.evaluate(async () => {  // a drag: input events 30 ms apart, then the release
+      const s = document.getElementById('iso');
+      for (let v = 400; v <= 700; v += 20) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
+      s.dispatchEvent(new Event('change'));
+    });
+    await near.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), nearBefore, { timeout: 30000 });
+    const nearShown = await near.evaluate((n) => window.adaptisoSurfaces.slice(n), nearBefore);
+    const drags = nearShown.filter((r) => r.coarse), rest = nearShown.filter((r) => !r.coarse);
+    if (!drags.length || drags.some((r) => r.distance !== 2)) fail(`dragged surfaces are not within 2 voxels: ${JSON.stringify(drags.map((r) => r.distance))}`);
+    if (rest.at(-1).distance !== 1) fail(`the surface at rest is not within the distance chosen (1): ${rest.at(-1).distance}`);
+    // SwiftShader here: the dragged surfaces are drawn at half the canvas's resolution, the surface
+    // at rest at full resolution (the page's 800×600).
+    const software = await near.evaluate(() => /swiftshader|llvmpipe|software/i.test(String((() => {
+      const gl = document.createElement('canvas').getContext('webgl2');
+      const info = gl?.getExtension('WEBGL_debug_renderer_info');
+      return gl ? gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER) : '';
+    })())));
+    const full = JSON.stringify([800, 600]), half = JSON.stringify([400, 300]);
+    if (JSON.stringify(rest.at(-1).pixels) !== full) fail(`the surface at rest was drawn at ${rest.at(-1).pixels}, not ${full}`);
+    if (software && drags.some((r) => JSON.stringify(r.pixels) !== half)) fail(`dragged surfaces were drawn at ${JSON.stringify(drags.map((r) => r.pixels))}, not ${half}`);
+    const restIso = Number(await near.locator('#stats').getAttribute('data-iso'));
+    if (rest.at(-1).triangles !== await apiTriangles(restIso, 1)) fail(`the surface at rest has ${rest.at(-1).triangles} triangles, the API ${await apiTriangles(restIso, 1)}`);
+    // Each dragged surface is the server's at its own iso-value and 2 voxels (the last drag may stop
+    // short of the release's iso-value, so its count is not compared with the surface at rest's).
+    const lastDrag = drags.at(-1);
+    if (lastDrag.triangles !== await apiTriangles(lastDrag.iso, 2)) fail(`the last dragged surface has ${lastDrag.triangles} triangles, the API ${await apiTriangles(lastDrag.iso, 2)} at iso ${lastDrag.iso}, distance 2`);
+    if ((await near.locator('#stats').getAttribute('data-distance')) !== '1') fail('#stats does not say the distance of the surface shown');
+    console.log(`distance: ${drags.length} dragged surfaces within 2 voxels (${drags.at(-1).triangles} triangles, drawn at ${drags.at(-1).pixels.join('×')}), at rest within 1 voxel (${rest.at(-1).triangles} triangles, ${rest.at(-1).pixels.join('×')})`);
+    await near.close();
+    // Held still while dragging (?rest-after=150), the page asks for the surface at rest before the
+    // release, and the release then asks for nothing more. A drag that resumes while that surface is
+    // on its way overtakes it: here its answer is held back 3 s, and the dragged surfaces still come
+    // meanwhile (the page aborted the request; the server cancels the query, tests/view).
+    const holding = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
+    holding.on('pageerror', (e) => errors.push(e.message));
+    await holding.goto(`${url}?distance=1&rest-after=150`);
+    await holding.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
+    const drag = (from, to) => holding.evaluate(async ([a, b]) => {
+      const s = document.getElementById('iso');
+      for (let v = a; a < b ? v <= b : v >= b; v += a < b ? 20 : -20) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
+    }, [from, to]);
+    const rests = async (n) => (await holding.evaluate((k) => window.adaptisoSurfaces.slice(k), n)).filter((r) => !r.coarse);
+    const stillBefore = await holding.evaluate(() => window.adaptisoSurfaces.length);
+    await drag(400, 600);
+    await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), stillBefore, { timeout: 30000 });
+    if ((await rests(stillBefore)).at(-1).distance !== 1) fail('the surface at rest asked for while the slider was held is not within 1 voxel');
+    await holding.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
+    await holding.waitForTimeout(1000);
+    const held = await rests(stillBefore);
+    if (held.length !== 1) fail(`held still and released, the page drew ${held.length} surfaces at rest, not 1`);
+    let delayed = 0;
+    await holding.route(/api\/surface.*distance=1&/, async (route) => {
+      ++delayed;
+      aborted.add(route.request().url());
+      await new Promise((ok) => setTimeout(ok, 3000));
+      await route.continue().catch(() => {});  // aborted by the page meanwhile
+    });
+    await drag(600, 500);
+    await holding.waitForTimeout(400);  // held: the surface at rest is asked for, and held back
+    const resumed = await holding.evaluate(() => window.adaptisoSurfaces.length);
+    const t0 = Date.now();
+    await drag(500, 400);
+    await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => r.coarse), resumed, { timeout: 30000 });
+    const waited = Date.now() - t0;
+    if (!delayed) fail('holding the slider still did not ask for the surface at rest');
+    if (waited > 2500) fail(`a drag that resumed waited ${waited} ms for the surface at rest it overtook`);
+    await holding.unroute(/api\/surface.*distance=1&/);
+    await holding.evaluate(() => document.getElementById('iso').dispatchEvent(new Event('change')));
+    await holding.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), resumed, { timeout: 30000 });
+    if (/^error:/.test(await holding.locator('#status').textContent())) fail(`the page shows an error after a drag overtook the surface at rest: ${await holding.locator('#status').textContent()}`);
+    console.log(`held still: the surface at rest drawn once before the release; a resumed drag drew its first surface ${waited} ms after it started, the surface at rest held back`);
+    await holding.close();
+    // An intricate surface while dragging: with a target of 300 triangles (the sphere has 1,188
+    // within 2 voxels) the dragged surfaces go coarser than ?drag-distance, each stating the
+    // distance it was asked at and being the server's surface at that distance.
+    const lean = watch(await browser.newPage({ viewport: { width: 800, height: 600 } }));
+    lean.on('pageerror', (e) => errors.push(e.message));
+    await lean.goto(`${url}?distance=1&drag-triangles=300`);
+    await lean.waitForFunction(() => (window.adaptisoSurfaces || []).length > 0, null, { timeout: 60000 });
+    const leanBefore = await lean.evaluate(() => window.adaptisoSurfaces.length);
+    await lean.evaluate(async () => {
+      const s = document.getElementById('iso');
+      for (let v = 400; v <= 700; v += 10) { s.value = String(v); s.dispatchEvent(new Event('input')); await new Promise((ok) => setTimeout(ok, 30)); }
+      s.dispatchEvent(new Event('change'));
+    });
+    await lean.waitForFunction((n) => window.adaptisoSurfaces.slice(n).some((r) => !r.coarse), leanBefore, { timeout: 30000 });
+    const leanDrags = (await lean.evaluate((n) => window.adaptisoSurfaces.slice(n), leanBefore)).filter((r) => r.coarse);
+    if (!leanDrags.some((r) => r.distance > 2) || leanDrags.some((r) => !(r.distance >= 2 && r.distance <= 64)))
+      fail(`dragged surfaces with a 300-triangle target did not go coarser than 2 voxels (within [2, 64]): ${JSON.stringify(leanDrags.map((r) => r.distance))}`);
+    const leanLast = leanDrags.at(-1);
+    if (leanLast.triangles !== await apiTriangles(leanLast.iso, leanLast.distance))
+      fail(`the last dragged surface has ${leanLast.triangles} triangles, the API ${await apiTriangles(leanLast.iso, leanLast.distance)} at distance ${leanLast.distance}`);
+    console.log(`drag target: distances ${leanDrags.map((r) => r.distance).join(' ')}, last ${leanLast.triangles} triangles`);
+    await lean.close();
+  }
   // Level of detail (?levels=1, the error levels on a bisection grid too): with a small triangle
   // budget, dragging shows coarser surfaces with their (larger) guaranteed error; releasing the
   // slider settles on the prepared surface and error.
