@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Builds and runs the whole test suite: a Release build (with the Python module, whose pytest
-# suite runs against pip's install, and the installed CMake package's consumer test), then an AddressSanitizer + UndefinedBehaviorSanitizer build of the
-# unit and command-line tests (clang), then a short run of every fuzz target. Uses
-# ../shared/data when present (ADAPTISO_DATA overrides); data tests skip with a message otherwise.
+# suite runs against pip's install, and the installed CMake package's consumer test), then an
+# AddressSanitizer + UndefinedBehaviorSanitizer build of the unit and command-line tests (clang),
+# then a short run of every fuzz target. Uses ../shared/data when present (ADAPTISO_DATA
+# overrides); data tests skip with a message otherwise.
 # Every option the suite depends on is set explicitly (a build folder configured by demo.sh has
 # the tests off), and ctest fails when it finds no test.
 set -euo pipefail

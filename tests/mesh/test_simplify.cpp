@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <map>
 #include <memory>
 #include <numeric>
@@ -103,7 +104,7 @@ public:
       }
   }
   double operator()(const P& p) {
-    double best = distance(p, last_);
+    double best = boxes_.empty() ? std::numeric_limits<double>::infinity() : distance(p, last_);
     for (std::size_t t = 0; t < boxes_.size(); ++t) {
       double gap2 = 0;
       for (int k = 0; k < 3; ++k) gap2 += std::pow(std::max({boxes_[t].first[k] - p[k], p[k] - boxes_[t].second[k], 0.0}), 2);
