@@ -248,12 +248,13 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
     # Python runs signal handlers only on the main thread between bytecodes: a C++ call that
     # ignored them ran to its end first (on a large volume, seconds; Jupyter's interrupt waited as
     # long) and KeyboardInterrupt came after. Now the call polls for signals and stops its work.
-    # What tells the two apart is how much of the call ran: SIGINT 0.1 s into a call that takes
-    # about 0.8 s here, against half the time the same call took whole (stopping takes up to 0.05 s
-    # to notice and about as long to unwind: twice that margin; a call run to its end takes all of
-    # it). The next call is whole. Load on the machine can delay the timer's thread or the
-    # call's notice past that margin (it failed once so, beside another build): up to three
-    # tries, the first early stop counts; a call that ignores signals runs to its end every time.
+    # What tells the two apart is how much of the call ran: SIGINT a quarter into the call,
+    # against three quarters of the time the same call took whole (noticing takes up to 0.05 s, a
+    # stage's part about as long); a call run to its end takes all of it. Fractions, not fixed
+    # times: a fixed 0.1 s fell after most of a call that took 0.25 s on a fast machine. The next
+    # call is whole. Load on the machine can delay the timer's thread or the call's notice past
+    # that margin (it failed once so, beside another build): up to three tries, the first early
+    # stop counts; a call that ignores signals runs to its end every time.
     out = run_isolated(PRELUDE + """
     import os, signal
     # A process started in the background (nohup, CI) inherits SIGINT ignored, and Python then
@@ -262,27 +263,39 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
     rng = np.random.default_rng(1)
     grid = adaptiso.prepare(adaptiso.Volume(rng.random((72, 72, 72), dtype=np.float32)), max_error=0)
 
+    def timed(call):
+        t0 = time.perf_counter()
+        result = call()
+        return result, time.perf_counter() - t0
+
     def interrupted(call, whole):
         for attempt in range(3):
-            threading.Timer(0.1, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+            timer = threading.Timer(whole / 4, lambda: os.kill(os.getpid(), signal.SIGINT))
             t0 = time.perf_counter()
+            timer.start()
             try:
                 call()
-                return "not interrupted"
             except KeyboardInterrupt:
                 ran = time.perf_counter() - t0
-                if ran < whole / 2:
+                if ran < 3 * whole / 4:
                     return f"stopped early ({ran:.2f} of {whole:.2f} s, try {attempt + 1})"
+                continue
+            ran = time.perf_counter() - t0
+            try:  # a signal that came after the call's end lands here
+                timer.join()
+                time.sleep(0.1)
+            except KeyboardInterrupt:
+                pass
         return f"ran to its end ({ran:.2f} of {whole:.2f} s)"
 
     for kw in ({"distance": 0.5, "collapse": 0}, {"max_error": 0.0}, {}):
-        t0 = time.perf_counter()
-        n = grid.extract(0.5, **kw).stats["triangles"]
-        whole = time.perf_counter() - t0
+        mesh, whole = timed(lambda: grid.extract(0.5, **kw))
+        n = mesh.stats["triangles"]
         print(kw, interrupted(lambda: grid.extract(0.5, **kw), whole))
         if kw:
             print(kw, "then whole:", grid.extract(0.5, **kw).stats["triangles"] == n)
     # The incremental extractor: interrupted, its next call marches afresh, the same surface.
+    _, whole = timed(lambda: grid.extractor().extract(0.5))
     ex = grid.extractor()
     print("extractor", interrupted(lambda: ex.extract(0.5), whole))
     print("extractor then whole:", ex.extract(0.5).stats["triangles"] == n)

@@ -99,6 +99,7 @@ void ExtractorState::fresh(double iso) {
   cache_ends = active.size() <= options.edge_cache_max_tetrahedra;
   march_tetrahedra_into(grid, active, iso, mesh, scratch, &gaps, cache_ends ? &ends : nullptr);
   if (!cache_ends) std::vector<EdgeEnds>().swap(ends);
+  checkpoint();
   marched = active.size();
   codes.swap(scratch.codes);
   keys.swap(scratch.order);
@@ -574,6 +575,7 @@ ExtractStats Extractor::extract(double iso, const std::atomic<bool>* cancel) {
   s.checkpoint();
   s.incremental = had_previous && s.step(iso);
   if (!s.incremental) s.fresh(iso);
+  s.checkpoint();  // a step's last stage, or a fresh march's slots
   s.valid = true;
   s.scratch.cancel = nullptr;
   s.clipped_valid = detail::clip_to_volume_box(s.mesh, s.grid.source, s.clipped, &s.clip);

@@ -69,9 +69,11 @@ struct MarchScratch {
   std::vector<MarchChunk> chunks;
   std::size_t parallel_min_tetrahedra = 65536;  // below this many tetrahedra (about as many triangles), one chunk
   // A cancel flag (Extractor::extract, HierarchyQuery::extract): the march's first, longest phase
-  // stops at its next batch once it is raised, and throws ExtractCancelled before anything reads
-  // its output.
+  // stops at its next batch once it is raised, and the march throws ExtractCancelled before
+  // anything reads its output; its later phases (numbering, triangles, vertices: over half of a
+  // fresh march, whose arrays are first touched there) look again between and within them.
   const std::atomic<bool>* cancel = nullptr;
+  bool cancelled() const { return cancel && cancel->load(std::memory_order_relaxed); }
 };
 
 // Open-addressing map from edge key to mesh vertex, numbering vertices by first use. A slot is
@@ -191,8 +193,10 @@ inline void interpolate_edge(const EdgeEnds& e, double iso, std::array<float, 3>
   for (int k = 0; k < 3; ++k) n[k] = static_cast<float>(m[k] * inv);
 }
 
-// Positions and normals of the mesh vertices, one per cut edge key in `order` (parallel).
-void interpolate_vertices(const TetGrid& grid, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh);
+// Positions and normals of the mesh vertices, one per cut edge key in `order` (parallel; left
+// incomplete once `cancel` is raised, for the caller to throw).
+void interpolate_vertices(const TetGrid& grid, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh,
+                          const std::atomic<bool>* cancel = nullptr);
 // The same from gathered edge ends (bit-identical results).
 void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& mesh);
 

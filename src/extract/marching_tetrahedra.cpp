@@ -73,11 +73,13 @@ std::array<Case, 16> make_cases() {
 
 const std::array<Case, 16> kCases = make_cases();
 
-void interpolate_vertices(const TetGrid& grid, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh) {
+void interpolate_vertices(const TetGrid& grid, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh,
+                          const std::atomic<bool>* cancel) {
   const std::size_t V = order.size();
   resize_for_overwrite(mesh.positions, V);
   resize_for_overwrite(mesh.normals, V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
+    if (cancel && cancel->load(std::memory_order_relaxed)) return;  // the caller throws
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       if (i + 8 < r.end()) prefetch_edge(grid, order[i + 8]);
       interpolate_edge(gather_edge(grid, order[i]), iso, mesh.positions[i], mesh.normals[i]);
@@ -163,7 +165,7 @@ void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, M
     constexpr std::size_t kBatch = 256;
     auto& keys = ch.pending;
     for (std::size_t i0 = b; i0 < e; i0 += kBatch) {
-      if (sc.cancel && sc.cancel->load(std::memory_order_relaxed)) return;
+      if (sc.cancelled()) return;
       const std::size_t i1 = std::min(e, i0 + kBatch);
       keys.clear();
       for (std::size_t i = i0; i < i1; ++i) {
@@ -182,9 +184,10 @@ void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, M
       }
     }
   });
-  if (sc.cancel && sc.cancel->load()) throw ExtractCancelled();  // the chunks may be incomplete
+  if (sc.cancelled()) throw ExtractCancelled();  // the chunks may be incomplete
   auto& order = sc.order;
   number_chunk_edges(sc.chunks, order);
+  if (sc.cancelled()) throw ExtractCancelled();
   // 2. Triangles in the order of the tetrahedra, with their global vertex ids (in parallel).
   std::vector<std::size_t> tri_at(C + 1, 0);
   for (std::size_t c = 0; c < C; ++c) tri_at[c + 1] = tri_at[c] + sc.chunks[c].local.size() / 3;
@@ -201,21 +204,28 @@ void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, M
     for (std::size_t j = 0; j < ch.local.size() / 3; ++j)
       for (int k = 0; k < 3; ++k) mesh.triangles[tri_at[c] + j][k] = ch.global[ch.local[3 * j + k]];
   });
+  if (sc.cancelled()) throw ExtractCancelled();
   if (sc.remap)
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 1024), [&](const auto& r) {
       for (std::size_t i = r.begin(); i < r.end(); ++i) order[i] = sc.remap->fine(order[i]);
     });
-  if (!ends) return interpolate_vertices(grid, order, iso, mesh);
+  if (!ends) {
+    interpolate_vertices(grid, order, iso, mesh, sc.cancel);
+    if (sc.cancelled()) throw ExtractCancelled();
+    return;
+  }
   resize_for_overwrite(*ends, order.size());
   resize_for_overwrite(mesh.positions, order.size());
   resize_for_overwrite(mesh.normals, order.size());
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 4096), [&](const auto& r) {
+    if (sc.cancelled()) return;
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       if (i + 8 < r.end()) prefetch_edge(grid, order[i + 8]);
       (*ends)[i] = gather_edge(grid, order[i]);
       interpolate_edge((*ends)[i], iso, mesh.positions[i], mesh.normals[i]);
     }
   });
+  if (sc.cancelled()) throw ExtractCancelled();
 }
 
 template void march_into(const TetGrid&, const GridTets&, double, Mesh&, MarchScratch&, std::vector<Gap>*, std::vector<EdgeEnds>*);
