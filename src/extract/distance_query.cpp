@@ -388,6 +388,12 @@ struct Query {
   // each lookup prefetched a phase before it is read (2 to 16 descents at once). The descents are
   // 65–70 % of the refinement on the CT bunny and perf charges most of it to the value span's
   // load, yet the same decisions took the same time (D = 2: 0.11–0.17 s either way, alternated).
+  // Nor (2026-11-29) each descent of a triangle's probes starting from the deepest tetrahedron of
+  // the last one's that holds its point (ProbeTrail, as the collapses' probes do), then from the
+  // tested tetrahedron's ancestors: the same decisions, refinement 0.105–0.110 s against
+  // 0.071–0.076 at D = 2 and 0.195–0.200 against 0.137–0.143 at 0.5 (the bunny, 2 alternated
+  // pairs). Not counted why; likely the climb: the other end of a probe lies two distances away,
+  // and each tetrahedron tested on the way up costs four face tests.
   template <class Hint>
   bool far_from_surface(const Point& pv, const Point& normal, Hint&& near) const {
     bool side[2];
