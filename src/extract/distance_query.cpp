@@ -396,6 +396,8 @@ struct Query {
   // and each tetrahedron tested on the way up costs four face tests. Nor the value spans the
   // descents read packed into 4 bytes (16 bits of the value range each, rounded outwards; 40 MB
   // instead of 79 on the bunny): the same decisions, the refinement within 3 % (2 alternated pairs).
+  // Nor the span read at every second or third step only (one load fewer, deeper descents): the
+  // same decisions, the same time or up to 10 % more.
   template <class Hint>
   bool far_from_surface(const Point& pv, const Point& normal, Hint&& near) const {
     bool side[2];
