@@ -294,11 +294,16 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
         print(kw, interrupted(lambda: grid.extract(0.5, **kw), whole))
         if kw:
             print(kw, "then whole:", grid.extract(0.5, **kw).stats["triangles"] == n)
-    # The incremental extractor: interrupted, its next call marches afresh, the same surface.
-    _, whole = timed(lambda: grid.extractor().extract(0.5))
-    ex = grid.extractor()
-    print("extractor", interrupted(lambda: ex.extract(0.5), whole))
-    print("extractor then whole:", ex.extract(0.5).stats["triangles"] == n)
+    # The incremental extractor: interrupted, its next call marches afresh, the same surface. A new
+    # one each try (a try that ran to its end would leave the next nothing to do); the last is the
+    # one interrupted.
+    extractors = []
+    def first_extraction():
+        extractors.append(grid.extractor())
+        return extractors[-1].extract(0.5)
+    _, whole = timed(first_extraction)
+    print("extractor", interrupted(first_extraction, whole))
+    print("extractor then whole:", extractors[-1].extract(0.5).stats["triangles"] == n)
     """)
     assert out.count("stopped early") == 4, out
     assert out.count("then whole: True") == 3 and "extractor then whole: True" in out, out
