@@ -76,7 +76,7 @@ struct ExtractorState {
   // Between stages: throws ExtractCancelled once the flag is raised (the caller has marked the
   // state invalid, so the next extract starts afresh).
   void checkpoint() const {
-    if (scratch.cancel && scratch.cancel->load(std::memory_order_relaxed)) throw ExtractCancelled();
+    if (scratch.cancelled()) throw ExtractCancelled();
   }
 
   void fresh(double iso);

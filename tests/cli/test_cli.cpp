@@ -943,18 +943,13 @@ TEST(OutputsNeverDestroy, SigkillDuringPrepareLeavesNoTemporaryFile) {
   };
   for (const bool named : {false, true}) {
     // Killed once its output is open: an unnamed file among its descriptors, or the temporary name.
-    const std::string cmd = fmt::format(
-        "{} {} prepare {} --max-error 0 --quiet -o {} & p=$!; for i in $(seq 3000); do "
-        "if ls -l /proc/$p/fd 2>/dev/null | grep -q '(deleted)' || ls -a {} | grep -q '^\\.g\\.adg\\.tmp'; then break; fi; sleep 0.01; "
-        "done; "
-        "kill -9 $p; wait $p; echo $?",
-        named ? "ADAPTISO_NO_TMPFILE=1" : "", ADAPTISO_CLI, t / "v.nrrd", t / "g.adg", t.path.string());
-    std::FILE* f = popen(cmd.c_str(), "r");
-    ASSERT_NE(f, nullptr);
-    char status[16] = {};
-    ASSERT_NE(std::fgets(status, sizeof status, f), nullptr);
-    pclose(f);
-    ASSERT_EQ(std::string(status), "137\n") << "not killed mid-write (exit status " << status << ")";
+    const pid_t pid = spawn_cli({"prepare", t / "v.nrrd", "--max-error", "0", "--quiet", "-o", t / "g.adg"}, named);
+    ASSERT_GT(pid, 0);
+    for (int i = 0; i < 3000 && !writing_into(pid, t.path); ++i) usleep(10000);
+    kill(pid, SIGKILL);
+    int status = 0;
+    ASSERT_EQ(waitpid(pid, &status, 0), pid);
+    ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL) << "not killed mid-write (wait status " << status << ")";
     const std::vector<std::string> left = names();
     if (!named) {
       EXPECT_EQ(left, std::vector<std::string>{"v.nrrd"});
