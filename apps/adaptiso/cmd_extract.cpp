@@ -259,7 +259,11 @@ void add_extract(CLI::App& app) {
     auto t0 = Clock::now();
     // The hierarchy's queries walk the hierarchy alone: the tetrahedra and their index stay on disk.
     const bool hierarchy_only = distance->given() || query;
-    auto p = std::make_shared<const PreparedGrid>(load_grid(*input, hierarchy_only ? GridParts::hierarchy : GridParts::all));
+    std::shared_ptr<const PreparedGrid> p;
+    {
+      TerminalProgress tp(!out->quiet && !out->json);
+      p = std::make_shared<const PreparedGrid>(load_grid(*input, hierarchy_only ? GridParts::hierarchy : GridParts::all, tp.callback()));
+    }
     const TetGrid& grid = p->grid;
     const double t_load = seconds_since(t0);
     if (*max_displacement > 0 && p->hierarchy->displacement_code.empty())

@@ -135,7 +135,9 @@ void add_export(CLI::App& app) {
     auto t0 = Clock::now();
     // Points need the vertices only: a bisection grid's tetrahedra are then not kept or checked
     // (the CT bunny's default grid: 0.45 GB of its 1.8 GB held, the index's check skipped).
-    const PreparedGrid p = load_grid(*input, ext == ".ply" ? GridParts::hierarchy_or_all : GridParts::all);
+    TerminalProgress tp(!out->quiet && !out->json);
+    const PreparedGrid p = load_grid(*input, ext == ".ply" ? GridParts::hierarchy_or_all : GridParts::all, tp.callback());
+    tp.finish();
     const TetGrid& grid = p.grid;
     const double t_load = seconds_since(t0);
     if (ext == ".vtu")

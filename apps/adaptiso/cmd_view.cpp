@@ -66,7 +66,8 @@ void add_view(CLI::App& app) {
     std::optional<PrepareOptions> options;     // refused at once too, not in the background
     if (is_grid) {
       file = std::make_shared<const OpenGridFile>(in->path);
-      grid = std::make_shared<const PreparedGrid>(file->load(GridParts::hierarchy_or_all));
+      TerminalProgress tp(!out->quiet && !out->json);
+      grid = std::make_shared<const PreparedGrid>(file->load(GridParts::hierarchy_or_all, tp.callback()));
     } else {
       options = pf->options(in->path);
       volume = std::make_shared<const Volume>(in->load());

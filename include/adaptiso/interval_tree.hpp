@@ -27,6 +27,7 @@
 #include <limits>
 #include <vector>
 
+#include "adaptiso/progress.hpp"
 #include "adaptiso/tet_grid.hpp"
 
 namespace adaptiso {
@@ -69,8 +70,8 @@ IntervalTreeShape interval_tree_shape(const TetGrid& grid, std::uint32_t depth =
 
 // Checks a tree loaded from disk against its grid: sizes, ranges nested in pre-order, every
 // non-constant tetrahedron exactly once in each list, lists sorted, entries straddling their split.
-// Throws InputError(what + ...) on the first violation.
-void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const std::string& what);
+// Throws InputError(what + ...) on the first violation. Reports "check index" progress.
+void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const std::string& what, const Progress& progress = {});
 
 // Recomputes the derived per-node bounds (lo, hi) of a tree whose splits and lists were loaded.
 void finish_interval_tree(IntervalTree& tree, const TetGrid& grid);

@@ -56,7 +56,7 @@ void check_entries_in_chunks(const std::vector<NodeStart>& starts, const Interva
 
 }  // namespace
 
-void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const std::string& what) {
+void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const std::string& what, const Progress& progress) {
   auto fail = [&](const std::string& why) { throw InputError(fmt::format("{}: extraction index is corrupt ({})", what, why)); };
   const std::size_t T = grid.tet_count();
   if (tree.depth > 30 || tree.nodes.size() != (std::size_t{2} << tree.depth) - 1) fail("node count");
@@ -103,6 +103,15 @@ void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const
     if (!bad.exchange(true)) why = reason;
     return false;
   };
+  // Progress over both lists' entries, told at most a hundred times.
+  std::atomic<std::uint64_t> checked{0};
+  const std::uint64_t all = 2 * tree.entries();
+  auto advance = [&](std::uint64_t n) {
+    const std::uint64_t before = checked.fetch_add(n, std::memory_order_relaxed);
+    if (all && (before * 100 / all) != ((before + n) * 100 / all))
+      adaptiso::report(progress, "check index", static_cast<double>(before + n) / all);
+  };
+  adaptiso::report(progress, "check index", 0);
   auto ahead = [&](const std::uint32_t* list, std::uint64_t k, std::uint64_t e) {
     if (k + 16 < e && list[k + 16] < T) {
       detail::prefetch(&grid.tets[list[k + 16]]);
@@ -129,6 +138,7 @@ void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const
         if (prev > key) return report(unsorted);  // ties in any order (repeats are caught by entry)
         prev = key;
       }
+      advance(e - b);
       return true;
     });
     if (bad) fail(why);

@@ -243,7 +243,8 @@ void check_leaves(const TetGrid& g, const std::string& path, const std::vector<s
                       fmt::format("the tetrahedra {} to {} are not the hierarchy's leaves", leaves[tets.at], leaves[tets.at + 1] - 1));
 }
 
-void check_hierarchy(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> file_leaves, HierarchyWalk* walked) {
+void check_hierarchy(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> file_leaves, HierarchyWalk* walked,
+                     const Progress& progress) {
   const TetGrid& g = p.grid;
   const BisectionHierarchy& h = *p.hierarchy;
   auto fail = [&](const std::string& why) { corrupt_hierarchy(path, why); };
@@ -326,6 +327,9 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
   const TetHash hash = TetHash::draw();
   // The leaves' hashes are for tetrahedra read now, or later against the walk (check_tets_walked).
   const bool hashing = !file_leaves || walked;
+  // The walk is most of the check: told by the subtrees done, at most a hundred times.
+  report(progress, "check grid", 0.1);
+  std::atomic<std::size_t> walked_roots{0};
   tbb::parallel_for(std::size_t{0}, roots, [&](std::size_t f) {
     std::uint64_t count = 0, sum = 0;
     Wide volume = 0;
@@ -343,6 +347,8 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
     leaves[f + 1] = count;
     hashes[f] = sum;
     volumes[f] = volume;
+    const std::size_t done = walked_roots.fetch_add(1, std::memory_order_relaxed) + 1;
+    if (done * 100 / roots != (done - 1) * 100 / roots) report(progress, "check grid", 0.1 + 0.9 * static_cast<double>(done) / roots);
   });
   for (const auto& split : top.splits) {  // above the subtrees
     ValueSpan s;
@@ -450,16 +456,19 @@ GridSource grid_source_from_json(const nlohmann::json& s, const std::string& pat
   return g;
 }
 
-void check_grid(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> leaves, HierarchyWalk* walked) {
+void check_grid(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> leaves, HierarchyWalk* walked,
+                const Progress& progress) {
   const TetGrid& g = p.grid;
   if ((leaves ? *leaves : g.tet_count()) == 0)
     throw InputError(fmt::format("{}: the grid has no tetrahedra (a grid tiles its volume's box)", path));
+  report(progress, "check grid", 0);
   check_vertices(g, path);
   check_indices(g, path);
   if (p.hierarchy)
-    check_hierarchy(p, path, leaves, walked);
+    check_hierarchy(p, path, leaves, walked, progress);
   else
     check_tiling(g, path);
+  report(progress, "check grid", 1);
 }
 
 void check_tets_walked(const PreparedGrid& p, const std::string& path, const HierarchyWalk& walked) {

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "adaptiso/prepared_grid.hpp"
+#include "adaptiso/progress.hpp"
 
 namespace adaptiso::detail {
 
@@ -48,8 +49,9 @@ struct HierarchyWalk {
 // without its tetrahedra, GridParts::hierarchy), the hierarchy's walk must have that many leaves,
 // and nothing is checked of the tetrahedra themselves. With `walked`, a bisection grid's walk is
 // kept there.
+// Reports "check grid" progress.
 void check_grid(const PreparedGrid& grid, const std::string& path, std::optional<std::uint64_t> leaves = std::nullopt,
-                HierarchyWalk* walked = nullptr);
+                HierarchyWalk* walked = nullptr, const Progress& progress = {});
 // The tetrahedra of a grid whose vertices and hierarchy check_grid passed in an earlier load of the
 // same bytes (`walked`): every index a vertex, and the walk's leaves in its order. The rest of
 // check_grid's findings hold for the same bytes.

@@ -220,7 +220,8 @@ namespace {
 
 // load_grid, remembering what the hierarchy's walk checked (`remember`), or taking a walk of the
 // same bytes as checked (`walked`: the same size and checksum) instead of walking again.
-PreparedGrid load_checked(const std::string& path, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked) {
+PreparedGrid load_checked(const std::string& path, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked,
+                          const Progress& progress) {
   detail::file_size_or_throw(path);  // a FIFO or device would block or never end
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
@@ -270,13 +271,21 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
         "{}: has no bisection hierarchy (a Delaunay grid, or an older file): surfaces at a distance or at another error need one", path));
   std::uint32_t crc = libdeflate_crc32(0, h, header);
   const bool restarting = version <= kLastRestartingChecksum;
+  std::uint64_t read_bytes = header;
+  report(progress, "read grid", 0);
+  // In slices of 64 MiB, so the progress moves (the bunny's tetrahedra are 0.87 GB).
   auto read = [&](void* p, std::size_t n) {
-    in.read(static_cast<char*>(p), static_cast<std::streamsize>(n));
-    if (static_cast<std::size_t>(in.gcount()) != n) throw InputError(fmt::format("{}: grid file is truncated", path));
-    if (n)
-      crc = libdeflate_crc32(crc, p, n);
-    else if (restarting && !p)
-      crc = 0;  // what the older writers did
+    if (n == 0 && restarting && !p) crc = 0;  // what the older writers did
+    for (std::size_t at = 0; at < n;) {
+      const std::size_t step = std::min<std::size_t>(n - at, std::size_t{64} << 20);
+      char* slice = static_cast<char*>(p) + at;
+      in.read(slice, static_cast<std::streamsize>(step));
+      if (static_cast<std::size_t>(in.gcount()) != step) throw InputError(fmt::format("{}: grid file is truncated", path));
+      crc = libdeflate_crc32(crc, slice, step);
+      at += step;
+      read_bytes += step;
+      report(progress, "read grid", static_cast<double>(read_bytes) / static_cast<double>(size));
+    }
   };
   // An array read for the checksum only, a slice at a time (an empty one as read() takes it).
   auto pass_over = [&](std::uint64_t n) {
@@ -346,6 +355,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   }
   std::uint32_t stored;
   in.read(reinterpret_cast<char*>(&stored), 4);
+  report(progress, "read grid", 1);
   if (static_cast<std::uint32_t>(crc) != stored) throw InputError(fmt::format("{}: grid file is corrupt (checksum mismatch)", path));
   auto j = nlohmann::json::parse(meta, nullptr, false);
   if (j.is_discarded() || !j.is_object() || !j.contains("source"))
@@ -363,7 +373,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   if (walked && keep_tets && p.hierarchy && walked->file_bytes == size && walked->checksum == stored) {
     detail::check_tets_walked(p, path, *walked);
   } else {
-    detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T), remember);
+    detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T), remember, progress);
     if (remember) {
       remember->file_bytes = size;
       remember->checksum = stored;
@@ -379,7 +389,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     p.index = IntervalTree{};
     if (p.stats.tetrahedra == 0) p.stats.tetrahedra = T;  // an older file's metadata without them
   } else if (has_index) {
-    validate_interval_tree(tree, grid, path);
+    validate_interval_tree(tree, grid, path, progress);
     finish_interval_tree(tree, grid);
     p.index = std::move(tree);
   } else {
@@ -390,7 +400,9 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
 
 }  // namespace
 
-PreparedGrid load_grid(const std::string& path, GridParts parts) { return load_checked(path, parts, nullptr, nullptr); }
+PreparedGrid load_grid(const std::string& path, GridParts parts, const Progress& progress) {
+  return load_checked(path, parts, nullptr, nullptr, progress);
+}
 
 void write_vtu(const TetGrid& grid, const std::string& path) {
   const std::uint64_t n = grid.vertex_count(), t = grid.tet_count();
@@ -462,12 +474,12 @@ OpenGridFile::OpenGridFile(std::string path) : path_(std::move(path)) {
 
 OpenGridFile::~OpenGridFile() { ::close(fd_); }
 
-PreparedGrid OpenGridFile::load(GridParts parts) const {
+PreparedGrid OpenGridFile::load(GridParts parts, const Progress& progress) const {
   const std::string fd_path = "/proc/self/fd/" + std::to_string(fd_);
   try {
-    if (parts == GridParts::all) return load_checked(fd_path, parts, nullptr, walk_.get());
+    if (parts == GridParts::all) return load_checked(fd_path, parts, nullptr, walk_.get(), progress);
     auto walk = std::make_unique<detail::HierarchyWalk>();
-    PreparedGrid p = load_checked(fd_path, parts, walk.get(), nullptr);
+    PreparedGrid p = load_checked(fd_path, parts, walk.get(), nullptr, progress);
     if (!walk->leaves.empty()) walk_ = std::move(walk);  // a bisection grid's walk
     return p;
   } catch (const InputError& e) {  // the user's name for the file, not the descriptor's
