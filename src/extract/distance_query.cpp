@@ -397,7 +397,11 @@ struct Query {
   // descents read packed into 4 bytes (16 bits of the value range each, rounded outwards; 40 MB
   // instead of 79 on the bunny): the same decisions, the refinement within 3 % (2 alternated pairs).
   // Nor the span read at every second or third step only (one load fewer, deeper descents): the
-  // same decisions, the same time or up to 10 % more.
+  // same decisions, the same time or up to 10 % more. Nor (2026-11-29, twenty-sixth session) the
+  // descents asking a per-query map instead: 2 bits a vertex (straddles, above; 2.5 MB on the
+  // bunny, filled in 8.5 ms before the refinement) saved about what it cost to fill; a bit a voxel
+  // (used and straddling, 12 MB, each 64 filled the first time a walk asks) made the refinement
+  // 1.08x slower at D = 2 (3 alternated pairs). The loads perf charges are not the descents' cost.
   template <class Hint>
   bool far_from_surface(const Point& pv, const Point& normal, Hint&& near) const {
     bool side[2];
