@@ -876,7 +876,7 @@ process raises on every process, the others' as ValueError "comm: rank R: ...".)
       R"(prepare_file(volume, path, *, grid="bisection", max_error=None, ...) -> dict
 
 prepare(volume, ...) and Grid.save(path) in one (the command line's `prepare`): the same file,
-written as it is made, so the grid and its index are never in memory at once. Returns the
+without building the extraction index, which the file leaves out (loading builds it). Returns the
 statistics (Grid.stats). ValueError on a bad option, OSError when the path cannot be written.
 brick_side and comm as for prepare: with comm, rank 0 writes the file and returns the statistics,
 the others return None.)");

@@ -31,6 +31,9 @@ if [ -x "$CLI" ]; then
   "$CLI" prepare "$tmp/s.nrrd" --quiet -o "$BUILD/seeds/grid/bisection.adg"
   "$CLI" prepare "$tmp/s.nrrd" --grid delaunay --quiet -o "$BUILD/seeds/grid/delaunay.adg"
   "$CLI" prepare "$tmp/s.nrrd" --max-displacement 0.5 --quiet -o "$BUILD/seeds/grid/displacement.adg"
+  # Files with their index stored, as before version 6 (loading checks it instead of building it).
+  "$CLI" prepare "$tmp/s.nrrd" --store-index --quiet -o "$BUILD/seeds/grid/bisection-indexed.adg"
+  "$CLI" prepare "$tmp/s.nrrd" --grid delaunay --store-index --quiet -o "$BUILD/seeds/grid/delaunay-indexed.adg"
   "$CLI" mc "$tmp/s.nrrd" --iso 500 --quiet -o "$BUILD/seeds/ply/sphere.ply"
   # The structure-aware target mutates whole grid files (fuzz_grid_structure.cpp): these, and grids
   # whose box is no power-of-two cube (diamonds across its far faces) or that keep every voxel.

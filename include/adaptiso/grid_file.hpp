@@ -2,16 +2,18 @@
 //
 // Layout (little-endian):
 //   0   char[16]  magic "ADAPTISO-GRID\0\0\0"
-//   16  u32       version (5; versions 1 to 4 are still read. 4 and 5 have 3's layout; their
+//   16  u32       version (6; versions 1 to 5 are still read. 4 to 6 have 3's layout; their
 //                 index lists may hold equal keys in any order, where older ones sorted them by
-//                 id; up to 4 the checksum restarted after every empty array)
+//                 id; up to 4 the checksum restarted after every empty array; from 6 a file
+//                 without its index gives the depth to build it at, up to 24)
 //   20  u32       flags (bit 0: the extraction index follows the tetrahedra; bit 1: the bisection
 //                 hierarchy follows [version 3]; bit 2: with the displacement criterion)
 //   24  u64       M, bytes of metadata
 //   32  u64       N, vertices
 //   40  u64       T, tetrahedra
 //   48  u64       E, index entries (non-constant tetrahedra)       [version 2]
-//   56  u32       D, index depth; u32 reserved                      [version 2]
+//   56  u32       D, index depth (without the index: 0, or from version 6 the depth it is
+//                 built at when loaded); u32 reserved                  [version 2]
 //   64  char[M]   metadata: UTF-8 JSON: "source" (GridSource: dims, spacing, origin, direction,
 //                 value range, reduction settings) and "prepare" (PrepareStats, prepared_grid.hpp)
 //       u32[N][3] ijk;  f64[N] values;  f32[N][3] gradients;  u32[T][4] tets
@@ -30,6 +32,10 @@
 // against the grid (validate_interval_tree; GridParts below says which are kept and checked). A
 // file that fails any of them is refused with InputError naming it: checksums catch damage, these
 // catch a file that was written to lie.
+//
+// The index is written only when asked (save_grid's with_index): built when the file is loaded, it
+// costs less than checking a stored one (the CT bunny's default grid: its load 4.0-4.3 s against
+// 4.9-5.3), the file is a quarter smaller, and prepare does not build it at all.
 #pragma once
 #include <cstdint>
 #include <memory>
@@ -42,9 +48,9 @@
 
 namespace adaptiso {
 
-// Writes the grid, its index (unless with_index is false: loading then builds it) and its
-// statistics, atomically.
-void save_grid(const PreparedGrid& grid, const std::string& path, bool with_index = true);
+// Writes the grid and its statistics, atomically; its index only with with_index (loading builds it
+// otherwise, at the depth of the grid's index, or of its statistics' index_depth without one).
+void save_grid(const PreparedGrid& grid, const std::string& path, bool with_index = false);
 // What load_grid keeps of a file.
 enum class GridParts {
   all,        // the grid, its index (built now when the file has none) and its statistics
@@ -60,9 +66,8 @@ enum class GridParts {
 // returned grid has no tetrahedra (its statistics still count them) and an empty index: give it to
 // HierarchyQuery, not to an Extractor. Throws InputError for a file without a bisection hierarchy
 // (GridParts::hierarchy; hierarchy_or_all loads it whole instead).
-// Progress: "read grid" (by bytes), "check grid" (the vertices and the hierarchy's walk), "check
-// index" (its entries): the checks are most of a load (the CT bunny's default grid: 1.0 s read,
-// 4 s checked on 2 cores).
+// Progress: "read grid" (by bytes), "check grid" (the vertices and the hierarchy's walk), then
+// "build index" (0 and 1), or "check index" (its entries) for a file that holds one.
 PreparedGrid load_grid(const std::string& path, GridParts parts = GridParts::all, const Progress& progress = {});
 
 namespace detail {

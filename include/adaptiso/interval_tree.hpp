@@ -48,6 +48,7 @@ struct IntervalTree {
 };
 
 constexpr std::uint32_t kDefaultTreeDepth = 12;  // bench_extract: query time flat from depth 8 to 20 (README)
+constexpr std::uint32_t kMaxTreeDepth = 24;      // what prepare takes, and a grid file may ask to be built
 
 // The scratch memory the build may hold at once by default, beyond the lists themselves (bytes).
 constexpr std::size_t kDefaultIndexScratch = std::size_t{1} << 30;

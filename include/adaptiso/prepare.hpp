@@ -113,7 +113,7 @@ PreparedGrid coarsen(const PreparedGrid& grid, double max_error, double max_disp
 PreparedGrid coarsen_floored(const PreparedGrid& grid, double max_error, int cell_floor, const Progress& progress = {});
 
 // The steps prepare() combines, for the callers that combine them otherwise (prepare_to_file.hpp:
-// with the grid file's writer, the index built while the file is written).
+// the grid file without its index).
 namespace detail {
 
 // Every stage before the index (the grid, its gradients, the check of `verify`), timed into the

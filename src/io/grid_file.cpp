@@ -11,12 +11,10 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
-#include <future>
 #include <nlohmann/json.hpp>
 
 #include "adaptiso/atomic_file.hpp"
 #include "io/grid_check.hpp"
-#include "io/grid_file_stream.hpp"
 #include "util/big_array.hpp"
 #include "util/memory.hpp"
 #include "volume/io_util.hpp"
@@ -30,14 +28,16 @@ constexpr char kMagic[16] = {'A', 'D', 'A', 'P', 'T', 'I', 'S', 'O', '-', 'G', '
 // Version 5: the checksum covers every byte. Up to 4 it restarted at every empty array (the
 // writer passed the CRC a null pointer, which zlib and libdeflate answer with the initial value),
 // so an empty index list, or an empty grid, left whatever preceded it unprotected.
-constexpr std::uint32_t kVersion = 5, kLastRestartingChecksum = 4;
+// Version 6: a file without its index gives the depth to build it at (earlier ones: 0, built at the
+// default depth), so a grid prepared at another depth loads as it was prepared.
+constexpr std::uint32_t kVersion = 6, kLastRestartingChecksum = 4, kFirstDepthWithoutIndex = 6;
 constexpr std::uint64_t kHeaderV1 = 48, kHeader = 64;
 constexpr std::uint32_t kHasIndex = 1, kHasHierarchy = 2, kHasDisplacement = 4;
 constexpr std::uint64_t kHierarchyHeader = 40;  // i32 root size, u8 thresholds ×2, u16 reserved, f64 ×4
 constexpr std::uint64_t kNodeBytes = 24;        // f64 split, u64 begin, u64 end
 
 // The layout's bytes per vertex, and what follows the metadata for these counts (the checksum
-// included): what the loader checks a file's size against and the streaming writer promises.
+// included): what the loader checks a file's size against.
 std::uint64_t bytes_per_vertex_on_disk(bool hierarchy, bool moves) { return 12 + 8 + 12 + (hierarchy ? 1 + 8 : 0) + (moves ? 1 : 0); }
 std::uint64_t body_bytes(std::uint64_t N, std::uint64_t T, std::uint64_t nodes, std::uint64_t E, bool hierarchy, bool moves) {
   return N * bytes_per_vertex_on_disk(hierarchy, moves) + T * 16 + nodes * kNodeBytes + E * 8 + (hierarchy ? kHierarchyHeader : 0) + 4;
@@ -86,7 +86,8 @@ public:
 
   // Header and metadata. Timings and memory peaks vary from run to run: the file keeps the rest
   // of the statistics, so the same input and options give the same bytes.
-  void head(const PreparedGrid& p, const IntervalTreeShape* index) {
+  // Without an index, `depth` is the depth loading builds it at.
+  void head(const PreparedGrid& p, const IntervalTreeShape* index, std::uint32_t depth) {
     nlohmann::json stats = nlohmann::json::parse(to_json(p.stats));
     stats.erase("seconds");
     stats.erase("peak_bytes");
@@ -100,7 +101,7 @@ public:
     w_.put(static_cast<std::uint64_t>(p.grid.vertex_count()));
     w_.put(static_cast<std::uint64_t>(p.grid.tet_count()));
     w_.put(static_cast<std::uint64_t>(index ? index->entries : 0));
-    w_.put(index ? index->depth : std::uint32_t{0});
+    w_.put(index ? index->depth : depth);
     w_.put(std::uint32_t{0});
     w_.write(m.data(), m.size());
   }
@@ -150,9 +151,12 @@ private:
 
 void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) {
   const IntervalTreeShape shape{p.index.depth, p.index.entries()};
+  // The depth its index has (loading builds the same from the same tetrahedra), or was asked.
+  std::uint32_t depth = p.index.nodes.empty() ? p.stats.index_depth : p.index.depth;
+  if (depth > kMaxTreeDepth) depth = kDefaultTreeDepth;  // statistics read from a file of another kind
   write_file_atomically(path, [&](std::ostream& out) {
     GridFileWriter w(out);
-    w.head(p, with_index ? &shape : nullptr);
+    w.head(p, with_index ? &shape : nullptr, depth);
     w.vertices(p.grid);
     w.tetrahedra(p.grid);
     if (with_index) w.index(p.index);
@@ -160,61 +164,6 @@ void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) 
     w.checksum();
   });
 }
-
-namespace detail {
-
-void save_grid_building_index(PreparedGrid& p, const std::string& path, const IntervalTreeShape& shape,
-                              const std::function<std::size_t(std::uint64_t)>& scratch_left,
-                              const std::function<IntervalTree(const TetGrid&, std::size_t)>& build_index) {
-  const bool moves = p.hierarchy && !p.hierarchy->displacement_code.empty();
-  write_file_atomically(path, [&](std::ostream& out) {
-    GridFileWriter w(out);
-    w.head(p, &shape);
-    const std::uint64_t file_bytes =
-        w.written() + body_bytes(p.grid.vertex_count(), p.grid.tet_count(), shape.nodes(), shape.entries, p.hierarchy.has_value(), moves);
-    w.vertices(p.grid);
-    std::vector<std::array<std::uint32_t, 3>>().swap(p.grid.ijk);
-    std::vector<std::array<float, 3>>().swap(p.grid.gradients);
-    release_free_heap();
-    // The tetrahedra go to the disk while the index is built from them, where the writer's
-    // buffers cost the sort little of its scratch (the bunny: its 0.8 GB, about 0.5 s of writing,
-    // hidden); otherwise first, the buffers given back before the index takes its memory.
-    std::size_t scratch = scratch_left(file_bytes);
-    const bool overlap = scratch >= 10 * kAtomicFileBufferBytes;
-    std::future<void> writing;
-    if (overlap) {
-      scratch -= kAtomicFileBufferBytes;
-      writing = std::async(std::launch::async, [&] {
-        w.tetrahedra(p.grid);
-        out.flush();
-      });
-    } else {
-      w.tetrahedra(p.grid);
-      out.flush();
-    }
-    IntervalTree index;
-    try {
-      index = build_index(p.grid, scratch);
-    } catch (...) {
-      if (writing.valid()) writing.wait();  // it reads the tetrahedra: they stay until it is done
-      throw;
-    }
-    if (writing.valid()) writing.get();
-    if (index.depth != shape.depth || index.entries() != shape.entries)
-      throw std::logic_error(fmt::format("grid file: the index has depth {} and {} entries where its shape promised {} and {}", index.depth,
-                                         index.entries(), shape.depth, shape.entries));
-    std::vector<std::array<std::uint32_t, 4>>().swap(p.grid.tets);  // nothing reads the grid any more
-    std::vector<double>().swap(p.grid.values);
-    release_free_heap();
-    w.index(index);
-    w.hierarchy(p.hierarchy);
-    w.checksum();
-    if (w.written() + 4 != file_bytes)
-      throw std::logic_error(fmt::format("grid file: wrote {} bytes where {} were expected", w.written() + 4, file_bytes));
-  });
-}
-
-}  // namespace detail
 
 namespace {
 
@@ -254,7 +203,9 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   const bool has_index = version >= 2 && (flags & kHasIndex);
   const bool has_hierarchy = version >= 3 && (flags & kHasHierarchy), has_moves = version >= 3 && (flags & kHasDisplacement);
   const std::uint32_t known = version >= 3 ? (kHasIndex | kHasHierarchy | kHasDisplacement) : kHasIndex;
-  if ((version == 1 && flags != 0) || (version >= 2 && (flags & ~known)) || depth > 30 || (!has_index && (E || depth)) ||
+  // Without an index, a depth to build it at (from version 6; none before).
+  const std::uint32_t most_depth = has_index ? 30 : version >= kFirstDepthWithoutIndex ? kMaxTreeDepth : 0;
+  if ((version == 1 && flags != 0) || (version >= 2 && (flags & ~known)) || depth > most_depth || (!has_index && E) ||
       (has_moves && !has_hierarchy))
     throw InputError(fmt::format("{}: grid file is corrupt (bad header flags)", path));
   const std::uint64_t nodes = has_index ? (std::uint64_t{2} << depth) - 1 : 0;
@@ -393,7 +344,9 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     finish_interval_tree(tree, grid);
     p.index = std::move(tree);
   } else {
-    p.index = build_interval_tree(grid);  // an older file: build the index now
+    report(progress, "build index", 0);
+    p.index = build_interval_tree(grid, version >= kFirstDepthWithoutIndex ? depth : kDefaultTreeDepth);
+    report(progress, "build index", 1);
   }
   return p;
 }

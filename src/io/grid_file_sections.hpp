@@ -1,4 +1,4 @@
-// A grid file (.adg, versions 2 to 5; grid_file.hpp) taken apart into its sections and put back
+// A grid file (.adg, versions 2 to 6; grid_file.hpp) taken apart into its sections and put back
 // together with its counts and checksum made to match. For the structure-aware fuzz target
 // (fuzz/fuzz_grid_structure.cpp) and the tests that build lying grid files: a mutation of a
 // section survives the checksum and reaches the loader's checks of what the file says. Header-only;
@@ -23,7 +23,7 @@
 namespace adaptiso::detail {
 
 struct GridSections {
-  std::uint32_t version = 5, flags = 0, depth = 0, reserved = 0;
+  std::uint32_t version = 6, flags = 0, depth = 0, reserved = 0;
   std::string meta;                             // JSON
   std::string ijk, values, gradients, tets;     // 12, 8, 12 and 16 bytes a record
   std::string nodes, by_min, by_max;            // index: 24 bytes a node, 4 an entry
@@ -53,12 +53,13 @@ struct GridSections {
     GridSections s;
     s.version = u32(16);
     s.flags = u32(20);
-    if (s.version < 2 || s.version > 5) return std::nullopt;
+    if (s.version < 2 || s.version > 6) return std::nullopt;
     const std::uint64_t M = u64(24), N = u64(32), T = u64(40), E = u64(48);
     s.depth = u32(56);
     s.reserved = u32(60);
     const bool index = s.flags & kHasIndex, hierarchy = s.flags & kHasHierarchy, moves = s.flags & kHasDisplacement;
-    if (s.depth > 30 || (!index && s.depth)) return std::nullopt;
+    // Without the index, from version 6, the depth loading builds it at (up to 24).
+    if (s.depth > 30 || (!index && s.depth > (s.version >= 6 ? 24u : 0u))) return std::nullopt;
     const std::uint64_t nodes = index ? (std::uint64_t{2} << s.depth) - 1 : 0;
     // Counts that cannot fit the file are refused before any multiplication can overflow.
     if (M > f.size() || N > f.size() || T > f.size() || E > f.size() || nodes > f.size()) return std::nullopt;

@@ -53,7 +53,8 @@ std::uint64_t resident_grid_bytes(const PreparedGrid& p) {
 void check_options(const PrepareOptions& o) {
   if (o.max_error && (!(*o.max_error >= 0) || (!std::isfinite(*o.max_error) && o.grid == GridKind::delaunay)))
     throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", *o.max_error));
-  if (o.tree_depth > 24) throw OptionError("tree_depth", fmt::format("must be between 0 and 24, got {}", o.tree_depth));
+  if (o.tree_depth > kMaxTreeDepth)
+    throw OptionError("tree_depth", fmt::format("must be between 0 and {}, got {}", kMaxTreeDepth, o.tree_depth));
   if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
     throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", o.max_displacement));
   if (o.max_displacement > 0 && o.grid != GridKind::bisection)

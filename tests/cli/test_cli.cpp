@@ -322,15 +322,24 @@ TEST(PrepareCli, JsonFieldsAndExport) {
   auto j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["grid"], "delaunay");
   for (const char* k : {"voxels", "kept", "tetrahedra", "pl_max_error", "pl_rms_error", "seconds"}) EXPECT_TRUE(j.contains(k)) << k;
-  for (const char* k : {"reduce", "tetrahedralize", "gradients", "index"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  for (const char* k : {"reduce", "tetrahedralize", "gradients", "save"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  EXPECT_FALSE(j["seconds"].contains("index"));  // left out of the file: loading builds it
   // The bisection grid (the default): a guaranteed bound, checked voxel by voxel with --verify.
   r = testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error 0.15 --relative --verify --json -o " + (t / "s.adg"));
   ASSERT_EQ(r.code, 0) << r.err;
   j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["grid"], "bisection");
-  for (const char* k : {"error_hierarchy", "select", "gradients", "pl_error", "index"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
+  for (const char* k : {"error_hierarchy", "select", "gradients", "pl_error", "save"}) EXPECT_TRUE(j["seconds"].contains(k)) << k;
   EXPECT_LE(j["pl_max_error"].get<double>(), j["error_bound"].get<double>());
   EXPECT_LE(j["error_bound"].get<double>(), j["max_error"].get<double>());
+  // The hidden --store-index (the fuzz seeds): the index built and stored, the same surface.
+  r = testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error 0.15 --relative --store-index --json -o " + (t / "i.adg"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_TRUE(nlohmann::json::parse(r.out)["seconds"].contains("index"));
+  EXPECT_GT(std::filesystem::file_size(t / "i.adg"), std::filesystem::file_size(t / "s.adg"));
+  for (const char* grid : {"s.adg", "i.adg"})
+    ASSERT_EQ(testutil::run_cli("extract " + (t / grid) + " --iso 0.5 --relative --quiet -o " + (t / grid) + ".ply").code, 0) << grid;
+  EXPECT_EQ(testutil::read_bytes(t / "s.adg.ply"), testutil::read_bytes(t / "i.adg.ply"));
   EXPECT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid delaunay --max-displacement 0.5 -o " + (t / "x.adg")).code, 2);
   EXPECT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --grid voronoi -o " + (t / "x.adg")).code, 2);
   // Points are written from a grid loaded without its tetrahedra: the same counts as the whole grid's.

@@ -11,13 +11,14 @@
 #include <random>
 
 #include "adaptiso/prepare.hpp"
+#include "adaptiso/prepare_to_file.hpp"
 
 #include "adaptiso/atomic_file.hpp"
 #include "adaptiso/error.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
-#include "io/grid_file_stream.hpp"
+#include "io/grid_file_sections.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
@@ -152,13 +153,15 @@ TEST(GridFile, BisectionGridsKeepTheirHierarchy) {
 
 // A load shows its progress: the bunny's default grid took 5 s to load without a word (1 s read,
 // 4 s checked). Every stage starts at 0 and ends at 1, its fractions never go back, and the
-// stages come in order: read, check the grid, check the index (a load in part skips the index).
+// stages come in order: read, check the grid, build the index or check a stored one (a load in
+// part skips the index).
 TEST(GridFile, LoadingReportsReadAndCheckProgressInOrder) {
   testutil::TempDir t("gridprogress");
   PrepareOptions o;
   o.max_error = 0.01;
   const PreparedGrid p = prepare(make_synthetic("marschner-lobb", 33, ScalarType::f32), o);
   save_grid(p, t / "g.adg");
+  save_grid(p, t / "indexed.adg", true);
   const PreparedGrid delaunay = reduced_sphere_grid(20, 30, 5);
   save_grid(delaunay, t / "d.adg");
   struct Case {
@@ -166,9 +169,10 @@ TEST(GridFile, LoadingReportsReadAndCheckProgressInOrder) {
     GridParts parts;
     std::vector<std::string> stages;
   };
-  for (const Case& c : {Case{"g.adg", GridParts::all, {"read grid", "check grid", "check index"}},
+  for (const Case& c : {Case{"g.adg", GridParts::all, {"read grid", "check grid", "build index"}},
+                        Case{"indexed.adg", GridParts::all, {"read grid", "check grid", "check index"}},
                         Case{"g.adg", GridParts::hierarchy, {"read grid", "check grid"}},
-                        Case{"d.adg", GridParts::all, {"read grid", "check grid", "check index"}}}) {
+                        Case{"d.adg", GridParts::all, {"read grid", "check grid", "build index"}}}) {
     std::mutex m;
     std::vector<std::pair<std::string, double>> seen;
     const Progress progress = [&](std::string_view stage, double f) {
@@ -194,50 +198,79 @@ TEST(GridFile, LoadingReportsReadAndCheckProgressInOrder) {
   }
 }
 
-// The grid file written while its index is built (detail::save_grid_building_index, under
-// prepare_to_file): the same bytes as save_grid whether the tetrahedra are written before the
-// index (little scratch left) or while it is built (plenty), with the grid's arrays freed; an
-// index that fails, or does not have the shape promised, leaves no file.
-TEST(GridFile, WrittenWhileTheIndexIsBuiltGivesTheSameBytesAndFailsCleanly) {
-  testutil::TempDir t("grid_stream");
+// Grid files leave their index out (version 6): prepare_to_file does not build it, and loading
+// builds the one prepare() would have, at the depth the file gives (a depth other than the default
+// here), faster than it would check a stored one (grid_file.hpp). The file is smaller by the index.
+TEST(GridFile, PreparedFilesLeaveTheIndexOutAndLoadingBuildsItAtTheirDepth) {
+  testutil::TempDir t("grid_unindexed");
+  for (const GridKind kind : {GridKind::bisection, GridKind::delaunay}) {
+    PrepareOptions o;
+    o.grid = kind;
+    o.max_error = 0.02;
+    o.relative = true;
+    o.tree_depth = 7;
+    const Volume v = make_synthetic("marschner-lobb", 24, ScalarType::f32);
+    const PreparedGrid reference = prepare(v, o);
+    ASSERT_GT(reference.index.entries(), 0u);
+    const PrepareStats st = prepare_to_file(v, o, t / "p.adg");
+    EXPECT_TRUE(std::none_of(st.stages.begin(), st.stages.end(), [](const auto& s) { return s.name == "index"; }));
+    const auto sections = detail::GridSections::parse(testutil::read_bytes(t / "p.adg"));
+    ASSERT_TRUE(sections);
+    EXPECT_EQ(sections->version, 6u);
+    EXPECT_EQ(sections->flags & detail::GridSections::kHasIndex, 0u);
+    EXPECT_EQ(sections->depth, 7u);
+    EXPECT_TRUE(sections->by_min.empty() && sections->nodes.empty());
+    const PreparedGrid loaded = load_grid(t / "p.adg");
+    EXPECT_EQ(loaded.grid.tets, reference.grid.tets);
+    EXPECT_EQ(loaded.index.depth, reference.index.depth);
+    EXPECT_EQ(loaded.index.by_min, reference.index.by_min);
+    EXPECT_EQ(loaded.index.by_max, reference.index.by_max);
+    ASSERT_EQ(loaded.index.nodes.size(), reference.index.nodes.size());
+    for (std::size_t i = 0; i < loaded.index.nodes.size(); ++i) {
+      EXPECT_EQ(loaded.index.nodes[i].split, reference.index.nodes[i].split);
+      EXPECT_EQ(loaded.index.nodes[i].begin, reference.index.nodes[i].begin);
+      EXPECT_EQ(loaded.index.nodes[i].end, reference.index.nodes[i].end);
+    }
+    // Saved with its index a grid is larger by exactly the index, and loads the same index.
+    save_grid(reference, t / "indexed.adg", true);
+    save_grid(reference, t / "unindexed.adg");
+    EXPECT_EQ(std::filesystem::file_size(t / "indexed.adg") - std::filesystem::file_size(t / "unindexed.adg"),
+              reference.index.nodes.size() * 24 + reference.index.entries() * 8);
+    EXPECT_EQ(load_grid(t / "indexed.adg").index.by_min, reference.index.by_min);
+    EXPECT_EQ(load_grid(t / "unindexed.adg").index.by_max, reference.index.by_max);
+  }
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(t.path), std::filesystem::directory_iterator{}), 3);  // no temporaries
+}
+
+// The depth of an index to build is read from version 6 on, up to 24 (a deeper one would allocate
+// 2^26 nodes and more for nothing); a version 5 file without its index gives none, and builds it at
+// the default depth as it always did.
+TEST(GridFile, DepthWithoutAnIndexIsReadFromVersion6UpTo24) {
+  testutil::TempDir t("grid_depth");
   PrepareOptions o;
   o.max_error = 0.02;
   o.relative = true;
-  const PreparedGrid reference = prepare(make_synthetic("marschner-lobb", 24, ScalarType::f32), o);
-  save_grid(reference, t / "saved.adg");
-  const IntervalTreeShape shape{reference.index.depth, reference.index.entries()};
-  for (const std::size_t left : {std::size_t{0}, std::size_t{1} << 40}) {
-    PreparedGrid p = reference;
-    p.index = IntervalTree{};
-    std::size_t scratch_seen = 0;
-    detail::save_grid_building_index(
-        p, t / "streamed.adg", shape, [&](std::uint64_t) { return left; },
-        [&](const TetGrid& grid, std::size_t scratch) {
-          EXPECT_TRUE(grid.ijk.empty() && grid.gradients.empty());  // freed once written
-          EXPECT_EQ(grid.tets, reference.grid.tets);
-          scratch_seen = scratch;
-          return build_interval_tree(grid, o.tree_depth);
-        });
-    EXPECT_EQ(scratch_seen, left ? left - kAtomicFileBufferBytes : 0);  // the writer's buffers held while it writes
-    EXPECT_TRUE(p.grid.tets.empty() && p.grid.values.empty());
-    EXPECT_TRUE(testutil::read_bytes(t / "streamed.adg") == testutil::read_bytes(t / "saved.adg")) << "scratch left " << left;
-    std::filesystem::remove(t / "streamed.adg");
-    for (const bool wrong_shape : {false, true}) {
-      PreparedGrid q = reference;
-      auto build = [&](const TetGrid& grid, std::size_t) -> IntervalTree {
-        if (!wrong_shape) throw InputError("the index failed");
-        return build_interval_tree(grid, o.tree_depth + 1);
-      };
-      auto call = [&] {
-        detail::save_grid_building_index(
-            q, t / "failed.adg", shape, [&](std::uint64_t) { return left; }, build);
-      };
-      if (wrong_shape)
-        EXPECT_THROW(call(), std::logic_error);
-      else
-        EXPECT_THROW(call(), InputError);
-      EXPECT_FALSE(std::filesystem::exists(t / "failed.adg"));
+  o.tree_depth = 7;
+  const Volume v = make_synthetic("marschner-lobb", 24, ScalarType::f32);
+  prepare_to_file(v, o, t / "p.adg");
+  const auto honest = detail::GridSections::parse(testutil::read_bytes(t / "p.adg"));
+  ASSERT_TRUE(honest);
+  auto with = [&](std::uint32_t version, std::uint32_t depth) {
+    detail::GridSections s = *honest;
+    s.version = version;
+    s.depth = depth;
+    testutil::write_bytes(t / "m.adg", s.assemble());
+    return t / "m.adg";
+  };
+  const PreparedGrid grid = load_grid(t / "p.adg");
+  EXPECT_EQ(load_grid(with(6, 24)).index.by_min, build_interval_tree(grid.grid, 24).by_min);
+  EXPECT_EQ(load_grid(with(5, 0)).index.depth, build_interval_tree(grid.grid, kDefaultTreeDepth).depth);
+  for (const auto& [version, depth] : {std::pair{6u, 25u}, std::pair{6u, 31u}, std::pair{5u, 7u}, std::pair{6u, ~0u}}) {
+    try {
+      load_grid(with(version, depth));
+      ADD_FAILURE() << "version " << version << " depth " << depth << " loaded";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("bad header flags"), std::string::npos) << e.what();
     }
   }
-  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(t.path), std::filesystem::directory_iterator{}), 1);  // no temporaries
 }

@@ -3,7 +3,8 @@
 // to match (save_grid, or GridSections::assemble), and is named after what broke before the loader
 // checked it (issue 41): crashes and over-reads in the hierarchy's walks, and silent wrong
 // surfaces. The last test is the differential check: any grid that loads gives the surfaces of
-// preparing its own volume.
+// preparing its own volume. The files keep their index (save_grid's with_index, as every file
+// before version 6 did): a lie in it must be refused too.
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 
@@ -136,7 +137,7 @@ std::vector<Triangle> triangles_of(const Mesh& m) { return testutil::sorted_tria
 // section's CRC is 0): it loaded, then extract --max-error, view and Python segfaulted.
 TEST(GridFileLies, EmptyGridClaimingAHierarchyIsRefused) {
   testutil::TempDir t("lies_empty");
-  save_grid(bisection(make_synthetic("sphere", 17, ScalarType::f32), 0.05), t / "g.adg");
+  save_grid(bisection(make_synthetic("sphere", 17, ScalarType::f32), 0.05), t / "g.adg", true);
   GridSections s = sections_of(t / "g.adg");
   for (auto [section, bytes] : s.vertex_sections()) section->clear();
   s.tets.clear();
@@ -158,7 +159,7 @@ TEST(GridFileLies, RootCornerRemovedWithItsTetrahedraRepointedIsRefused) {
     PreparedGrid p = fine;
     const std::uint32_t v = vertex_at(p.grid, c[0], c[1], c[2]);
     remove_vertex(p, v, v == 0 ? 1 : v - 1);
-    save_grid(p, t / "g.adg");
+    save_grid(p, t / "g.adg", true);
     expect_refused(t / "g.adg", "root cube's corner", fmt::format("{},{},{}", c[0], c[1], c[2]));
     // The same grid in memory, never through a file: bisection_coarsen refuses it too.
     BisectionOptions o;
@@ -176,7 +177,7 @@ TEST(GridFileLies, RandomVertexRemovalsWithTheirTetrahedraRepointedAreRefused) {
     PreparedGrid p = fine;
     const auto gone = static_cast<std::uint32_t>(rng() % p.grid.vertex_count());
     remove_vertex(p, gone, gone == 0 ? 1 : gone - 1);
-    save_grid(p, t / "g.adg");
+    save_grid(p, t / "g.adg", true);
     expect_refused(t / "g.adg", "grid", fmt::format("vertex {}", gone));
   }
 }
@@ -204,7 +205,7 @@ TEST(GridFileLies, ConsistentlyPermutedVertexOrderIsRefused) {
   for (auto& tet : p.grid.tets)
     for (auto& v : tet) v = renumber[v];
   p.index = build_interval_tree(p.grid, p.index.depth);
-  save_grid(p, t / "g.adg");
+  save_grid(p, t / "g.adg", true);
   expect_refused(t / "g.adg", "ascending voxel order");
 }
 
@@ -213,7 +214,7 @@ TEST(GridFileLies, ConsistentlyPermutedVertexOrderIsRefused) {
 // type string. Each must be refused naming what is wrong.
 TEST(GridFileLies, MetadataOutsideItsSaneRangeIsRefused) {
   testutil::TempDir t("lies_meta");
-  save_grid(bisection(make_synthetic("sphere", 9, ScalarType::i16), 0.02), t / "g.adg");
+  save_grid(bisection(make_synthetic("sphere", 9, ScalarType::i16), 0.02), t / "g.adg", true);
   ASSERT_EQ(refusal(t / "g.adg"), "");
   struct Case {
     const char* name;
@@ -272,7 +273,7 @@ TEST(GridFileLies, MetadataOutsideItsSaneRangeIsRefused) {
 // are informational: a count that is no whole number in range is left out, the grid loads.
 TEST(GridFileLies, StatisticsWithAHugeFloatCountAreLeftOutNotConverted) {
   testutil::TempDir t("lies_stats");
-  save_grid(bisection(make_synthetic("sphere", 9, ScalarType::i16), 0.02), t / "g.adg");
+  save_grid(bisection(make_synthetic("sphere", 9, ScalarType::i16), 0.02), t / "g.adg", true);
   GridSections s = sections_of(t / "g.adg");
   auto j = nlohmann::json::parse(s.meta);
   j["prepare"]["kept"] = 2.13e64;
@@ -292,7 +293,7 @@ TEST(GridFileLies, HierarchyThatIsNotItsCodesSelectionIsRefused) {
   testutil::TempDir t("lies_hierarchy");
   const PreparedGrid fine = bisection(bumpy({13, 10, 7}, 5), 0.02, 0.5);
   ASSERT_FALSE(fine.hierarchy->displacement_code.empty());
-  save_grid(fine, t / "g.adg");
+  save_grid(fine, t / "g.adg", true);
   ASSERT_EQ(refusal(t / "g.adg"), "");
   const auto& h = *fine.hierarchy;
   const TetGrid& g = fine.grid;
@@ -366,7 +367,7 @@ TEST(GridFileLies, HierarchyThatIsNotItsCodesSelectionIsRefused) {
     PreparedGrid p = fine;
     c.lie(p);
     p.index = build_interval_tree(p.grid, p.index.depth);
-    save_grid(p, t / "l.adg");
+    save_grid(p, t / "l.adg", true);
     expect_refused(t / "l.adg", c.fragment, c.name);
   }
 }
@@ -375,7 +376,7 @@ TEST(GridFileLies, HierarchyThatIsNotItsCodesSelectionIsRefused) {
 TEST(GridFileLies, TetrahedraThatDoNotTileTheBoxAreRefused) {
   testutil::TempDir t("lies_tiling");
   const PreparedGrid fine = delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05);
-  save_grid(fine, t / "g.adg");
+  save_grid(fine, t / "g.adg", true);
   ASSERT_EQ(refusal(t / "g.adg"), "");
   struct Case {
     const char* name;
@@ -422,7 +423,7 @@ TEST(GridFileLies, TetrahedraThatDoNotTileTheBoxAreRefused) {
     PreparedGrid p = fine;
     c.lie(p);
     p.index = build_interval_tree(p.grid, p.index.depth);
-    save_grid(p, t / "l.adg");
+    save_grid(p, t / "l.adg", true);
     expect_refused(t / "l.adg", c.fragment, c.name);
   }
 }
@@ -449,7 +450,7 @@ TEST(GridFileLies, AnyMutantThatLoadsGivesTheSurfaceOfPreparingItsOwnVolume) {
     const Source& src = sources[si];
     const ValueRange r = value_range(src.volume);
     const PreparedGrid fine = bisection(src.volume, src.error, src.displacement);
-    save_grid(fine, t / "g.adg");
+    save_grid(fine, t / "g.adg", true);
     const std::string original = testutil::read_bytes(t / "g.adg");
     for (int m = 0; m < 250; ++m) {
       auto s = GridSections::parse(original);
@@ -520,7 +521,7 @@ TEST(GridFileLies, AnyMutantThatLoadsGivesTheSurfaceOfPreparingItsOwnVolume) {
 // file, no tetrahedra or index, the file's tetrahedra still counted, and the same surfaces.
 TEST(GridFileHierarchyParts, AreTheWholeLoadsVerticesAndHierarchyAndGiveItsSurfaces) {
   testutil::TempDir t("parts_same");
-  save_grid(bisection(bumpy({13, 10, 7}, 3), 0.02), t / "g.adg");
+  save_grid(bisection(bumpy({13, 10, 7}, 3), 0.02), t / "g.adg", true);
   const auto whole = std::make_shared<const PreparedGrid>(load_grid(t / "g.adg"));
   const auto parts = std::make_shared<const PreparedGrid>(load_grid(t / "g.adg", GridParts::hierarchy));
   EXPECT_EQ(parts->grid.ijk, whole->grid.ijk);
@@ -547,7 +548,7 @@ TEST(GridFileHierarchyParts, AreTheWholeLoadsVerticesAndHierarchyAndGiveItsSurfa
 
 TEST(GridFileHierarchyParts, OfAGridWithoutAHierarchyAreRefused) {
   testutil::TempDir t("parts_delaunay");
-  save_grid(delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05), t / "d.adg");
+  save_grid(delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05), t / "d.adg", true);
   try {
     load_grid(t / "d.adg", GridParts::hierarchy);
     FAIL() << "loaded";
@@ -563,7 +564,7 @@ TEST(GridFileHierarchyParts, OfAGridWithoutAHierarchyAreRefused) {
 // (refused by the whole load) changes nothing the hierarchy's load gives.
 TEST(GridFileHierarchyParts, ChecksumTheSkippedSectionsAndCountTheLeaves) {
   testutil::TempDir t("parts_lies");
-  save_grid(bisection(bumpy({13, 10, 7}, 4), 0.02), t / "g.adg");
+  save_grid(bisection(bumpy({13, 10, 7}, 4), 0.02), t / "g.adg", true);
   const GridSections honest = sections_of(t / "g.adg");
   auto refused = [&](const std::string& path) {
     try {
@@ -607,7 +608,7 @@ TEST(GridFileHierarchyParts, ReadOlderChecksumsThatRestartAtEmptyArrays) {
   testutil::TempDir t("parts_v4");
   Volume v = make_volume({9, 8, 7}, ScalarType::f32);
   for (std::size_t i = 0; i < 9 * 8 * 7; ++i) v.set(i, 3.0);
-  save_grid(bisection(v, 0.05), t / "g.adg");
+  save_grid(bisection(v, 0.05), t / "g.adg", true);
   GridSections s = sections_of(t / "g.adg");
   ASSERT_TRUE(s.by_min.empty());
   ASSERT_EQ(s.flags & GridSections::kHasHierarchy, GridSections::kHasHierarchy);
