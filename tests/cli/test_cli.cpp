@@ -426,6 +426,7 @@ TEST(Cli, MemoryLimitBelowWhatTheWorkNeedsIsRefusedUpFrontWithTheSizeItNeeds) {
   testutil::TempDir t("memory_limit");
   ASSERT_EQ(testutil::run_cli("generate sphere --size 64 -o " + (t / "s.nrrd")).code, 0);
   ASSERT_EQ(testutil::run_cli("generate sphere --size 260 --type int16 -o " + (t / "b.nrrd")).code, 0);  // 35 MB of samples
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "s.nrrd") + " --max-error 0 --quiet -o " + (t / "pre.adg")).code, 0);
   struct Case {
     std::string args, says;
   };
@@ -436,6 +437,9 @@ TEST(Cli, MemoryLimitBelowWhatTheWorkNeedsIsRefusedUpFrontWithTheSizeItNeeds) {
       {fmt::format("prepare {} --memory-limit 20M -o {}", t / "b.nrrd", t / "g.adg"), "b.nrrd: reading it needs about 35 MB"},
       {fmt::format("run {} --iso 0.5 --relative --memory-limit 20M -o {}", t / "b.nrrd", t / "m.ply"), "reading it needs about 35 MB"},
       {fmt::format("mc {} --iso 0.5 --relative --memory-limit 20M -o {}", t / "b.nrrd", t / "m.ply"), "reading it needs about 35 MB"},
+      // A grid is read only when its load fits: the 64³ sphere's lossless grid, its tetrahedra and
+      // the index built for them need about 58 MB (74 MB the whole command, measured).
+      {fmt::format("extract {} --iso 0.5 --relative --memory-limit 40M -o {}", t / "pre.adg", t / "m.ply"), "pre.adg: loading a grid of"},
       {fmt::format("prepare {} --memory-limit 12Q -o {}", t / "s.nrrd", t / "g.adg"), "--memory-limit: '12Q' is not a size in bytes"},
       {fmt::format("prepare {} --memory-limit 0 -o {}", t / "s.nrrd", t / "g.adg"), "--memory-limit: must be at least 1 byte"},
   };
