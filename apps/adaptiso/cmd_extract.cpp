@@ -257,7 +257,7 @@ void add_extract(CLI::App& app) {
     if (distance->given() && query)
       throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
     auto t0 = Clock::now();
-    // The hierarchy's queries walk the hierarchy alone: the tetrahedra and their index stay on disk.
+    // The hierarchy's queries walk the hierarchy alone: the tetrahedra stay on disk, no index is built.
     const bool hierarchy_only = distance->given() || query;
     std::shared_ptr<const PreparedGrid> p;
     {

@@ -108,8 +108,7 @@ void add_prepare(CLI::App& app) {
     if (ranks.distributed()) dist.ranks_read = RegionReader::route_of(in->path, in->read_options());  // the headers only
     if (bricked) options.error_hierarchy = bricked_errors(ranks, side, dist);
     TerminalProgress tp(!out->quiet && !out->json);
-    // Written as it is made: the voxels go before the index, the grid's positions and gradients
-    // once they are on disk (the peak within the file plus 2.5 volumes).
+    // The voxels go once the gradients are made; the file leaves the index out (loading builds it).
     const PrepareStats st = *store_index ? save_prepared_with_index(v, options, *output, tp.callback())
                                          : prepare_to_file(std::move(v), options, *output, tp.callback());
     tp.finish();
@@ -144,7 +143,7 @@ void add_export(CLI::App& app) {
     if (ext != ".vtu" && ext != ".ply") throw InputError(fmt::format("{}: unknown output type '{}' (use .vtu or .ply)", *output, ext));
     auto t0 = Clock::now();
     // Points need the vertices only: a bisection grid's tetrahedra are then not kept or checked
-    // (the CT bunny's default grid: 0.45 GB of its 1.8 GB held, the index's check skipped).
+    // (the CT bunny's default grid: 0.45 GB of its 1.28 GB held, no index built).
     TerminalProgress tp(!out->quiet && !out->json);
     const PreparedGrid p = load_grid(*input, ext == ".ply" ? GridParts::hierarchy_or_all : GridParts::all, tp.callback());
     tp.finish();

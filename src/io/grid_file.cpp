@@ -227,6 +227,8 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
       (has_moves && !has_hierarchy))
     throw InputError(fmt::format("{}: grid file is corrupt (bad header flags)", path));
   const std::uint64_t nodes = has_index ? (std::uint64_t{2} << depth) - 1 : 0;
+  // Without an index, the depth loading builds it at.
+  const std::uint32_t build_depth = version >= kFirstDepthWithoutIndex ? depth : kDefaultTreeDepth;
   // The size the counts imply must be the file's size; checked without overflow before allocating.
   const std::uint64_t per_vertex = bytes_per_vertex_on_disk(has_hierarchy, has_moves), per_tet = 16;
   if (M > size || N > size / per_vertex || T > size / per_tet || E > T || nodes > size / kNodeBytes ||
@@ -238,11 +240,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   if (!keep_tets && !has_hierarchy)
     throw InputError(fmt::format(
         "{}: has no bisection hierarchy (a Delaunay grid, or an older file): surfaces at a distance or at another error need one", path));
-  detail::check_memory(load_bytes(N, T, E, nodes,
-                                  has_index                            ? depth
-                                  : version >= kFirstDepthWithoutIndex ? depth
-                                                                       : kDefaultTreeDepth,
-                                  has_hierarchy, has_moves, keep_tets),
+  detail::check_memory(load_bytes(N, T, E, nodes, build_depth, has_hierarchy, has_moves, keep_tets),
                        fmt::format("{}: loading a grid of {} vertices and {} tetrahedra", path, N, T), "",
                        "free memory or raise the memory limit");
   std::uint32_t crc = libdeflate_crc32(0, h, header);
@@ -370,7 +368,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     p.index = std::move(tree);
   } else {
     report(progress, "build index", 0);
-    p.index = build_interval_tree(grid, version >= kFirstDepthWithoutIndex ? depth : kDefaultTreeDepth);
+    p.index = build_interval_tree(grid, build_depth);
     report(progress, "build index", 1);
   }
   return p;

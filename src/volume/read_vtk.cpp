@@ -249,10 +249,13 @@ Volume read_vti(const std::string& path) {
     Tag ap = find_tag(text, "AppendedData", appended_tag, text.size());
     std::size_t us = text.find('_', ap.end);
     if (us == std::string::npos) throw InputError(fmt::format("{}: <AppendedData> has no '_' marker", path));
-    auto off = parse_number_list(arr.attrs["offset"], 1, path + ": offset")[0];
-    if (off < 0 || us + 1 + static_cast<std::size_t>(off) > text.size())
+    // Compared as a number before it becomes a count: an offset of 1e40 bytes has no integer.
+    const double off = parse_number_list(arr.attrs["offset"], 1, path + ": offset")[0];
+    if (!(off >= 0) || off != std::floor(off))
+      throw InputError(fmt::format("{}: appended data offset {} is not a whole number of bytes", path, off));
+    if (off > static_cast<double>(text.size() - (us + 1)))
       throw InputError(fmt::format("{}: appended data offset {} is beyond the end of the file", path, off));
-    std::size_t start = us + 1 + static_cast<std::size_t>(off);
+    const std::size_t start = us + 1 + static_cast<std::size_t>(off);
     if (ap.attrs["encoding"] == "base64") {
       std::size_t stop = text.find('<', start);
       auto raw =

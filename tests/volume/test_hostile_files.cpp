@@ -73,6 +73,42 @@ TEST(HostileVti, BlockSizesThatWrapAroundAreRefusedBeforeInflating) {
   expect_refused(t / "wrap.vti", "wrap.vti", "compression header");
 }
 
+// Found by fuzz_vti (2026-11-29): an appended array's offset of 1.1e40 bytes was converted to an
+// integer before it was compared with the file's size (undefined behaviour, UBSan's report); a
+// fractional or negative one is no byte position either.
+TEST(HostileVti, AppendedOffsetsTooLargeForAnIntegerOrNotWholeAreRefused) {
+  TempDir t("hostile");
+  const std::string raw(512, '\x07');
+  for (const auto& [offset, says] :
+       std::vector<std::pair<std::string, std::string>>{{"011111111111111111111111111111111111111111", "beyond the end of the file"},
+                                                        {"1e300", "beyond the end of the file"},
+                                                        {"600", "beyond the end of the file"},
+                                                        {"0.5", "not a whole number of bytes"},
+                                                        {"-8", "not a whole number of bytes"},
+                                                        {"nan", ""}}) {
+    const std::string xml =
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n"
+        "<ImageData WholeExtent=\"0 7 0 7 0 7\" Spacing=\"1 1 1\">\n<Piece Extent=\"0 7 0 7 0 7\">\n<PointData Scalars=\"s\">\n"
+        "<DataArray type=\"UInt8\" Name=\"s\" format=\"appended\" offset=\"" +
+        offset + "\"></DataArray>\n</PointData>\n</Piece>\n</ImageData>\n<AppendedData encoding=\"raw\">\n_" + u64(512) + raw +
+        "\n</AppendedData>\n</VTKFile>\n";
+    testutil::write_bytes(t / "off.vti", xml);
+    SCOPED_TRACE(offset);
+    expect_refused(t / "off.vti", "off.vti", says);
+  }
+  // The same file at offset 0 reads.
+  const std::string good =
+      "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n"
+      "<ImageData WholeExtent=\"0 7 0 7 0 7\" Spacing=\"1 1 1\">\n<Piece Extent=\"0 7 0 7 0 7\">\n<PointData Scalars=\"s\">\n"
+      "<DataArray type=\"UInt8\" Name=\"s\" format=\"appended\" offset=\"0\"></DataArray>\n</PointData>\n</Piece>\n</ImageData>\n"
+      "<AppendedData encoding=\"raw\">\n_" +
+      u64(512) + raw + "\n</AppendedData>\n</VTKFile>\n";
+  testutil::write_bytes(t / "good.vti", good);
+  const Volume v = read_volume(t / "good.vti");
+  EXPECT_EQ(v.voxel_count(), 512);
+  EXPECT_EQ(v.at(511), 7);
+}
+
 // ---------------- MetaImage ----------------
 
 TEST(HostileMetaImage, PatternWithPercentSOrPercentNIsRefused) {
