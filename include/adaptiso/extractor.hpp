@@ -66,7 +66,8 @@ struct ExtractCancelled : std::runtime_error {
 
 class Extractor {
 public:
-  // Throws std::invalid_argument for a grid loaded without its tetrahedra (GridParts::hierarchy).
+  // Throws std::invalid_argument for a grid loaded without its tetrahedra (GridParts::hierarchy) or
+  // its index (GridParts::tetrahedra).
   explicit Extractor(std::shared_ptr<const PreparedGrid> grid, const ExtractorOptions& options = {});
   ~Extractor();
   Extractor(Extractor&&) noexcept;

@@ -55,6 +55,9 @@ void save_grid(const PreparedGrid& grid, const std::string& path, bool with_inde
 enum class GridParts {
   all,        // the grid, its index (built now when the file has none) and its statistics
   hierarchy,  // a bisection grid's vertices, hierarchy and statistics, without its tetrahedra or index
+  // The grid, its hierarchy and statistics without the index (not built, a stored one checksummed
+  // only): what writing the grid elsewhere reads (export to .vtu). Not for an Extractor.
+  tetrahedra,
   // As hierarchy where the file has a bisection hierarchy, else as all (a Delaunay grid, an older
   // file): for a caller that reads the rest later when a route needs it (Python's adaptiso.load).
   hierarchy_or_all,

@@ -493,6 +493,9 @@ Extractor::Extractor(std::shared_ptr<const PreparedGrid> grid, const ExtractorOp
   // Vertices without tetrahedra: loaded with GridParts::hierarchy, whose surfaces would come out empty.
   if (grid->grid.tet_count() == 0 && grid->grid.vertex_count() > 0)
     throw std::invalid_argument("Extractor: the grid was loaded without its tetrahedra (GridParts::hierarchy): use HierarchyQuery");
+  // Tetrahedra without an index (GridParts::tetrahedra): every tree, even one of no entries, has a root.
+  if (grid->grid.tet_count() > 0 && grid->index.nodes.empty())
+    throw std::invalid_argument("Extractor: the grid was loaded without its index (GridParts::tetrahedra): load it whole");
   state_ = std::make_unique<detail::ExtractorState>(std::move(grid), options);
 }
 Extractor::~Extractor() = default;

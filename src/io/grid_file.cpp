@@ -49,14 +49,15 @@ std::uint64_t body_bytes(std::uint64_t N, std::uint64_t T, std::uint64_t nodes, 
 // for a bisection hierarchy its check's bitmap (a quarter byte a voxel, bounded here by 8 bytes a
 // vertex) and 2 bytes a vertex. The CT bunny's whole load: 2.6 GB estimated, 2.45 GB measured.
 std::uint64_t load_bytes(std::uint64_t N, std::uint64_t T, std::uint64_t E, std::uint64_t nodes, std::uint32_t depth, bool hierarchy,
-                         bool moves, bool keep_tets) {
+                         bool moves, bool keep_tets, bool keep_index) {
   std::uint64_t bytes = N * bytes_per_vertex_on_disk(hierarchy, moves) + (hierarchy ? N * 10 : 0);
-  if (keep_tets) {
+  if (keep_tets) bytes += T * 16;
+  if (keep_index) {
     const std::uint64_t entries = E ? E : T;  // without an index, every tetrahedron at most
     const std::uint64_t check = E ? T * 4 : std::min<std::uint64_t>(kDefaultIndexScratch, entries * 16);
     // A built index has at most twice as many nodes as entries (its depth is reduced to them).
     const std::uint64_t tree_nodes = E ? nodes : std::min<std::uint64_t>((std::uint64_t{2} << depth) - 1, 2 * entries + 1);
-    bytes += T * 16 + entries * 8 + tree_nodes * sizeof(IntervalTree::Node) + check;
+    bytes += entries * 8 + tree_nodes * sizeof(IntervalTree::Node) + check;
   }
   return bytes;
 }
@@ -236,11 +237,12 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     throw InputError(fmt::format("{}: grid file is truncated or corrupt (size {} does not match its header)", path, size));
   if (N > std::numeric_limits<std::uint32_t>::max() || T > std::numeric_limits<std::uint32_t>::max())
     throw InputError(fmt::format("{}: too many vertices or tetrahedra", path));
-  const bool keep_tets = parts == GridParts::all || (parts == GridParts::hierarchy_or_all && !has_hierarchy);
+  const bool whole = parts == GridParts::all || (parts == GridParts::hierarchy_or_all && !has_hierarchy);
+  const bool keep_tets = whole || parts == GridParts::tetrahedra, keep_index = whole;
   if (!keep_tets && !has_hierarchy)
     throw InputError(fmt::format(
         "{}: has no bisection hierarchy (a Delaunay grid, or an older file): surfaces at a distance or at another error need one", path));
-  detail::check_memory(load_bytes(N, T, E, nodes, build_depth, has_hierarchy, has_moves, keep_tets),
+  detail::check_memory(load_bytes(N, T, E, nodes, build_depth, has_hierarchy, has_moves, keep_tets, keep_index),
                        fmt::format("{}: loading a grid of {} vertices and {} tetrahedra", path, N, T), "",
                        "free memory or raise the memory limit");
   std::uint32_t crc = libdeflate_crc32(0, h, header);
@@ -287,7 +289,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   else
     pass_over(T * 16);
   IntervalTree tree;
-  if (has_index && !keep_tets) {
+  if (has_index && !keep_index) {
     pass_over(nodes * kNodeBytes);
     pass_over(E * 4);  // by_min
     pass_over(E * 4);  // by_max
@@ -362,6 +364,8 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   if (!keep_tets) {
     p.index = IntervalTree{};
     if (p.stats.tetrahedra == 0) p.stats.tetrahedra = T;  // an older file's metadata without them
+  } else if (!keep_index) {
+    p.index = IntervalTree{};
   } else if (has_index) {
     validate_interval_tree(tree, grid, path, progress);
     finish_interval_tree(tree, grid);
@@ -453,7 +457,7 @@ OpenGridFile::~OpenGridFile() { ::close(fd_); }
 PreparedGrid OpenGridFile::load(GridParts parts, const Progress& progress) const {
   const std::string fd_path = "/proc/self/fd/" + std::to_string(fd_);
   try {
-    if (parts == GridParts::all) return load_checked(fd_path, parts, nullptr, walk_.get(), progress);
+    if (parts == GridParts::all || parts == GridParts::tetrahedra) return load_checked(fd_path, parts, nullptr, walk_.get(), progress);
     auto walk = std::make_unique<detail::HierarchyWalk>();
     PreparedGrid p = load_checked(fd_path, parts, walk.get(), nullptr, progress);
     if (!walk->leaves.empty()) walk_ = std::move(walk);  // a bisection grid's walk

@@ -15,6 +15,7 @@
 
 #include "adaptiso/atomic_file.hpp"
 #include "adaptiso/error.hpp"
+#include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/reduce.hpp"
 #include "adaptiso/synthetic.hpp"
@@ -240,6 +241,43 @@ TEST(GridFile, PreparedFilesLeaveTheIndexOutAndLoadingBuildsItAtTheirDepth) {
     EXPECT_EQ(load_grid(t / "unindexed.adg").index.by_max, reference.index.by_max);
   }
   EXPECT_EQ(std::distance(std::filesystem::directory_iterator(t.path), std::filesystem::directory_iterator{}), 3);  // no temporaries
+}
+
+// GridParts::tetrahedra (export to .vtu): the whole load's grid without building an index, a
+// stored one checksummed but not kept; an Extractor refuses such a grid. A constant volume's grid
+// (no index entries) still gets a root, so the refusal is not of an empty index.
+TEST(GridFile, TetrahedraWithoutTheIndexAreTheWholeLoadsGrid) {
+  testutil::TempDir t("grid_tets");
+  PrepareOptions o;
+  o.max_error = 0.02;
+  o.relative = true;
+  const PreparedGrid p = prepare(make_synthetic("marschner-lobb", 20, ScalarType::f32), o);
+  save_grid(p, t / "g.adg");
+  save_grid(p, t / "indexed.adg", true);
+  for (const char* file : {"g.adg", "indexed.adg"}) {
+    const PreparedGrid whole = load_grid(t / file);
+    std::vector<std::string> stages;
+    const auto tets = std::make_shared<const PreparedGrid>(load_grid(t / file, GridParts::tetrahedra, [&](std::string_view s, double) {
+      if (stages.empty() || stages.back() != s) stages.emplace_back(s);
+    }));
+    EXPECT_EQ(stages, (std::vector<std::string>{"read grid", "check grid"})) << file;
+    EXPECT_EQ(tets->grid.tets, whole.grid.tets) << file;
+    EXPECT_EQ(tets->grid.values, whole.grid.values) << file;
+    EXPECT_EQ(tets->hierarchy->value_span, whole.hierarchy->value_span) << file;
+    EXPECT_TRUE(tets->index.nodes.empty() && tets->index.by_min.empty()) << file;
+    EXPECT_FALSE(loaded_in_part(*tets));
+    EXPECT_THROW(Extractor{tets}, std::invalid_argument) << file;
+  }
+  // A lie in a stored index is not looked at, but damage to it still fails the checksum.
+  std::string bytes = testutil::read_bytes(t / "indexed.adg");
+  bytes[bytes.size() - 4 - p.hierarchy->value_span.size() * 8 - p.hierarchy->error_code.size() - 40 - 3] ^= 0x20;
+  testutil::write_bytes(t / "damaged.adg", bytes);
+  EXPECT_THROW(load_grid(t / "damaged.adg", GridParts::tetrahedra), InputError);
+  Volume constant = make_volume({6, 5, 4}, ScalarType::f32);
+  for (std::size_t i = 0; i < 6 * 5 * 4; ++i) constant.set(static_cast<std::int64_t>(i), 2.0);
+  const auto flat = std::make_shared<const PreparedGrid>(prepare(constant, o));
+  EXPECT_EQ(flat->index.entries(), 0u);
+  EXPECT_NO_THROW(Extractor{flat});
 }
 
 // The depth of an index to build is read from version 6 on, up to 24 (a deeper one would allocate
