@@ -268,7 +268,14 @@ TEST(GridFile, TetrahedraWithoutTheIndexAreTheWholeLoadsGrid) {
     EXPECT_FALSE(loaded_in_part(*tets));
     EXPECT_THROW(Extractor{tets}, std::invalid_argument) << file;
   }
-  // A lie in a stored index is not looked at, but damage to it still fails the checksum.
+  // A stored index is not looked at (a lie in it, with its checksum made to match, loads here and
+  // is refused by the whole load), but damage to it still fails the checksum.
+  auto lying = detail::GridSections::parse(testutil::read_bytes(t / "indexed.adg"));
+  ASSERT_TRUE(lying && lying->by_min.size() >= 8);
+  std::swap_ranges(lying->by_min.begin(), lying->by_min.begin() + 4, lying->by_min.end() - 4);
+  testutil::write_bytes(t / "lying.adg", lying->assemble());
+  EXPECT_THROW(load_grid(t / "lying.adg"), InputError);
+  EXPECT_EQ(load_grid(t / "lying.adg", GridParts::tetrahedra).grid.tets, p.grid.tets);
   std::string bytes = testutil::read_bytes(t / "indexed.adg");
   bytes[bytes.size() - 4 - p.hierarchy->value_span.size() * 8 - p.hierarchy->error_code.size() - 40 - 3] ^= 0x20;
   testutil::write_bytes(t / "damaged.adg", bytes);
