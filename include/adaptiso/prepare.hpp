@@ -122,17 +122,6 @@ namespace detail {
 PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& options, const Progress& progress,
                                Volume* release);
 
-// What the index's build may hold beyond its lists (bytes) for the process's peak to stay within
-// grid_bytes (the grid's bytes besides the lists: resident in memory, or still to be written to a
-// file) plus 2.5 times volume_bytes (README "Memory"); what else the process holds now (VmRSS)
-// comes out of the 2.5 volumes. 0 when nothing is left.
-std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes);
-
-// The extraction index over the grid (options.tree_depth), within `scratch` bytes beyond its
-// lists, timed into stats as the stage "index".
-IntervalTree build_index(const TetGrid& grid, const PrepareOptions& options, std::size_t scratch, PrepareStats& stats,
-                         const Progress& progress);
-
 // Records a stage that took `seconds` in stats, with the process's peak memory so far.
 void record_stage(PrepareStats& stats, const std::string& name, double seconds);
 

@@ -168,23 +168,6 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
   return p;
 }
 
-IntervalTree build_index(const TetGrid& grid, const PrepareOptions& o, std::size_t scratch, PrepareStats& stats, const Progress& progress) {
-  return StageClock(stats).run("index", [&] {
-    report(progress, "index", 0);
-    return build_interval_tree(grid, o.tree_depth, scratch);
-  });
-}
-
-// What else the process holds is read from VmRSS (its code and libraries, the heap's remains). The
-// bunny's nodes all sort the fast way within it; the MR head's noisy scan, whose largest node
-// alone would take 426 MiB that way, sorts its largest nodes with 2 bytes an entry.
-std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes) {
-  const std::uint64_t resident = process_status_bytes("VmRSS");
-  const std::uint64_t other = resident > grid_bytes ? resident - grid_bytes : 0;
-  const std::uint64_t allowance = volume_bytes / 2 * 5;
-  return allowance > other ? allowance - other : 0;
-}
-
 // Peak resident memory of this process so far (Linux: VmHWM; 0 elsewhere). Never reset (writing
 // to /proc/self/clear_refs would give per-stage peaks, but it also resets what getrusage, time(1)
 // and wait4 report for the whole process: the bunny's 2.8 GB index peak read as 2.0 GB).
@@ -196,12 +179,34 @@ void record_stage(PrepareStats& stats, const std::string& name, double seconds) 
 
 namespace {
 
+// The extraction index over the grid (options.tree_depth), within `scratch` bytes beyond its
+// lists, timed into stats as the stage "index".
+IntervalTree build_index(const TetGrid& grid, const PrepareOptions& o, std::size_t scratch, PrepareStats& stats, const Progress& progress) {
+  return StageClock(stats).run("index", [&] {
+    report(progress, "index", 0);
+    return build_interval_tree(grid, o.tree_depth, scratch);
+  });
+}
+
+// What the index's build may hold beyond its lists (bytes) for the process's peak to stay within
+// grid_bytes (the grid's bytes in memory besides the lists) plus 2.5 times volume_bytes (README
+// "Memory"); what else the process holds now (VmRSS: its code and libraries, the heap's remains)
+// comes out of the 2.5 volumes, 0 when nothing is left. The bunny's nodes all sort the fast way
+// within it; the MR head's noisy scan, whose largest node alone would take 426 MiB that way, sorts
+// its largest nodes with 2 bytes an entry.
+std::size_t index_scratch(std::uint64_t volume_bytes, std::uint64_t grid_bytes) {
+  const std::uint64_t resident = detail::process_status_bytes("VmRSS");
+  const std::uint64_t other = resident > grid_bytes ? resident - grid_bytes : 0;
+  const std::uint64_t allowance = volume_bytes / 2 * 5;
+  return allowance > other ? allowance - other : 0;
+}
+
 PreparedGrid prepare_grid(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress, Volume* release) {
   const std::uint64_t volume_bytes = v.bytes.size();
   PreparedGrid p = detail::prepare_unindexed(v, range, o, progress, release);
   // At least 64 MiB: prepare's grid in memory may not fit its allowance at all (the chest CT).
-  const std::size_t scratch = std::max(detail::index_scratch(volume_bytes, resident_grid_bytes(p)), std::size_t{64} << 20);
-  p.index = detail::build_index(p.grid, o, scratch, p.stats, progress);
+  const std::size_t scratch = std::max(index_scratch(volume_bytes, resident_grid_bytes(p)), std::size_t{64} << 20);
+  p.index = build_index(p.grid, o, scratch, p.stats, progress);
   p.stats.index_depth = p.index.depth;
   p.stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
   return p;
