@@ -194,9 +194,10 @@ inline void interpolate_edge(const EdgeEnds& e, double iso, std::array<float, 3>
 }
 
 // Positions and normals of the mesh vertices, one per cut edge key in `order` (parallel; left
-// incomplete once `cancel` is raised, for the caller to throw).
+// incomplete once `cancel` is raised, for the caller to throw). With `gathered`, each edge's ends
+// are kept there too, for later steps (interpolate_vertices below).
 void interpolate_vertices(const TetGrid& grid, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh,
-                          const std::atomic<bool>* cancel = nullptr);
+                          const std::atomic<bool>* cancel = nullptr, std::vector<EdgeEnds>* gathered = nullptr);
 // The same from gathered edge ends (bit-identical results).
 void interpolate_vertices(const std::vector<EdgeEnds>& ends, double iso, Mesh& mesh);
 

@@ -74,15 +74,18 @@ std::array<Case, 16> make_cases() {
 const std::array<Case, 16> kCases = make_cases();
 
 void interpolate_vertices(const TetGrid& grid, const std::vector<std::uint64_t>& order, double iso, Mesh& mesh,
-                          const std::atomic<bool>* cancel) {
+                          const std::atomic<bool>* cancel, std::vector<EdgeEnds>* gathered) {
   const std::size_t V = order.size();
   resize_for_overwrite(mesh.positions, V);
   resize_for_overwrite(mesh.normals, V);
+  if (gathered) resize_for_overwrite(*gathered, V);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, V, 4096), [&](const auto& r) {
     if (cancel && cancel->load(std::memory_order_relaxed)) return;  // the caller throws
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       if (i + 8 < r.end()) prefetch_edge(grid, order[i + 8]);
-      interpolate_edge(gather_edge(grid, order[i]), iso, mesh.positions[i], mesh.normals[i]);
+      const EdgeEnds e = gather_edge(grid, order[i]);
+      if (gathered) (*gathered)[i] = e;
+      interpolate_edge(e, iso, mesh.positions[i], mesh.normals[i]);
     }
   });
 }
@@ -209,22 +212,7 @@ void march_into(const TetGrid& grid, const Tets& tets, double iso, Mesh& mesh, M
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 1024), [&](const auto& r) {
       for (std::size_t i = r.begin(); i < r.end(); ++i) order[i] = sc.remap->fine(order[i]);
     });
-  if (!ends) {
-    interpolate_vertices(grid, order, iso, mesh, sc.cancel);
-    if (sc.cancelled()) throw ExtractCancelled();
-    return;
-  }
-  resize_for_overwrite(*ends, order.size());
-  resize_for_overwrite(mesh.positions, order.size());
-  resize_for_overwrite(mesh.normals, order.size());
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, order.size(), 4096), [&](const auto& r) {
-    if (sc.cancelled()) return;
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      if (i + 8 < r.end()) prefetch_edge(grid, order[i + 8]);
-      (*ends)[i] = gather_edge(grid, order[i]);
-      interpolate_edge((*ends)[i], iso, mesh.positions[i], mesh.normals[i]);
-    }
-  });
+  interpolate_vertices(grid, order, iso, mesh, sc.cancel, ends);
   if (sc.cancelled()) throw ExtractCancelled();
 }
 
