@@ -843,7 +843,7 @@ of two >= 2; the same grid, byte for byte). comm: an mpi4py communicator (e.g. M
 `mpirun -np N python3 -m mpi4py script.py`): every process calls prepare with its own Volume of the
 same dimensions (a memmap is read only in that process's bricks) or the same file's path (rank 0
 reads it whole, the others only their bricks where its format allows, as `mpirun adaptiso prepare`
-does); the bricks (rank 0's side, default 128) are shared out over the processes, rank 0 returns
+does); the bricks (rank 0's side, by default the largest up to 256 leaving 4 a process) are shared out over the processes, rank 0 returns
 the Grid (byte for byte the one a single process makes) and the others None; Grid.stats["bricks"]
 tells ranks, bricks per rank, bytes handed to rank 0 and each rank's peak memory. An error on any
 process raises on every process, the others' as ValueError "comm: rank R: ...".)");

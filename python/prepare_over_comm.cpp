@@ -77,8 +77,8 @@ void CommShare::tell_the_others(const py::object& message) {
 // Rank 0's hook: its own bricks and the others', combined as one process would.
 void CommShare::share_hierarchy(PrepareOptions& options) {
   if (!brick_side_ && size_ <= 1) return;
-  const std::int64_t side = brick_side_.value_or(kDefaultShareBrickSide);
-  check_brick_side(side);
+  const std::int64_t side = brick_side_.value_or(0);  // 0: the default, once the lattice is known
+  if (brick_side_) check_brick_side(side);
   if (options.grid != GridKind::bisection)
     throw size_ > 1 ? OptionError("comm", kBisectionOnly) : OptionError("brick_side", "applies to the bisection grid only");
   stats_.emplace();
@@ -92,7 +92,9 @@ void CommShare::share_hierarchy(PrepareOptions& options) {
     };
     return;
   }
-  options.error_hierarchy = [this, side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+  options.error_hierarchy = [this, given = side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+    const std::int64_t side = given > 0 ? given : default_share_brick_side(v.dims, size_);
+    stats_->brick_side = side;
     const BrickGrid bricks = brick_grid(v.dims, side);
     stats_->bricks = bricks.size();
     stats_->bricks_per_rank.assign(static_cast<std::size_t>(size_), 0);

@@ -54,7 +54,7 @@ struct BrickStats {
 class CommShare {
 public:
   // comm: None or an mpi4py communicator (TypeError for another object); brick_side: None for the
-  // default (one process: no bricks; several: brick_shares.hpp's kDefaultShareBrickSide).
+  // default (one process: no bricks; several: brick_shares.hpp's default_share_brick_side).
   CommShare(const pybind11::object& comm, std::optional<std::int64_t> brick_side);
 
   // Finds the volume and checks the options (Python's arguments; the GIL held).

@@ -25,17 +25,20 @@ namespace {
 
 // A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, read
 // straight from the file where it can be (RegionReader), handed to rank 0; it writes nothing.
+// brick_side 0: the default for the lattice and the ranks, as rank 0 chooses it.
 void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
   RegionReader reader(in.path, in.read_options());
   const Dims lattice = bisection_lattice_dims(reader.header().dims);  // the lattice rank 0 pads its volume to (prepare.hpp)
+  if (brick_side == 0) brick_side = default_share_brick_side(lattice, ranks.size());
   distributed_errors(
       ranks, lattice, [&](const ValueRange& range) { return reader_source(reader, lattice, range); }, {}, brick_side,
       options.max_displacement > 0, {}, ignored);
 }
 
-// The error hierarchy in bricks of `side`: over the ranks under mpirun, else on this process. The
-// returned function fills `stats`, which must outlive it.
+// The error hierarchy in bricks of `side` (over the ranks, 0: the default for the lattice and the
+// ranks): over the ranks under mpirun, else on this process. The returned function fills `stats`,
+// which must outlive it.
 std::function<BisectionErrors(const Volume&, const ValueRange&, bool, const Progress&)> bricked_errors(Ranks& ranks, std::int64_t side,
                                                                                                        DistributedStats& stats) {
   if (ranks.distributed())
@@ -45,7 +48,7 @@ std::function<BisectionErrors(const Volume&, const ValueRange&, bool, const Prog
           [&v](const ValueRange&) {
             return ReaderSource{region_source(v), {}};
           },
-          range, side, displacement, progress, stats);
+          range, side > 0 ? side : default_share_brick_side(v.dims, ranks.size()), displacement, progress, stats);
     };
   return [side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
     const BrickGrid bricks = brick_grid(v.dims, side);
@@ -79,7 +82,8 @@ void add_prepare(CLI::App& app) {
   auto brick_side = std::make_shared<std::int64_t>(0);
   cmd->add_option("--brick-side", *brick_side,
                   "Bisection grid: compute the error hierarchy in bricks of this many voxels a side (a power of two >= 2; the same "
-                  "grid, byte for byte). Under mpirun the bricks are shared out over the ranks (default 128 there)")
+                  "grid, byte for byte). Under mpirun the bricks are shared out over the ranks (default there: the largest up to 256 "
+                  "leaving 4 bricks a rank)")
       ->check(positive_number());
   auto threads = std::make_shared<int>(0);
   cmd->add_option("--threads", *threads, "Threads this process uses (default: every core)")->check(positive_number());
@@ -97,8 +101,8 @@ void add_prepare(CLI::App& app) {
     if (bricked && options.grid != GridKind::bisection)
       throw InputError(ranks.distributed() ? "only the bisection grid is prepared over MPI ranks (drop --grid delaunay or mpirun)"
                                            : "--brick-side applies to the bisection grid only");
-    const std::int64_t side = *brick_side > 0 ? *brick_side : kDefaultShareBrickSide;
-    if (bricked) check_brick_side(side);           // a bad side fails before the volume is read
+    const std::int64_t side = *brick_side;         // 0 under mpirun: the default, once the lattice is known
+    if (*brick_side > 0) check_brick_side(side);   // a bad side fails before the volume is read
     if (ranks.root()) check_output_path(*output);  // and an output that cannot be written (rank 0 writes it)
     auto t_all = Clock::now();
     if (!ranks.root()) return prepare_rank_bricks(ranks, *in, options, side);

@@ -29,10 +29,10 @@ else:
     volume = adaptiso.Volume(array, spacing=tuple(job["spacing"]))
 try:
     if job["route"] == "prepare_file":
-        stats = adaptiso.prepare_file(volume, job["output"], brick_side=job["brick_side"], comm=comm, **options)
+        stats = adaptiso.prepare_file(volume, job["output"], brick_side=job.get("brick_side"), comm=comm, **options)
         assert (stats is None) == (rank != 0), stats
     else:
-        grid = adaptiso.prepare(volume, brick_side=job["brick_side"], comm=comm, **options)
+        grid = adaptiso.prepare(volume, brick_side=job.get("brick_side"), comm=comm, **options)
         assert (grid is None) == (rank != 0), grid
         stats = None
         if grid is not None:

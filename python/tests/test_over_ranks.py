@@ -84,6 +84,22 @@ def test_prepare_over_mpi_ranks_writes_the_one_process_grid_from_memmaps(tmp_pat
     assert bricks["ranks_read"] == "volume in memory"
 
 
+@needs_mpi
+def test_prepare_over_mpi_ranks_without_a_brick_side_takes_the_default_for_the_lattice(tmp_path):
+    # The 41×29×25 lattice of field(): at 16 a side 12 bricks, at least 4 for each of 2 ranks; at 32, 4.
+    array = field()
+    np.save(tmp_path / "f.npy", array)
+    options = {"max_error": 0.05}
+    expected = one_process_grid(tmp_path, array, (1.0, 1.0, 1.0), options)
+    out = tmp_path / "ranks.adg"
+    lines = mpi_run(tmp_path, 2, {"npy": str(tmp_path / "f.npy"), "spacing": (1.0, 1.0, 1.0), "options": options, "route": "prepare",
+                                  "output": str(out)})
+    assert lines == [f"rank {r}: ok" for r in range(2)]
+    assert out.read_bytes() == expected
+    bricks = json.loads((tmp_path / "ranks.adg.bricks.json").read_text())
+    assert bricks["brick_side"] == 16 and bricks["bricks"] == 12 and bricks["bricks_per_rank"] == [6, 6], bricks
+
+
 def write_nrrd(path, array, encoding):
     """array[z, y, x] float32 as an attached NRRD, raw or gzip."""
     z, y, x = array.shape

@@ -92,6 +92,13 @@ void check_share_memory(const BrickGrid& bricks, int process, const std::vector<
 
 }  // namespace
 
+std::int64_t default_share_brick_side(const Dims& lattice, int processes) {
+  const std::int64_t wanted = 4 * std::int64_t{std::max(processes, 1)};
+  std::int64_t side = 256;
+  while (side > 2 && brick_grid(lattice, side).size() < wanted) side /= 2;
+  return side;
+}
+
 std::vector<BrickErrors> bisection_share_errors(const BrickGrid& bricks, int process, int processes, const RegionSource& source,
                                                 const ValueRange& range, bool displacement, const HoldSlices& hold) {
   if (processes < 1 || process < 0 || process >= processes)

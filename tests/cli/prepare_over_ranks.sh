@@ -137,6 +137,19 @@ assert b['ranks'] == 2 and b['bricks'] == 64 and sum(b['bricks_per_rank']) == 64
 assert b['bytes_exchanged'] > 0 and all(p > 0 for p in b['peak_bytes_per_rank']), b
 print('ok: --json', {k: b[k] for k in ('ranks', 'bricks', 'bricks_per_rank', 'bytes_exchanged')})" "$W/j.json"
 
+# Without --brick-side the ranks agree on the default side for the lattice and their number
+# (brick_shares.hpp: the largest up to 256 leaving 4 bricks a rank; 33³: 16 for 2 ranks, 8 for 4),
+# rank 1 choosing it from the file's header, rank 0 from the volume.
+for np in 2 4; do
+  ranks $np "$CLI" prepare "$W/ml.nrrd" --threads 1 --json -o "$W/default-np$np.adg" >"$W/default-np$np.json"
+  cmp "$W/ml-one.adg" "$W/default-np$np.adg" || { echo "FAIL: $np ranks at the default brick side differ"; exit 1; }
+done
+/usr/bin/env python3 -c "
+import json, sys
+sides = [json.load(open(f'{sys.argv[1]}/default-np{n}.json'))['bricks']['brick_side'] for n in (2, 4)]
+assert sides == [16, 8], sides
+print('ok: the default brick side', sides, 'for 2 and 4 ranks')" "$W"
+
 # Only prepare is shared out; the others refuse with one line and exit 2.
 set +e
 ranks 2 "$CLI" info "$W/ml.nrrd" >"$W/info.out" 2>&1

@@ -112,3 +112,32 @@ TEST(BrickShares, EmptyArraysRoundTripWithoutACopyFromNull) {
   EXPECT_EQ(back[1].brick, 7);
   EXPECT_EQ(back[1].code, (std::vector<std::uint8_t>{1, 2, 3}));
 }
+
+// The default side is the largest power of two up to 256 that leaves 4 bricks a process, counted
+// here brick by brick from the lattice's extent, independently of brick_grid.
+TEST(BrickShares, DefaultSideIsTheLargestUpTo256LeavingFourBricksAProcess) {
+  auto bricks_at = [](const Dims& d, std::int64_t side) {
+    std::int64_t extent = 1;
+    for (int a = 0; a < 3; ++a) extent = std::max(extent, d[a] - 1);
+    std::int64_t root = 1;
+    while (root < extent) root *= 2;
+    const std::int64_t s = std::min(side, root);
+    std::int64_t n = 1;
+    for (int a = 0; a < 3; ++a) n *= (d[a] - 1 + s - 1) / s;
+    return n;
+  };
+  for (const Dims& d : {Dims{513, 513, 361}, Dims{257, 257, 133}, Dims{9, 9, 9}, Dims{2, 2, 2}, Dims{1025, 3, 2}, Dims{2049, 1025, 1025}})
+    for (int processes : {1, 2, 3, 4, 16, 64}) {
+      std::int64_t expect = 2;
+      for (std::int64_t side = 256; side > 2; side /= 2)
+        if (bricks_at(d, side) >= 4 * processes) {
+          expect = side;
+          break;
+        }
+      EXPECT_EQ(default_share_brick_side(d, processes), expect) << fmt::format("{}x{}x{}, {} processes", d[0], d[1], d[2], processes);
+    }
+  // The figures its comment gives: the CT bunny's lattice over 2 and 4 ranks, the chest CT's over 2.
+  EXPECT_EQ(default_share_brick_side({513, 513, 361}, 2), 256);
+  EXPECT_EQ(default_share_brick_side({513, 513, 361}, 4), 128);
+  EXPECT_EQ(default_share_brick_side({257, 257, 133}, 2), 128);
+}
