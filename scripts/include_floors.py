@@ -22,7 +22,7 @@ FLOORS = "util,mesh,volume,reduce/grid,gradients,index,prepare,extract,io,view"
 OWNER = {
     "atomic_file.hpp": "util", "error.hpp": "util", "number.hpp": "util", "progress.hpp": "util",
     "version.hpp": "util", "mesh.hpp": "mesh", "volume_io.hpp": "volume", "synthetic.hpp": "volume",
-    "tet_grid.hpp": "grid", "bisection.hpp": "grid", "marching_tetrahedra.hpp": "extract",
+    "tet_grid.hpp": "grid", "bisection.hpp": "grid", "select_shares.hpp": "grid", "marching_tetrahedra.hpp": "extract",
     "hierarchy_query.hpp": "extract", "prepare_to_file.hpp": "io", "view_server.hpp": "view",
 }
 

@@ -24,7 +24,8 @@ namespace adaptiso::cli {
 namespace {
 
 // A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, read
-// straight from the file where it can be (RegionReader), handed to rank 0; it writes nothing.
+// straight from the file where it can be (RegionReader), handed to rank 0, then its share of the
+// selection (select_shares.hpp); it writes nothing.
 // brick_side 0: the default for the lattice and the ranks, as rank 0 chooses it.
 void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
@@ -34,6 +35,9 @@ void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptio
   distributed_errors(
       ranks, lattice, [&](const ValueRange& range) { return reader_source(reader, lattice, range); }, {}, brick_side,
       options.max_displacement > 0, {}, ignored);
+  bisection_select_share(ranks);               // then its run of the selection's tetrahedra
+  std::uint64_t peak = peak_resident_bytes();  // its peak over both steps, for rank 0's --json
+  ranks.send(std::as_bytes(std::span(&peak, 1)));
 }
 
 // The error hierarchy in bricks of `side` (over the ranks, 0: the default for the lattice and the
@@ -111,11 +115,19 @@ void add_prepare(CLI::App& app) {
     DistributedStats dist;
     if (ranks.distributed()) dist.ranks_read = RegionReader::route_of(in->path, in->read_options());  // the headers only
     if (bricked) options.error_hierarchy = bricked_errors(ranks, side, dist);
+    if (ranks.distributed()) options.select_share = &ranks;
+    const std::uint64_t exchanged_before = ranks.bytes_exchanged();
     TerminalProgress tp(!out->quiet && !out->json);
     // The voxels go once the gradients are made; the file leaves the index out (loading builds it).
     const PrepareStats st = *store_index ? save_prepared_with_index(v, options, *output, tp.callback())
                                          : prepare_to_file(std::move(v), options, *output, tp.callback());
     tp.finish();
+    const std::uint64_t exchanged = ranks.bytes_exchanged() - exchanged_before;  // the error hierarchy's and the selection's
+    for (int r = 1; r < ranks.size(); ++r) {                                     // the other ranks' peaks, over the selection too
+      std::uint64_t peak = 0;
+      ranks.receive(r, std::as_writable_bytes(std::span(&peak, 1)));
+      dist.peak_bytes_per_rank[static_cast<std::size_t>(r)] = std::max(dist.peak_bytes_per_rank[static_cast<std::size_t>(r)], peak);
+    }
     nlohmann::json j = nlohmann::json::parse(to_json(st));
     j["seconds"]["load"] = t_load;
     j["seconds"]["total"] = seconds_since(t_all);
@@ -123,6 +135,7 @@ void add_prepare(CLI::App& app) {
     j["bytes"] = std::filesystem::file_size(*output);
     if (bricked) {
       if (!dist.peak_bytes_per_rank.empty()) dist.peak_bytes_per_rank[0] = peak_resident_bytes();
+      if (ranks.distributed()) dist.select_bytes_exchanged = exchanged - dist.bytes_exchanged;
       j["bricks"] = dist.to_json(ranks.size());
     }
     if (out->json) return print_json(j);

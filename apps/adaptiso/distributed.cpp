@@ -38,6 +38,7 @@ nlohmann::json DistributedStats::to_json(int ranks) const {
                       {"bricks", bricks},
                       {"bricks_per_rank", bricks_per_rank},
                       {"bytes_exchanged", bytes_exchanged},
+                      {"select_bytes_exchanged", select_bytes_exchanged},
                       {"peak_bytes_per_rank", peak_bytes_per_rank},
                       {"seconds", {{"rank0_bricks", brick_seconds}, {"combine", combine_seconds}}}};
   if (!ranks_read.empty()) j["ranks_read"] = ranks_read;  // only under mpirun

@@ -4,8 +4,9 @@
 //
 // Issue 38, first steps: rank 0 reads the whole volume; the other ranks read only their bricks
 // straight from the file where its format allows (volume_regions.hpp: seeking in uncompressed
-// samples, slab by slab from a compressed stream or a DICOM series), the whole volume otherwise. Only the error hierarchy is distributed;
-// selection, gradients and the index run on rank 0.
+// samples, slab by slab from a compressed stream or a DICOM series), the whole volume otherwise.
+// The error hierarchy and the selection's walks are distributed (select_shares.hpp: Ranks is its
+// transport); gradients and saving run on rank 0.
 #pragma once
 #include <cstdint>
 #include <functional>
@@ -26,8 +27,9 @@ struct DistributedStats {
   std::string ranks_read;  // what the ranks other than 0 read: "regions" (their bricks) or "whole volume"
   std::int64_t brick_side = 0, bricks = 0;
   std::vector<std::int64_t> bricks_per_rank;
-  std::vector<std::uint64_t> peak_bytes_per_rank;  // at the time each rank handed up its bricks (rank 0: filled in at the end)
+  std::vector<std::uint64_t> peak_bytes_per_rank;  // each rank's peak at its end (rank 0: filled in last)
   std::uint64_t bytes_exchanged = 0;               // brick results sent to rank 0 by the other ranks
+  std::uint64_t select_bytes_exchanged = 0;        // the selection's: codes, values, counts and runs (rank 0's sent and received)
   double brick_seconds = 0;                        // rank 0's own bricks
   double combine_seconds = 0;
   nlohmann::json to_json(int ranks) const;

@@ -4,6 +4,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <limits>
 #include <string>
@@ -93,6 +94,50 @@ std::vector<std::vector<std::byte>> Ranks::gather(const std::vector<std::byte>& 
   }
 #endif
   return all;
+}
+
+namespace {
+
+// MPI counts are ints: a message goes in pieces of at most 1 GiB.
+constexpr std::size_t kPiece = std::size_t{1} << 30;
+
+}  // namespace
+
+void Ranks::broadcast(std::span<std::byte> bytes) {
+#ifdef ADAPTISO_HAVE_MPI
+  if (!distributed()) return;
+  for (std::size_t at = 0; at < bytes.size(); at += kPiece) {
+    const std::size_t n = std::min(kPiece, bytes.size() - at);
+    MPI_Bcast(bytes.data() + at, static_cast<int>(n), MPI_BYTE, 0, MPI_COMM_WORLD);
+  }
+  exchanged_ += bytes.size();
+#else
+  (void)bytes;
+#endif
+}
+
+void Ranks::send(std::span<const std::byte> bytes) {
+#ifdef ADAPTISO_HAVE_MPI
+  for (std::size_t at = 0; at < bytes.size(); at += kPiece) {
+    const std::size_t n = std::min(kPiece, bytes.size() - at);
+    MPI_Send(bytes.data() + at, static_cast<int>(n), MPI_BYTE, 0, 2, MPI_COMM_WORLD);
+  }
+  exchanged_ += bytes.size();
+#else
+  (void)bytes;
+#endif
+}
+
+void Ranks::receive(int from, std::span<std::byte> into) {
+#ifdef ADAPTISO_HAVE_MPI
+  for (std::size_t at = 0; at < into.size(); at += kPiece) {
+    const std::size_t n = std::min(kPiece, into.size() - at);
+    MPI_Recv(into.data() + at, static_cast<int>(n), MPI_BYTE, from, 2, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  }
+  exchanged_ += into.size();
+#else
+  (void)from, (void)into;
+#endif
 }
 
 std::uint64_t Ranks::broadcast(std::uint64_t x) {

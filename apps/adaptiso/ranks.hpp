@@ -9,7 +9,10 @@
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <vector>
+
+#include "adaptiso/select_shares.hpp"
 
 namespace adaptiso::cli {
 
@@ -17,7 +20,8 @@ namespace adaptiso::cli {
 // was not started by one.
 int launched_processes();
 
-class Ranks {
+// Also the transport of the shared selection (select_shares.hpp).
+class Ranks final : public ShareTransport {
 public:
   // The ranks of this job; MPI is initialised on first use when launched by mpirun.
   static Ranks& world();
@@ -30,6 +34,12 @@ public:
   std::vector<std::vector<std::byte>> gather(const std::vector<std::byte>& mine);
   // Rank 0's value of x on every rank. Collective.
   std::uint64_t broadcast(std::uint64_t x);
+  // ShareTransport: messages of any size (sent in pieces of at most 1 GiB).
+  int process() const override { return rank_; }
+  int processes() const override { return size_; }
+  void broadcast(std::span<std::byte> bytes) override;
+  void send(std::span<const std::byte> bytes) override;
+  void receive(int from, std::span<std::byte> into) override;
   // Bytes this rank sent to or received from others so far.
   std::uint64_t bytes_exchanged() const { return exchanged_; }
   // Stops every rank with this exit code (after this rank's message) when the ranks were started
@@ -37,7 +47,7 @@ public:
   static void abort_if_distributed(int code);
   // The ranks once started (nullptr before, or when starting them failed).
   static const Ranks* started() { return started_; }
-  ~Ranks();
+  ~Ranks() override;
 
 private:
   Ranks();

@@ -61,6 +61,8 @@
 
 namespace adaptiso {
 
+class ShareTransport;  // select_shares.hpp
+
 // A tetrahedron is split when either criterion asks for it.
 struct BisectionOptions {
   double max_error = 0;         // data units; +∞: no error criterion
@@ -69,6 +71,9 @@ struct BisectionOptions {
   // floor), except where the volume's box forces it. The grid then no longer keeps max_error:
   // its bounds are measured, the largest codes among the diamonds the floor left whole.
   int cell_floor = 0;
+  // bisection_select only: the processes that share its walks (select_shares.hpp), this one being
+  // their process 0 (the others call bisection_select_share); null: this process alone.
+  ShareTransport* share = nullptr;
 };
 
 // Conservative one-byte codes for error bounds relative to a scale (the value range): code 0 is

@@ -74,6 +74,9 @@ struct PrepareOptions {
   // same bytes. Unset: bisection_errors. It is handed the padded volume (below): bricks read from
   // a file are padded alike (padded_source, bisection_bricks.hpp).
   std::function<BisectionErrors(const Volume&, const ValueRange&, bool displacement, const Progress&)> error_hierarchy;
+  // Bisection grid: the processes its selection is shared with (select_shares.hpp), this one being
+  // their process 0; null: selected here alone.
+  ShareTransport* select_share = nullptr;
   // Bisection grid: built on the padded lattice (bisection_lattice_dims, bisection.hpp), its
   // surfaces clipped to the volume's box. false: on the volume's own box, its far faces lined with
   // the finest tetrahedra that fit (what tests that compare a grid with its volume voxel by voxel

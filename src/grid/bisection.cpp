@@ -21,12 +21,29 @@
 
 #include <algorithm>
 #include <bit>
+#include <span>
 #include <stdexcept>
 
 #include "adaptiso/error.hpp"
+#include "adaptiso/select_shares.hpp"
 #include "grid/bisection_assemble.hpp"
 
 namespace adaptiso {
+namespace {
+
+// What process 0 tells the others before the codes (select_shares.hpp): the lattice, the
+// thresholds, and whether displacement codes follow.
+struct ShareHead {
+  std::int64_t dims[3] = {0, 0, 0};
+  std::int64_t threshold = 0, displacement = 0, displacement_threshold = 0;
+};
+
+// Process 0's codes to the others (only read here: broadcast writes into the others' alone).
+void send_codes(ShareTransport& t, const std::vector<std::uint8_t>& code) {
+  t.broadcast(std::span(const_cast<std::byte*>(reinterpret_cast<const std::byte*>(code.data())), code.size()));
+}
+
+}  // namespace
 
 BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const BisectionErrors& errors, const BisectionOptions& o,
                                const Progress& progress) {
@@ -44,6 +61,12 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   const std::uint8_t threshold = errors.codes.threshold(o.max_error);
   const std::uint8_t displacement_threshold = displacement ? errors.displacement_codes.threshold(o.max_displacement) : 0;
   const CodedSplits rule{errors.code, threshold, displacement ? &errors.displacement_code : nullptr, displacement_threshold};
+  if (o.share) {
+    ShareHead head{{v.dims[0], v.dims[1], v.dims[2]}, threshold, displacement, displacement_threshold};
+    o.share->broadcast(std::as_writable_bytes(std::span(&head, 1)));
+    send_codes(*o.share, errors.code);
+    if (displacement) send_codes(*o.share, errors.displacement_code);
+  }
   TetGrid& g = out.grid;
   g.source = grid_source(v, range);
   g.source.method = "bisection";
@@ -64,7 +87,7 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
       h.error_code[id] = errors.code[i];
       if (displacement) h.displacement_code[id] = errors.displacement_code[i];
     };
-    assemble(lat, rule, static_cast<std::size_t>(v.voxel_count()), size, fill, out, progress);
+    assemble(lat, rule, static_cast<std::size_t>(v.voxel_count()), size, fill, out, progress, nullptr, 0, o.share);
   });
   h.error_threshold = threshold;
   if (displacement) {
@@ -74,6 +97,34 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   }
   out.error_bound = errors.codes.error(threshold);
   return out;
+}
+
+void bisection_select_share(ShareTransport& transport) {
+  using namespace detail;
+  if (transport.process() == 0) throw std::logic_error("bisection_select_share: process 0 runs bisection_select");
+  ShareHead head;
+  transport.broadcast(std::as_writable_bytes(std::span(&head, 1)));
+  const Dims dims{head.dims[0], head.dims[1], head.dims[2]};
+  if (head.threshold < 0 || head.threshold > 255 || head.displacement_threshold < 0 || head.displacement_threshold > 255 ||
+      (head.displacement != 0 && head.displacement != 1))
+    throw InputError("process 0's selection message is not one this process can use");
+  const Lattice lat = make_lattice(dims);  // InputError for a flat or oversized lattice
+  const auto voxels = static_cast<std::size_t>(dims[0] * dims[1] * dims[2]);
+  const bool displacement = head.displacement != 0;
+  check_memory(voxels * (displacement ? 2 : 1) + voxels / 4, fmt::format("process {}'s copy of the selection's codes", transport.process()),
+               "", "share over fewer processes on this machine");
+  std::vector<std::uint8_t> code, displacement_code;
+  resize_big(code, voxels);
+  transport.broadcast(std::as_writable_bytes(std::span(code)));
+  if (displacement) {
+    resize_big(displacement_code, voxels);
+    transport.broadcast(std::as_writable_bytes(std::span(displacement_code)));
+  }
+  const CodedSplits rule{code, static_cast<std::uint8_t>(head.threshold), displacement ? &displacement_code : nullptr,
+                         static_cast<std::uint8_t>(head.displacement_threshold)};
+  BisectionGrid run;  // this process's run of tetrahedra, handed to process 0
+  assemble(
+      lat, rule, voxels, [](std::uint64_t) {}, [](std::size_t, std::uint64_t) {}, run, {}, nullptr, 0, &transport);
 }
 
 BisectionGrid bisection_grid(const Volume& v, const ValueRange& range, const BisectionOptions& options, const Progress& progress) {

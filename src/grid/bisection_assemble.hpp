@@ -11,10 +11,14 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <span>
+#include <stdexcept>
+#include <utility>
 #include <vector>
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/error.hpp"
+#include "adaptiso/select_shares.hpp"
 #include "grid/diamond.hpp"
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"
@@ -105,6 +109,68 @@ void split_centres(const Lattice& lat, const Rule& rule, std::size_t voxels, Ver
   }
 }
 
+// The selection shared with other processes (select_shares.hpp): the same steps on every process,
+// these the moves between them.
+namespace share {
+
+template <class T>
+std::span<std::byte> bytes(std::vector<T>& v) {
+  return std::as_writable_bytes(std::span(v));
+}
+
+// Each process counted its own subtrees (the others' counts 0): the sums, on every process.
+inline void sum_counts(ShareTransport& t, std::vector<std::uint64_t>& counts) {
+  if (t.process() != 0) {
+    t.send(bytes(counts));
+  } else {
+    std::vector<std::uint64_t> theirs(counts.size());
+    for (int p = 1; p < t.processes(); ++p) {
+      t.receive(p, bytes(theirs));
+      for (std::size_t i = 0; i < counts.size(); ++i) counts[i] += theirs[i];
+    }
+  }
+  t.broadcast(bytes(counts));
+}
+
+// The subtrees [runs[p], runs[p + 1]) process p writes: consecutive, about as many leaves each
+// (`leaves`: the leaves before each subtree, and the total last).
+inline std::vector<std::size_t> runs(const std::vector<std::uint64_t>& leaves, int processes) {
+  std::vector<std::size_t> at(static_cast<std::size_t>(processes) + 1, leaves.size() - 1);
+  at[0] = 0;
+  for (int p = 1; p < processes; ++p) {
+    const std::uint64_t target = leaves.back() * static_cast<std::uint64_t>(p) / static_cast<std::uint64_t>(processes);
+    at[static_cast<std::size_t>(p)] = static_cast<std::size_t>(std::lower_bound(leaves.begin(), leaves.end() - 1, target) - leaves.begin());
+  }
+  return at;
+}
+
+// Process p's run lands in place in process 0's tetrahedra, its spans merge into process 0's.
+template <class Merge>
+void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& leaves, const std::vector<std::size_t>& run,
+                 std::vector<std::array<std::uint32_t, 4>>& tets, std::vector<std::array<float, 2>>& spans,
+                 std::vector<ValueSpan>& root_spans, Merge merge) {
+  const auto own = [&](int p) { return std::pair{run[static_cast<std::size_t>(p)], run[static_cast<std::size_t>(p) + 1]}; };
+  if (t.process() != 0) {
+    const auto [first, last] = own(t.process());
+    t.send(bytes(tets));
+    t.send(bytes(spans));
+    t.send(std::as_bytes(std::span(root_spans).subspan(first, last - first)));
+    return;
+  }
+  std::vector<std::array<float, 2>> theirs(spans.size());
+  for (int p = 1; p < t.processes(); ++p) {
+    const auto [first, last] = own(p);
+    t.receive(p, bytes(tets).subspan(leaves[first] * sizeof tets[0], (leaves[last] - leaves[first]) * sizeof tets[0]));
+    t.receive(p, bytes(theirs));
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, spans.size(), 1 << 16), [&](const auto& r) {
+      for (std::size_t i = r.begin(); i < r.end(); ++i) merge(i, theirs[i]);
+    });
+    t.receive(p, std::as_writable_bytes(std::span(root_spans).subspan(first, last - first)));
+  }
+}
+
+}  // namespace share
+
 // The grid of a traversal's leaves inside the box. A first walk counts the leaves of each subtree.
 // The vertices are the split diamonds' centres (split_centres) under a rule closed upwards; under
 // another, the first walk marks the leaves' corners among the `voxels` voxels, a byte each (a
@@ -118,18 +184,26 @@ void split_centres(const Lattice& lat, const Rule& rule, std::size_t voxels, Ver
 // With `own_code` (the codes by voxel), each tetrahedron's own bound is kept too, in
 // out.tet_code: the code of the diamond it would split at, at least `own_least` (0 for a unit
 // tetrahedron).
+//
+// With `shared` (select_shares.hpp; a rule closed upwards), on every process alike: it counts its
+// subtrees, writes its run of them and hands them to process 0, whose `out` gets the grid; another
+// process's size and fill do nothing, and its `out` holds its run only.
 template <class Rule, class Size, class Fill>
 void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size size, Fill fill, BisectionGrid& out, const Progress& progress,
-              const std::vector<std::uint8_t>* own_code = nullptr, std::uint8_t own_least = 0) {
+              const std::vector<std::uint8_t>* own_code = nullptr, std::uint8_t own_least = 0, ShareTransport* shared = nullptr) {
   const Traversal<Rule> walk(lat, rule);
   const Frontier top = walk.frontier(12);
   const std::vector<Subtree>& roots = top.roots;
   std::vector<std::uint64_t> leaves(roots.size() + 1, 0);
+  const std::size_t processes = shared ? static_cast<std::size_t>(shared->processes()) : 1;
+  const std::size_t me = shared ? static_cast<std::size_t>(shared->process()) : 0;
+  if (shared && (!Rule::kUpwardClosed || own_code)) throw std::logic_error("assemble: only a selection at a bound is shared");
   report(progress, "select", 0);
   constexpr bool kMarked = !Rule::kUpwardClosed;  // the vertices marked by the leaves, not found from the codes
   std::vector<std::uint8_t> used;
   if constexpr (kMarked) assign_big(used, voxels, std::uint8_t{0});
   tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
+    if (f % processes != me) return;  // another process's to count
     std::uint64_t count = 0;
     walk.visit(
         roots[f],
@@ -157,26 +231,41 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   } else {
     split_centres(lat, rule, voxels, numbers);
   }
+  if (shared) share::sum_counts(*shared, leaves);
   for (std::size_t f = 0; f < roots.size(); ++f) leaves[f + 1] += leaves[f];
   numbers.count();
   const std::uint64_t vertices = numbers.total(), tets = leaves.back();
+  const std::vector<std::size_t> run = share::runs(leaves, static_cast<int>(processes));
+  const std::size_t first = run[me], last = run[me + 1];
+  const std::uint64_t base = leaves[first];  // where this process's run starts (0 on process 0)
   // The grid and the rest of the preparation: tetrahedra (16 bytes), their index (8 bytes, and
   // while built 16 more for each entry of the two nodes being sorted: about 8 a tetrahedron on the
   // noisiest scan here, the MR head, whose two largest nodes hold 39 M of 84 M entries), vertices
   // with values, gradients and codes (33 bytes).
-  check_memory(tets * 36 + vertices * 33, fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
+  // Shared: process 0 also receives the others' spans (8 bytes a vertex); another process holds its
+  // run, the vertices' values and its spans.
+  if (me == 0)
+    check_memory(tets * 36 + vertices * (shared ? 41 : 33), fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
+  else
+    check_memory((leaves[last] - base) * 16 + vertices * 16, fmt::format("process {}'s {} of {} tetrahedra", me, leaves[last] - base, tets),
+                 "max_error", "raise it, or share over more processes");
   if (vertices >= std::numeric_limits<std::uint32_t>::max() || tets >= std::numeric_limits<std::uint32_t>::max())
     throw OptionError("max_error", fmt::format("{} vertices and {} tetrahedra exceed the grid's 32-bit indices; raise it", vertices, tets));
   report(progress, "select", 0.5);
   TetGrid& g = out.grid;
   size(vertices);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.words.size(), 1024), [&](const auto& r) {
-    for (std::size_t w = r.begin(); w < r.end(); ++w) {
-      std::uint64_t id = numbers.words[w].before;
-      for (std::uint64_t b = numbers.words[w].bits; b; b &= b - 1) fill(w * 64 + static_cast<std::size_t>(std::countr_zero(b)), id++);
-    }
-  });
-  resize_big(g.tets, tets);
+  if (me == 0)
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.words.size(), 1024), [&](const auto& r) {
+      for (std::size_t w = r.begin(); w < r.end(); ++w) {
+        std::uint64_t id = numbers.words[w].before;
+        for (std::uint64_t b = numbers.words[w].bits; b; b &= b - 1) fill(w * 64 + static_cast<std::size_t>(std::countr_zero(b)), id++);
+      }
+    });
+  if (shared) {  // the vertices' values, for the spans
+    if (me != 0) resize_big(g.values, vertices);
+    shared->broadcast(share::bytes(g.values));
+  }
+  resize_big(g.tets, me == 0 ? tets : leaves[last] - base);
   if (own_code) resize_big(out.tet_code, tets);
   auto& spans = out.hierarchy.value_span;
   assign_big(spans, vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
@@ -186,8 +275,8 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
     atomic_max(span[1], up(s.hi));
   };
   std::vector<ValueSpan> root_spans(roots.size());
-  tbb::parallel_for(std::size_t{0}, roots.size(), [&](std::size_t f) {
-    std::uint64_t at = leaves[f];
+  tbb::parallel_for(first, last, [&](std::size_t f) {
+    std::uint64_t at = leaves[f] - base;
     root_spans[f] = walk.visit(
         roots[f], numbers, g.values,
         [&](const Tet&, const Corners& c, std::int64_t split_at) {
@@ -199,6 +288,13 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
         },
         [&](std::int64_t, std::uint32_t id, const Tet&, const ValueSpan& s) { merge(id, s); });
   });
+  if (shared) {
+    share::gather_runs(*shared, leaves, run, g.tets, spans, root_spans, [&](std::size_t id, const std::array<float, 2>& s) {
+      spans[id][0] = std::min(spans[id][0], s[0]);
+      spans[id][1] = std::max(spans[id][1], s[1]);
+    });
+    if (me != 0) return;
+  }
   for (const auto& split : top.splits) {  // children first: the spans of the subtrees below
     ValueSpan s;
     for (std::size_t r = split.first; r < split.last; ++r) s.add(root_spans[r]);

@@ -105,6 +105,7 @@ TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const Prepa
   BisectionOptions b;
   b.max_error = absolute_max_error(o, range);
   b.max_displacement = o.max_displacement;
+  b.share = o.select_share;
   const bool displacement = b.max_displacement > 0;
   const BisectionErrors errors = clock.run("error_hierarchy", [&] {
     return o.error_hierarchy ? o.error_hierarchy(v, range, displacement, progress) : bisection_errors(v, range, displacement, progress);

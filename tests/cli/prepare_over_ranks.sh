@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # `mpirun -np N adaptiso prepare` writes the file one process writes, byte for byte, for N = 2, 3, 4
-# (oversubscribed) and bricks down to 2 voxels a side, so several bricks per rank; --brick-side in
+# (oversubscribed) and bricks down to 2 voxels a side, so several bricks per rank, the selection's
+# walks shared out too (select_shares.hpp); --brick-side in
 # one process does too. Volumes of odd and anisotropic sizes, a noisy one and an analytic one, with
 # and without the displacement criterion. A rank killed mid-run leaves no grid file; a command
 # other than prepare under mpirun is refused (issue 38).
@@ -135,7 +136,9 @@ import json, sys
 b = json.load(open(sys.argv[1]))['bricks']
 assert b['ranks'] == 2 and b['bricks'] == 64 and sum(b['bricks_per_rank']) == 64 and min(b['bricks_per_rank']) > 0, b
 assert b['bytes_exchanged'] > 0 and all(p > 0 for p in b['peak_bytes_per_rank']), b
-print('ok: --json', {k: b[k] for k in ('ranks', 'bricks', 'bricks_per_rank', 'bytes_exchanged')})" "$W/j.json"
+# The selection's share: the codes (a byte a voxel of the 33³ volume) went to rank 1, its run came back.
+assert b['select_bytes_exchanged'] > 33 ** 3, b
+print('ok: --json', {k: b[k] for k in ('ranks', 'bricks', 'bricks_per_rank', 'bytes_exchanged', 'select_bytes_exchanged')})" "$W/j.json"
 
 # Without --brick-side the ranks agree on the default side for the lattice and their number
 # (brick_shares.hpp: the largest up to 256 leaving 4 bricks a rank; 33³: 16 for 2 ranks, 8 for 4),

@@ -1,0 +1,174 @@
+// The selection shared over processes (select_shares.hpp), the processes played by threads of this
+// one over an in-process transport: process 0's grid is the one bisection_select makes alone, byte
+// for byte (vertices, values, tetrahedra in order, codes and value spans), for 2 to 5 processes,
+// volumes of odd, anisotropic and 2-voxel-thick sizes, bounds from 0 to the coarsest, with the
+// displacement criterion; a message another process cannot use is refused.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <cstring>
+#include <deque>
+#include <future>
+#include <map>
+#include <mutex>
+#include <random>
+#include <stdexcept>
+#include <vector>
+
+#include "adaptiso/bisection.hpp"
+#include "adaptiso/error.hpp"
+#include "adaptiso/select_shares.hpp"
+
+using namespace adaptiso;
+
+namespace {
+
+// Queues of messages between the threads that play the processes.
+class Hub {
+public:
+  void push(int from, int to, std::vector<std::byte> bytes) {
+    {
+      std::lock_guard lock(m_);
+      queues_[{from, to}].push_back(std::move(bytes));
+    }
+    cv_.notify_all();
+  }
+  std::vector<std::byte> pop(int from, int to) {
+    std::unique_lock lock(m_);
+    auto& q = queues_[{from, to}];
+    if (!cv_.wait_for(lock, std::chrono::seconds(120), [&] { return !q.empty(); }))
+      throw std::runtime_error(fmt::format("no message from {} to {}", from, to));
+    std::vector<std::byte> bytes = std::move(q.front());
+    q.pop_front();
+    return bytes;
+  }
+  // Messages left unread: a protocol that sends what nobody receives.
+  std::size_t left() {
+    std::lock_guard lock(m_);
+    std::size_t n = 0;
+    for (const auto& [key, q] : queues_) n += q.size();
+    return n;
+  }
+
+private:
+  std::mutex m_;
+  std::condition_variable cv_;
+  std::map<std::pair<int, int>, std::deque<std::vector<std::byte>>> queues_;
+};
+
+class ThreadTransport final : public ShareTransport {
+public:
+  ThreadTransport(Hub& hub, int process, int processes) : hub_(hub), process_(process), processes_(processes) {}
+  int process() const override { return process_; }
+  int processes() const override { return processes_; }
+  void broadcast(std::span<std::byte> bytes) override {
+    if (process_ == 0) {
+      for (int p = 1; p < processes_; ++p) hub_.push(0, p, {bytes.begin(), bytes.end()});
+      return;
+    }
+    copy(hub_.pop(0, process_), bytes);
+  }
+  void send(std::span<const std::byte> bytes) override { hub_.push(process_, 0, {bytes.begin(), bytes.end()}); }
+  void receive(int from, std::span<std::byte> into) override { copy(hub_.pop(from, 0), into); }
+
+private:
+  static void copy(const std::vector<std::byte>& got, std::span<std::byte> into) {
+    if (got.size() != into.size())
+      throw std::runtime_error(fmt::format("a message of {} bytes where {} were expected", got.size(), into.size()));
+    if (!got.empty()) std::memcpy(into.data(), got.data(), got.size());
+  }
+  Hub& hub_;
+  int process_, processes_;
+};
+
+Volume random_volume(Dims d, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0, 1);
+  Volume v = make_volume(d, ScalarType::f32);
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) v.set(i, u(rng));
+  return v;
+}
+
+Volume smooth_volume(Dims d) {
+  Volume v = make_volume(d, ScalarType::i16);
+  for (std::int64_t z = 0; z < d[2]; ++z)
+    for (std::int64_t y = 0; y < d[1]; ++y)
+      for (std::int64_t x = 0; x < d[0]; ++x) {
+        const double r = std::sqrt((x - 0.4 * d[0]) * (x - 0.4 * d[0]) + (y - 0.6 * d[1]) * (y - 0.6 * d[1]) +
+                                   4.0 * (z - 0.5 * d[2]) * (z - 0.5 * d[2]));
+        v.set(v.index(x, y, z), std::round(1000 * std::sin(r / 3.0) + 20 * x));
+      }
+  return v;
+}
+
+// Process 0's grid, the other processes run alongside on threads.
+BisectionGrid shared_select(const Volume& v, const ValueRange& range, const BisectionErrors& errors, BisectionOptions o, int processes) {
+  Hub hub;
+  std::vector<std::future<void>> others;
+  for (int p = 1; p < processes; ++p)
+    others.push_back(std::async(std::launch::async, [&hub, p, processes] {
+      ThreadTransport t(hub, p, processes);
+      bisection_select_share(t);
+    }));
+  ThreadTransport t0(hub, 0, processes);
+  o.share = &t0;
+  BisectionGrid g = bisection_select(v, range, errors, o);
+  for (auto& f : others) f.get();
+  EXPECT_EQ(hub.left(), 0u) << "messages left unread";
+  return g;
+}
+
+void expect_same(const BisectionGrid& a, const BisectionGrid& b, const std::string& what) {
+  EXPECT_EQ(a.grid.ijk, b.grid.ijk) << what;
+  EXPECT_EQ(a.grid.values, b.grid.values) << what;
+  EXPECT_EQ(a.grid.tets, b.grid.tets) << what;
+  EXPECT_EQ(a.hierarchy.error_code, b.hierarchy.error_code) << what;
+  EXPECT_EQ(a.hierarchy.displacement_code, b.hierarchy.displacement_code) << what;
+  ASSERT_EQ(a.hierarchy.value_span.size(), b.hierarchy.value_span.size()) << what;
+  EXPECT_EQ(0, std::memcmp(a.hierarchy.value_span.data(), b.hierarchy.value_span.data(), a.hierarchy.value_span.size() * 8)) << what;
+  EXPECT_EQ(a.error_bound, b.error_bound) << what;
+  EXPECT_EQ(a.displacement_bound, b.displacement_bound) << what;
+}
+
+void check_shares(const Volume& v, const std::string& name, bool displacement) {
+  const ValueRange range = value_range(v);
+  const BisectionErrors errors = bisection_errors(v, range, displacement);
+  const double width = range.max - range.min;
+  for (const double bound : {0.0, 0.01 * width, 0.1 * width, 2.0 * width}) {
+    BisectionOptions o;
+    o.max_error = bound;
+    if (displacement) o.max_displacement = 0.5;
+    const BisectionGrid alone = bisection_select(v, range, errors, o);
+    for (int processes : {2, 3, 5})
+      expect_same(alone, shared_select(v, range, errors, o, processes),
+                  fmt::format("{} {}x{}x{}, bound {}, {} processes", name, v.dims[0], v.dims[1], v.dims[2], bound, processes));
+  }
+}
+
+}  // namespace
+
+TEST(SelectShares, RandomVolumesOfOddAnisotropicAndThinSizes) {
+  unsigned seed = 1;
+  for (const Dims& d : {Dims{9, 9, 9}, Dims{17, 6, 11}, Dims{2, 13, 7}, Dims{23, 2, 2}, Dims{33, 17, 5}})
+    check_shares(random_volume(d, seed++), "random", false);
+}
+
+TEST(SelectShares, SmoothFieldsWithAndWithoutTheDisplacementCriterion) {
+  check_shares(smooth_volume({41, 29, 25}), "smooth", false);
+  check_shares(smooth_volume({41, 29, 25}), "smooth", true);
+  check_shares(random_volume({19, 12, 7}, 99), "random", true);
+}
+
+TEST(SelectShares, AMessageAnotherProcessCannotUseIsRefused) {
+  Hub hub;
+  ThreadTransport zero(hub, 0, 2), one(hub, 1, 2);
+  std::int64_t head[6] = {9, 9, 9, 300, 0, 0};  // a threshold beyond a byte
+  zero.broadcast(std::as_writable_bytes(std::span(head)));
+  EXPECT_THROW(bisection_select_share(one), InputError);
+  std::int64_t flat[6] = {9, 1, 9, 3, 0, 0};  // a flat lattice
+  zero.broadcast(std::as_writable_bytes(std::span(flat)));
+  EXPECT_THROW(bisection_select_share(one), InputError);
+  EXPECT_THROW(bisection_select_share(zero), std::logic_error);  // process 0 runs bisection_select
+}
