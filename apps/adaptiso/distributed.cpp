@@ -16,31 +16,37 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// A rank's message: its bricks (pack_brick_errors) and then its peak resident memory.
-std::vector<std::byte> pack(const std::vector<BrickErrors>& bricks, std::uint64_t peak) {
+// A rank's message: its bricks (pack_brick_errors) and then what it tells of itself.
+struct Trailer {
+  std::uint64_t peak = 0;    // resident memory, bytes
+  double brick_seconds = 0;  // its bricks' time
+};
+
+std::vector<std::byte> pack(const std::vector<BrickErrors>& bricks, const Trailer& t) {
   std::vector<std::byte> bytes = pack_brick_errors(bricks);
-  const auto* p = reinterpret_cast<const std::byte*>(&peak);
-  bytes.insert(bytes.end(), p, p + sizeof peak);
+  const auto* p = reinterpret_cast<const std::byte*>(&t);
+  bytes.insert(bytes.end(), p, p + sizeof t);
   return bytes;
 }
 
-std::vector<BrickErrors> unpack(std::span<const std::byte> bytes, std::uint64_t& peak) {
-  if (bytes.size() < sizeof peak) throw InputError("a rank's brick results are truncated");
-  std::memcpy(&peak, bytes.data() + bytes.size() - sizeof peak, sizeof peak);
-  return unpack_brick_errors(bytes.first(bytes.size() - sizeof peak));
+std::vector<BrickErrors> unpack(std::span<const std::byte> bytes, Trailer& t) {
+  if (bytes.size() < sizeof t) throw InputError("a rank's brick results are truncated");
+  std::memcpy(&t, bytes.data() + bytes.size() - sizeof t, sizeof t);
+  return unpack_brick_errors(bytes.first(bytes.size() - sizeof t));
 }
 
 }  // namespace
 
 nlohmann::json DistributedStats::to_json(int ranks) const {
-  nlohmann::json j = {{"ranks", ranks},
-                      {"brick_side", brick_side},
-                      {"bricks", bricks},
-                      {"bricks_per_rank", bricks_per_rank},
-                      {"bytes_exchanged", bytes_exchanged},
-                      {"select_bytes_exchanged", select_bytes_exchanged},
-                      {"peak_bytes_per_rank", peak_bytes_per_rank},
-                      {"seconds", {{"rank0_bricks", brick_seconds}, {"combine", combine_seconds}}}};
+  nlohmann::json j = {
+      {"ranks", ranks},
+      {"brick_side", brick_side},
+      {"bricks", bricks},
+      {"bricks_per_rank", bricks_per_rank},
+      {"bytes_exchanged", bytes_exchanged},
+      {"select_bytes_exchanged", select_bytes_exchanged},
+      {"peak_bytes_per_rank", peak_bytes_per_rank},
+      {"seconds", {{"rank0_bricks", brick_seconds}, {"bricks_per_rank", brick_seconds_per_rank}, {"combine", combine_seconds}}}};
   if (!ranks_read.empty()) j["ranks_read"] = ranks_read;  // only under mpirun
   return j;
 }
@@ -62,18 +68,21 @@ BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const std::fu
       bisection_share_errors(bricks, ranks.rank(), ranks.size(), source.source, range, displacement, source.hold);
   stats.brick_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   const std::uint64_t sent_before = ranks.bytes_exchanged();
-  auto all = ranks.gather(ranks.root() ? std::vector<std::byte>{} : pack(results, peak_resident_bytes()));
+  auto all = ranks.gather(ranks.root() ? std::vector<std::byte>{} : pack(results, {peak_resident_bytes(), stats.brick_seconds}));
   stats.bytes_exchanged = ranks.bytes_exchanged() - sent_before;
   if (!ranks.root()) return {};
   stats.bricks_per_rank.assign(static_cast<std::size_t>(ranks.size()), 0);
   stats.peak_bytes_per_rank.assign(static_cast<std::size_t>(ranks.size()), 0);
+  stats.brick_seconds_per_rank.assign(static_cast<std::size_t>(ranks.size()), 0);
+  stats.brick_seconds_per_rank[0] = stats.brick_seconds;
   stats.bricks_per_rank[0] = static_cast<std::int64_t>(results.size());
   for (int r = 1; r < ranks.size(); ++r) {
-    std::uint64_t peak = 0;
-    std::vector<BrickErrors> theirs = unpack(all[static_cast<std::size_t>(r)], peak);
+    Trailer told;
+    std::vector<BrickErrors> theirs = unpack(all[static_cast<std::size_t>(r)], told);
     std::vector<std::byte>().swap(all[static_cast<std::size_t>(r)]);
     stats.bricks_per_rank[static_cast<std::size_t>(r)] = static_cast<std::int64_t>(theirs.size());
-    stats.peak_bytes_per_rank[static_cast<std::size_t>(r)] = peak;
+    stats.peak_bytes_per_rank[static_cast<std::size_t>(r)] = told.peak;
+    stats.brick_seconds_per_rank[static_cast<std::size_t>(r)] = told.brick_seconds;
     for (auto& b : theirs) results.push_back(std::move(b));
   }
   const auto t1 = Clock::now();

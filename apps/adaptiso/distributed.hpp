@@ -31,6 +31,7 @@ struct DistributedStats {
   std::uint64_t bytes_exchanged = 0;               // brick results sent to rank 0 by the other ranks
   std::uint64_t select_bytes_exchanged = 0;        // the selection's: codes, values, counts and runs (rank 0's sent and received)
   double brick_seconds = 0;                        // rank 0's own bricks
+  std::vector<double> brick_seconds_per_rank;      // each rank's, reading its bricks included
   double combine_seconds = 0;
   nlohmann::json to_json(int ranks) const;
 };

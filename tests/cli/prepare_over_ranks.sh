@@ -138,6 +138,8 @@ assert b['ranks'] == 2 and b['bricks'] == 64 and sum(b['bricks_per_rank']) == 64
 assert b['bytes_exchanged'] > 0 and all(p > 0 for p in b['peak_bytes_per_rank']), b
 # The selection's share: the codes (a byte a voxel of the 33³ volume) went to rank 1, its run came back.
 assert b['select_bytes_exchanged'] > 33 ** 3, b
+# Each rank's brick time, so a slow reader shows (rank 1 reads its bricks from the file).
+assert len(b['seconds']['bricks_per_rank']) == 2 and all(t > 0 for t in b['seconds']['bricks_per_rank']), b
 print('ok: --json', {k: b[k] for k in ('ranks', 'bricks', 'bricks_per_rank', 'bytes_exchanged', 'select_bytes_exchanged')})" "$W/j.json"
 
 # Without --brick-side the ranks agree on the default side for the lattice and their number
