@@ -24,35 +24,40 @@ namespace adaptiso::cli {
 namespace {
 
 // A rank other than 0 of `mpirun … adaptiso prepare`: its bricks of the error hierarchy, read
-// straight from the file where it can be (RegionReader), handed to rank 0, then its share of the
-// selection (select_shares.hpp); it writes nothing.
+// straight from the file where it can be (RegionReader) or else sent by rank 0 (scattered_route),
+// handed to rank 0, then its share of the selection (select_shares.hpp); it writes nothing.
 // brick_side 0: the default for the lattice and the ranks, as rank 0 chooses it.
 void prepare_rank_bricks(Ranks& ranks, const VolumeInput& in, const PrepareOptions& options, std::int64_t brick_side) {
   DistributedStats ignored;
-  RegionReader reader(in.path, in.read_options());
-  const Dims lattice = bisection_lattice_dims(reader.header().dims);  // the lattice rank 0 pads its volume to (prepare.hpp)
-  if (brick_side == 0) brick_side = default_share_brick_side(lattice, ranks.size());
-  distributed_errors(
-      ranks, lattice, [&](const ValueRange& range) { return reader_source(reader, lattice, range); }, {}, brick_side,
-      options.max_displacement > 0, {}, ignored);
+  const bool displacement = options.max_displacement > 0;
+  if (scattered_route(RegionReader::route_of(in.path, in.read_options()))) {
+    distributed_errors(ranks, {}, {}, {}, {}, brick_side, displacement, true, {}, ignored);
+  } else {
+    RegionReader reader(in.path, in.read_options());
+    const Dims lattice = bisection_lattice_dims(reader.header().dims);  // the lattice rank 0 pads its volume to (prepare.hpp)
+    distributed_errors(
+        ranks, lattice, reader.header().type, [&](const ValueRange& range) { return reader_source(reader, lattice, range); }, {},
+        brick_side, displacement, false, {}, ignored);
+  }
   bisection_select_share(ranks);               // then its run of the selection's tetrahedra
   std::uint64_t peak = peak_resident_bytes();  // its peak over both steps, for rank 0's --json
   ranks.send(std::as_bytes(std::span(&peak, 1)));
 }
 
 // The error hierarchy in bricks of `side` (over the ranks, 0: the default for the lattice and the
-// ranks): over the ranks under mpirun, else on this process. The returned function fills `stats`,
-// which must outlive it.
+// ranks): over the ranks under mpirun (`scatter`: rank 0 sends the others their regions), else on
+// this process. The returned function fills `stats`, which must outlive it.
 std::function<BisectionErrors(const Volume&, const ValueRange&, bool, const Progress&)> bricked_errors(Ranks& ranks, std::int64_t side,
+                                                                                                       bool scatter,
                                                                                                        DistributedStats& stats) {
   if (ranks.distributed())
-    return [&ranks, side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+    return [&ranks, side, scatter, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
       return distributed_errors(
-          ranks, v.dims,
+          ranks, v.dims, v.type,
           [&v](const ValueRange&) {
             return ReaderSource{region_source(v), {}};
           },
-          range, side > 0 ? side : default_share_brick_side(v.dims, ranks.size()), displacement, progress, stats);
+          range, side, displacement, scatter, progress, stats);
     };
   return [side, &stats](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
     const BrickGrid bricks = brick_grid(v.dims, side);
@@ -113,8 +118,10 @@ void add_prepare(CLI::App& app) {
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
     DistributedStats dist;
-    if (ranks.distributed()) dist.ranks_read = RegionReader::route_of(in->path, in->read_options());  // the headers only
-    if (bricked) options.error_hierarchy = bricked_errors(ranks, side, dist);
+    const char* route = RegionReader::route_of(in->path, in->read_options());  // the headers only
+    const bool scatter = ranks.distributed() && scattered_route(route);
+    if (ranks.distributed()) dist.ranks_read = scatter ? "regions sent by rank 0" : route;
+    if (bricked) options.error_hierarchy = bricked_errors(ranks, side, scatter, dist);
     if (ranks.distributed()) options.select_share = &ranks;
     const std::uint64_t exchanged_before = ranks.bytes_exchanged();
     TerminalProgress tp(!out->quiet && !out->json);
@@ -135,7 +142,7 @@ void add_prepare(CLI::App& app) {
     j["bytes"] = std::filesystem::file_size(*output);
     if (bricked) {
       if (!dist.peak_bytes_per_rank.empty()) dist.peak_bytes_per_rank[0] = peak_resident_bytes();
-      if (ranks.distributed()) dist.select_bytes_exchanged = exchanged - dist.bytes_exchanged;
+      if (ranks.distributed()) dist.select_bytes_exchanged = exchanged - dist.bytes_exchanged - dist.regions_sent_bytes;
       j["bricks"] = dist.to_json(ranks.size());
     }
     if (out->json) return print_json(j);

@@ -24,11 +24,12 @@ namespace adaptiso::cli {
 
 // What the distribution did, for --json.
 struct DistributedStats {
-  std::string ranks_read;  // what the ranks other than 0 read: "regions" (their bricks) or "whole volume"
+  std::string ranks_read;  // how the ranks other than 0 got their bricks: RegionReader::route, or "regions sent by rank 0"
   std::int64_t brick_side = 0, bricks = 0;
   std::vector<std::int64_t> bricks_per_rank;
   std::vector<std::uint64_t> peak_bytes_per_rank;  // each rank's peak at its end (rank 0: filled in last)
   std::uint64_t bytes_exchanged = 0;               // brick results sent to rank 0 by the other ranks
+  std::uint64_t regions_sent_bytes = 0;            // the regions rank 0 sent the others (scattered_route)
   std::uint64_t select_bytes_exchanged = 0;        // the selection's: codes, values, counts and runs (rank 0's sent and received)
   double brick_seconds = 0;                        // rank 0's own bricks
   std::vector<double> brick_seconds_per_rank;      // each rank's, reading its bricks included
@@ -37,14 +38,22 @@ struct DistributedStats {
 };
 
 // The error hierarchy of a volume of `dims` over the ranks: each computes its bricks, reading them
-// from the source `read` makes (with its hold: slab after slab, front to back); rank 0 receives the
-// others' and returns the combined hierarchy, the others return an empty one. The value range is
-// rank 0's (the others' is not looked at). Collective: every rank calls it with the same
-// dimensions, side and criterion.
+// from the source `read` makes (with its hold: slab after slab, front to back), or with `scatter`
+// receiving them from rank 0, which sends each rank its regions slab by slab from its own source
+// (the route for files a rank could only read by decoding the whole stream or volume:
+// scattered_route); rank 0 receives the others' results and returns the combined hierarchy, the
+// others return an empty one. The value range, lattice (`dims`) and sample type are rank 0's (the
+// others' are not looked at; `read` is not called on a rank that receives its regions). Brick side
+// 0: the default for the lattice and the ranks (default_share_brick_side). Collective: every rank
+// calls it with the same side, criterion and `scatter`.
 // `read` makes the rank's source of bricks once the range is known (a padded source reflects
 // within it).
-BisectionErrors distributed_errors(Ranks& ranks, const Dims& dims, const std::function<ReaderSource(const ValueRange&)>& read,
-                                   ValueRange range, std::int64_t brick_side, bool displacement, const Progress& progress,
+BisectionErrors distributed_errors(Ranks& ranks, Dims dims, ScalarType type, const std::function<ReaderSource(const ValueRange&)>& read,
+                                   ValueRange range, std::int64_t brick_side, bool displacement, bool scatter, const Progress& progress,
                                    DistributedStats& stats);
+
+// Whether a rank other than 0 reading by `route` (RegionReader::route) would decode the whole file
+// up to its bricks: then rank 0, which holds the decoded volume, sends it its regions instead.
+bool scattered_route(const char* route);
 
 }  // namespace adaptiso::cli

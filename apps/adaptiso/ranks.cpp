@@ -116,15 +116,17 @@ void Ranks::broadcast(std::span<std::byte> bytes) {
 #endif
 }
 
-void Ranks::send(std::span<const std::byte> bytes) {
+void Ranks::send(std::span<const std::byte> bytes) { send_to(0, bytes); }
+
+void Ranks::send_to(int to, std::span<const std::byte> bytes) {
 #ifdef ADAPTISO_HAVE_MPI
   for (std::size_t at = 0; at < bytes.size(); at += kPiece) {
     const std::size_t n = std::min(kPiece, bytes.size() - at);
-    MPI_Send(bytes.data() + at, static_cast<int>(n), MPI_BYTE, 0, 2, MPI_COMM_WORLD);
+    MPI_Send(bytes.data() + at, static_cast<int>(n), MPI_BYTE, to, 2, MPI_COMM_WORLD);
   }
   exchanged_ += bytes.size();
 #else
-  (void)bytes;
+  (void)to, (void)bytes;
 #endif
 }
 

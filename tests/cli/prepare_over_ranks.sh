@@ -50,7 +50,8 @@ check noise "$W/noise.raw" "${RAW[@]}"
 check noise-displacement "$W/noise.raw" "${RAW[@]}" --max-displacement 1 --max-error 0.1 --relative
 # The ranks other than 0 read their bricks straight from the file (volume_regions.hpp): a detached
 # header, big-endian 16-bit samples after a byte skip, a MetaImage with a header size, a scaled
-# NIfTI; gzip and bzip2 files slab by slab as they decode (volume_regions.hpp, VolumeStream).
+# NIfTI; from gzip and bzip2 files, which a rank could only read by decoding the stream up to its
+# bricks, rank 0 sends them their regions slab by slab (distributed.hpp, scattered_route).
 /usr/bin/env python3 -c "
 import bz2, gzip, struct, sys
 w = sys.argv[1]
@@ -86,14 +87,39 @@ done
 import json, sys
 w = sys.argv[1]
 read = {n: json.load(open(f'{w}/{n}.json'))['bricks']['ranks_read'] for n in ('n16', 'n16gz', 'n16bz', 'm16', 's16')}
-assert read == {'n16': 'regions', 'n16gz': 'slabs of the stream', 'n16bz': 'slabs of the stream', 'm16': 'regions', 's16': 'regions'}, read
-print('ok: rank 1 read its bricks from the raw NRRD, MetaImage and scaled NIfTI files, slab by slab from the gzip and bzip2 ones')" "$W"
-# A gzip stream over 3 and 4 ranks, bricks of 2 (many slabs, each rank's bricks in every one).
+sent = 'regions sent by rank 0'
+assert read == {'n16': 'regions', 'n16gz': sent, 'n16bz': sent, 'm16': 'regions', 's16': 'regions'}, read
+print('ok: rank 1 read its bricks from the raw NRRD, MetaImage and scaled NIfTI files; rank 0 sent them for the gzip and bzip2 ones')" "$W"
+# A gzip stream over 3 and 4 ranks, bricks of 2 (many slabs sent in turn, each rank's bricks in every one).
 for np in 3 4; do
   ranks $np "$CLI" prepare "$W/n16gz.nhdr" --brick-side 2 --threads 1 --quiet -o "$W/n16gz-np$np.adg"
   cmp "$W/n16gz-one.adg" "$W/n16gz-np$np.adg" || { echo "FAIL: the gzip file over $np ranks differs"; exit 1; }
 done
 echo "ok: the gzip file over 3 and 4 ranks, bricks of 2"
+
+# A text NRRD, which only a whole read decodes ("whole volume"): rank 0 sends the regions. 5×5×40:
+# one brick a slab at a side of 4, so some slabs hold no brick of rank 0 and it sends what it does
+# not compute; over 3 ranks, bricks of 4 and 8.
+/usr/bin/env python3 -c "
+import sys
+x = 4321
+vals = []
+for _ in range(5 * 5 * 40):
+    x = (1103515245 * x + 12345) % 2**31
+    vals.append(str((x >> 20) - 900))
+open(sys.argv[1], 'w').write('NRRD0004\ntype: short\ndimension: 3\nsizes: 5 5 40\nencoding: text\n\n' + ' '.join(vals) + '\n')" "$W/thin.nrrd"
+"$CLI" prepare "$W/thin.nrrd" --quiet -o "$W/thin-one.adg"
+for np in 2 3; do
+  for side in 4 8; do
+    ranks $np "$CLI" prepare "$W/thin.nrrd" --brick-side $side --threads 1 --json -o "$W/thin-np$np-b$side.adg" >"$W/thin.json"
+    cmp "$W/thin-one.adg" "$W/thin-np$np-b$side.adg" || { echo "FAIL: the text NRRD over $np ranks, bricks of $side, differs"; exit 1; }
+  done
+done
+/usr/bin/env python3 -c "
+import json, sys
+b = json.load(open(sys.argv[1]))['bricks']
+assert b['ranks_read'] == 'regions sent by rank 0' and b['regions_sent_bytes'] > 0, b" "$W/thin.json"
+echo "ok: a text NRRD over 2 and 3 ranks, rank 0 sending the regions, slabs without a brick of its own"
 
 # A DICOM series (11×7 uint16, 9 slices rescaled slice by slice, files named against their order):
 # the other ranks read only the slice files of their slabs.
