@@ -129,6 +129,19 @@ def test_load_reads_the_tetrahedra_from_the_file_it_opened(tmp_path):
     assert (tmp_path / "again.adg").stat().st_size > 0
 
 
+def test_save_after_a_load_in_part_writes_the_file_it_loaded(tmp_path):
+    # save reads the tetrahedra from the open file for the write alone (no index built), and the
+    # grid stays loaded in part: later routes still read the file as it was loaded.
+    grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.02, relative=True)
+    grid.save(tmp_path / "s.adg")
+    loaded = adaptiso.load(tmp_path / "s.adg")
+    loaded.save(tmp_path / "again.adg")
+    assert (tmp_path / "again.adg").read_bytes() == (tmp_path / "s.adg").read_bytes()
+    loaded.save(tmp_path / "s.adg")  # over the file it loaded, which it holds open
+    assert (tmp_path / "s.adg").read_bytes() == (tmp_path / "again.adg").read_bytes()
+    assert faces_as_points(loaded.extract(9.1)) == faces_as_points(grid.extract(9.1))
+
+
 def test_load_in_part_reads_the_rest_once_for_two_threads(tmp_path):
     grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.02, relative=True)
     grid.save(tmp_path / "s.adg")
