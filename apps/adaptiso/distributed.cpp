@@ -2,15 +2,16 @@
 // carried by MPI.
 #include "distributed.hpp"
 
+#include <fmt/format.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
 #include <bit>
 #include <chrono>
 #include <cstring>
 #include <span>
 #include <string_view>
-
-#include <fmt/format.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
 #include "adaptiso/brick_shares.hpp"
 #include "adaptiso/error.hpp"
