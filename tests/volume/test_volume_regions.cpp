@@ -75,6 +75,25 @@ TEST(VolumeRegions, RawFilesOfEveryTypeAndByteOrderWithAHeader) {
     }
 }
 
+// Slices 20 KB wide, boxes of part rows narrow and wide, a column and one voxel a slice. (Reading
+// a slice's part rows in one call instead of one a row, tried on the CT bunny's bricks, saved no
+// measurable time: rank 1 read its raw bricks in 2.9-3.6 s against 3.0 s.)
+TEST(VolumeRegions, WideSlicesPartRowsColumnsAndSingleVoxels) {
+  TempDir t("regions");
+  const Dims dims{5000, 4, 3};
+  const Volume ref = testutil::pattern_volume(dims, ScalarType::u32);
+  testutil::write_bytes(t / "w.raw", testutil::bytes_of(ref));
+  ReadOptions o;
+  o.raw = RawOptions{dims, ScalarType::u32, false, {1, 1, 1}, 0};
+  const auto r = open_regions(t / "w.raw", o);
+  ASSERT_TRUE(r.has_value());
+  for (const VoxelBox& b : {VoxelBox{{10, 0, 0}, {19, 3, 2}},       // 40 bytes of 20,000 a row
+                            VoxelBox{{900, 1, 1}, {4999, 3, 2}},    // 16,400 of them
+                            VoxelBox{{1000, 0, 0}, {1000, 3, 2}},   // one column
+                            VoxelBox{{4999, 3, 0}, {4999, 3, 2}}})  // one voxel a slice
+    expect_crop(*r, ref, b);
+}
+
 TEST(VolumeRegions, NrrdAttachedDetachedAndByteSkips) {
   TempDir t("regions");
   const Dims dims{9, 4, 6};
