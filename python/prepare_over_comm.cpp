@@ -31,6 +31,50 @@ void check_message_size(std::size_t bytes, int rank) {
         fmt::format("rank {} would hand up {} bytes at once (at most 2 GiB): use more ranks or a smaller brick_side", rank, bytes));
 }
 
+// The selection's transport (select_shares.hpp) over mpi4py's buffer methods, in pieces of at most
+// 1 GiB (counts are C ints); the GIL is taken for each call (the selection runs without it).
+class CommTransport final : public ShareTransport {
+public:
+  CommTransport(py::object comm, int rank, int size) : comm_(std::move(comm)), rank_(rank), size_(size) {}
+  ~CommTransport() override {
+    py::gil_scoped_acquire gil;
+    comm_ = py::object();
+  }
+  int process() const override { return rank_; }
+  int processes() const override { return size_; }
+  void broadcast(std::span<std::byte> bytes) override {
+    started_ = true;
+    each_piece(bytes.data(), bytes.size(),
+               [&](std::byte* p, std::size_t n) { comm_.attr("Bcast")(view(p, n, false), py::arg("root") = 0); });
+  }
+  void send(std::span<const std::byte> bytes) override {
+    each_piece(const_cast<std::byte*>(bytes.data()), bytes.size(),
+               [&](std::byte* p, std::size_t n) { comm_.attr("Send")(view(p, n, true), py::arg("dest") = 0, py::arg("tag") = kTag); });
+  }
+  void receive(int from, std::span<std::byte> into) override {
+    each_piece(into.data(), into.size(), [&](std::byte* p, std::size_t n) {
+      comm_.attr("Recv")(view(p, n, false), py::arg("source") = from, py::arg("tag") = kTag);
+    });
+  }
+  // Whether rank 0 has sent the selection's first message (its head) yet.
+  bool started() const { return started_; }
+
+private:
+  static constexpr int kTag = 38;
+  template <class F>
+  static void each_piece(std::byte* p, std::size_t n, F f) {
+    py::gil_scoped_acquire gil;
+    constexpr std::size_t piece = std::size_t{1} << 30;
+    for (std::size_t at = 0; at < n; at += piece) f(p + at, std::min(piece, n - at));
+  }
+  static py::memoryview view(std::byte* p, std::size_t n, bool readonly) {
+    return py::memoryview::from_memory(static_cast<void*>(p), static_cast<py::ssize_t>(n), readonly);
+  }
+  py::object comm_;
+  int rank_, size_;
+  bool started_ = false;
+};
+
 // Rank 0's range travels as Python floats: the same bits on every rank.
 py::tuple go_message(const ValueRange& range, const Dims& dims, std::int64_t side, bool displacement) {
   return py::make_tuple("go", range.min, range.max, py::make_tuple(dims[0], dims[1], dims[2]), side, displacement);
@@ -65,7 +109,22 @@ CommShare::CommShare(const py::object& comm, std::optional<std::int64_t> brick_s
     comm_ = comm;
     rank_ = comm.attr("Get_rank")().cast<int>();
     size_ = comm.attr("Get_size")().cast<int>();
+    if (size_ > 1 && py::hasattr(comm, "Bcast") && py::hasattr(comm, "Send") && py::hasattr(comm, "Recv"))
+      transport_ = std::make_unique<CommTransport>(comm, rank_, size_);
   }
+}
+
+void CommShare::stop_the_selection() {
+  if (!transport_ || static_cast<CommTransport&>(*transport_).started()) return;  // none, or rank 0 began it
+  bisection_select_stop(*transport_);
+}
+
+// The others' part of the selection after their bricks (whether those succeeded or not): rank 0
+// selects with them, or stops them.
+void CommShare::share_the_selection() {
+  if (!transport_) return;
+  py::gil_scoped_release release;
+  bisection_select_share(*transport_);
 }
 
 void CommShare::tell_the_others(const py::object& message) {
@@ -92,6 +151,7 @@ void CommShare::share_hierarchy(PrepareOptions& options) {
     };
     return;
   }
+  options.select_share = transport_.get();
   options.error_hierarchy = [this, given = side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
     const std::int64_t side = given > 0 ? given : default_share_brick_side(v.dims, size_);
     stats_->brick_side = side;
@@ -175,9 +235,11 @@ void CommShare::serve(const Setup& setup) {
     reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()), peak_resident_bytes(), route);
   } catch (const std::exception& e) {  // the GIL is held again here
     comm_.attr("gather")(py::make_tuple("error", std::string(e.what())), py::arg("root") = 0);
+    share_the_selection();  // rank 0, told of the error, stops it
     throw;
   }
   comm_.attr("gather")(reply, py::arg("root") = 0);
+  share_the_selection();
 }
 
 }  // namespace adaptiso::python

@@ -2,8 +2,9 @@
 // shared out over the processes of an mpi4py communicator, as `mpirun adaptiso prepare` shares it
 // over MPI ranks (brick_shares.hpp), and the same grid, byte for byte, as one process makes.
 //
-// The communicator is used through its Python methods alone (Get_rank, Get_size, bcast, gather),
-// so the module links no MPI and imports no mpi4py: any object with those methods will do.
+// The communicator is used through its Python methods alone (Get_rank, Get_size, bcast, gather;
+// Bcast, Send and Recv, when it has them, for the selection), so the module links no MPI and
+// imports no mpi4py: any object with those methods will do.
 //
 // Every process calls prepare with its own Volume of the same dimensions (a numpy.memmap, or a
 // Volume over one, is read only in the process's bricks) or the same file's path (rank 0 reads it
@@ -16,6 +17,11 @@
 //      or finishes before it;
 //   2. every other rank computes its bricks with rank 0's range, side and criterion, and every
 //      rank gathers to rank 0 ("ok", bytes, peak resident bytes, how it read) or ("error", message).
+//   3. with a communicator that has mpi4py's buffer methods (Bcast, Send, Recv) and a rank 0 that
+//      sent "go", the ranks then share the selection's walks (select_shares.hpp) over them, the
+//      others whether their bricks succeeded or not: rank 0 selects, or stops them
+//      (bisection_select_stop) when it failed before; checks a rank fails within the selection
+//      are agreed there.
 // A process that dies outright still leaves the others waiting, as with any MPI program: run
 // under `python3 -m mpi4py script.py`, which aborts the job on an uncaught exception.
 #pragma once
@@ -23,11 +29,13 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "adaptiso/prepare.hpp"
+#include "adaptiso/select_shares.hpp"
 #include "adaptiso/volume.hpp"
 
 namespace adaptiso::python {
@@ -73,11 +81,14 @@ private:
   static Volume read_file(const std::string& path);  // FileError when it cannot be read
   void share_hierarchy(PrepareOptions& options);
   void tell_the_others(const pybind11::object& message);
+  void stop_the_selection();
+  void share_the_selection();
   pybind11::object comm_;
   int rank_ = 0, size_ = 1;
   std::optional<std::int64_t> brick_side_;  // as given
   bool sent_ = false;                       // rank 0 has broadcast its message
   std::optional<BrickStats> stats_;
+  std::unique_ptr<ShareTransport> transport_;  // the selection's, over the communicator's buffer methods
 };
 
 template <class R>
@@ -98,7 +109,10 @@ std::optional<R> CommShare::run(const Setup& setup, const std::function<R(const 
       r.emplace(prepare(v, in.options));
     }
   } catch (const std::exception& e) {  // the GIL is held again here (pybind11's errors too)
-    if (!sent_) tell_the_others(pybind11::make_tuple("failed", std::string(e.what())));
+    if (!sent_)
+      tell_the_others(pybind11::make_tuple("failed", std::string(e.what())));
+    else
+      stop_the_selection();  // the others, having had "go", wait for the selection
     throw;
   }
   if (!sent_) tell_the_others(pybind11::make_tuple("done"));

@@ -1,6 +1,7 @@
 // adaptiso/select_shares.hpp — the bisection grid's selection (bisection_select, bisection.hpp)
 // shared out over processes (issue 38), after its error hierarchy (brick_shares.hpp). The
-// transport is the caller's (the command line's MPI ranks), so the library itself speaks no MPI.
+// transport is the caller's (the command line's MPI ranks; an mpi4py communicator in Python), so
+// the library itself speaks no MPI.
 //
 // The selection walks the hierarchy twice, cut into the same subtrees on every process (12 splits
 // below the roots): once to count each subtree's leaves, once to write them as tetrahedra with
@@ -21,8 +22,16 @@
 //
 // Bytes move between processes of one build on one kind of machine: no byte order is converted.
 //
+// Failures: what each process checks before it takes memory (process 0's message and its copy of
+// the codes; the grid or its run once the counts are known, and the 32-bit indices) is agreed
+// between the processes: the one that fails throws its error, the others an InputError naming it,
+// so no process waits for a message that will not come. Other failures (the transport's, an
+// allocation that fails past its check) leave the others waiting: the caller stops them (the
+// command line: MPI_Abort).
+//
 // Throws: what bisection_select throws (on process 0), InputError on another process when process
-// 0's message is not one it can use, and whatever the transport throws.
+// 0's message is not one it can use or another process failed its checks, and whatever the
+// transport throws.
 #pragma once
 #include <cstddef>
 #include <span>
@@ -45,7 +54,12 @@ public:
 };
 
 // A process other than 0: its part of the selection process 0 runs with
-// BisectionOptions::share (bisection.hpp), until that is done. Collective with it.
-void bisection_select_share(ShareTransport& transport);
+// BisectionOptions::share (bisection.hpp), until that is done; false, having done nothing, when
+// process 0 called bisection_select_stop instead. Collective with it.
+bool bisection_select_share(ShareTransport& transport);
+
+// Process 0 that will not select after all (it failed after the others began to wait for the
+// selection): tells them, so that bisection_select_share returns false.
+void bisection_select_stop(ShareTransport& transport);
 
 }  // namespace adaptiso

@@ -21,6 +21,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <exception>
 #include <span>
 #include <stdexcept>
 
@@ -37,6 +38,9 @@ struct ShareHead {
   std::int64_t dims[3] = {0, 0, 0};
   std::int64_t threshold = 0, displacement = 0, displacement_threshold = 0;
 };
+
+// The threshold of a head that tells the others process 0 will not select (bisection_select_stop).
+constexpr std::int64_t kStopped = -1;
 
 // Process 0's codes to the others (only read here: broadcast writes into the others' alone).
 void send_codes(ShareTransport& t, const std::vector<std::uint8_t>& code) {
@@ -64,6 +68,7 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   if (o.share) {
     ShareHead head{{v.dims[0], v.dims[1], v.dims[2]}, threshold, displacement, displacement_threshold};
     o.share->broadcast(std::as_writable_bytes(std::span(&head, 1)));
+    detail::share::agree(*o.share, nullptr);  // whether the others can hold the codes
     send_codes(*o.share, errors.code);
     if (displacement) send_codes(*o.share, errors.displacement_code);
   }
@@ -99,20 +104,38 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   return out;
 }
 
-void bisection_select_share(ShareTransport& transport) {
+void bisection_select_stop(ShareTransport& transport) {
+  if (transport.process() != 0) throw std::logic_error("bisection_select_stop: only process 0 stops the others");
+  ShareHead head;
+  head.threshold = kStopped;
+  transport.broadcast(std::as_writable_bytes(std::span(&head, 1)));
+}
+
+bool bisection_select_share(ShareTransport& transport) {
   using namespace detail;
   if (transport.process() == 0) throw std::logic_error("bisection_select_share: process 0 runs bisection_select");
   ShareHead head;
   transport.broadcast(std::as_writable_bytes(std::span(&head, 1)));
+  if (head.threshold == kStopped) return false;
   const Dims dims{head.dims[0], head.dims[1], head.dims[2]};
-  if (head.threshold < 0 || head.threshold > 255 || head.displacement_threshold < 0 || head.displacement_threshold > 255 ||
-      (head.displacement != 0 && head.displacement != 1))
-    throw InputError("process 0's selection message is not one this process can use");
-  const Lattice lat = make_lattice(dims);  // InputError for a flat or oversized lattice
-  const auto voxels = static_cast<std::size_t>(dims[0] * dims[1] * dims[2]);
   const bool displacement = head.displacement != 0;
-  check_memory(voxels * (displacement ? 2 : 1) + voxels / 4, fmt::format("process {}'s copy of the selection's codes", transport.process()),
-               "", "share over fewer processes on this machine");
+  // What this process cannot do is agreed before process 0 sends more (select_shares.hpp).
+  std::exception_ptr refused;
+  Lattice lat;
+  std::size_t voxels = 0;
+  try {
+    if (head.threshold < 0 || head.threshold > 255 || head.displacement_threshold < 0 || head.displacement_threshold > 255 ||
+        (head.displacement != 0 && head.displacement != 1))
+      throw InputError("process 0's selection message is not one this process can use");
+    lat = make_lattice(dims);  // InputError for a flat or oversized lattice
+    voxels = static_cast<std::size_t>(dims[0] * dims[1] * dims[2]);
+    check_memory(voxels * (displacement ? 2 : 1) + voxels / 4,
+                 fmt::format("process {}'s copy of the selection's codes", transport.process()), "",
+                 "share over fewer processes on this machine");
+  } catch (...) {
+    refused = std::current_exception();
+  }
+  share::agree(transport, refused);
   std::vector<std::uint8_t> code, displacement_code;
   resize_big(code, voxels);
   transport.broadcast(std::as_writable_bytes(std::span(code)));
@@ -125,6 +148,7 @@ void bisection_select_share(ShareTransport& transport) {
   BisectionGrid run;  // this process's run of tetrahedra, handed to process 0
   assemble(
       lat, rule, voxels, [](std::uint64_t) {}, [](std::size_t, std::uint64_t) {}, run, {}, nullptr, 0, &transport);
+  return true;
 }
 
 BisectionGrid bisection_grid(const Volume& v, const ValueRange& range, const BisectionOptions& options, const Progress& progress) {

@@ -10,6 +10,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <exception>
 #include <limits>
 #include <span>
 #include <stdexcept>
@@ -132,6 +133,25 @@ inline void sum_counts(ShareTransport& t, std::vector<std::uint64_t>& counts) {
   t.broadcast(bytes(counts));
 }
 
+// Each process's checks, agreed before anything is sent that only a process going on would
+// receive: a process whose check failed rethrows its error once the others know, and they throw an
+// InputError naming the first such process.
+inline void agree(ShareTransport& t, const std::exception_ptr& failed) {
+  std::int64_t first = failed ? t.process() : -1;
+  if (t.process() != 0) {
+    t.send(std::as_bytes(std::span(&first, 1)));
+  } else {
+    for (int p = 1; p < t.processes(); ++p) {
+      std::int64_t theirs = -1;
+      t.receive(p, std::as_writable_bytes(std::span(&theirs, 1)));
+      if (first < 0) first = theirs;
+    }
+  }
+  t.broadcast(std::as_writable_bytes(std::span(&first, 1)));
+  if (failed) std::rethrow_exception(failed);
+  if (first >= 0) throw InputError(fmt::format("process {} cannot take its share of the selection (its own message says why)", first));
+}
+
 // The subtrees [runs[p], runs[p + 1]) process p writes: consecutive, about as many leaves each
 // (`leaves`: the leaves before each subtree, and the total last).
 inline std::vector<std::size_t> runs(const std::vector<std::uint64_t>& leaves, int processes) {
@@ -244,13 +264,22 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   // with values, gradients and codes (33 bytes).
   // Shared: process 0 also receives the others' spans (8 bytes a vertex); another process holds its
   // run, the vertices' values and its spans.
-  if (me == 0)
-    check_memory(tets * 36 + vertices * (shared ? 41 : 33), fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
-  else
-    check_memory((leaves[last] - base) * 16 + vertices * 16, fmt::format("process {}'s {} of {} tetrahedra", me, leaves[last] - base, tets),
-                 "max_error", "raise it, or share over more processes");
-  if (vertices >= std::numeric_limits<std::uint32_t>::max() || tets >= std::numeric_limits<std::uint32_t>::max())
-    throw OptionError("max_error", fmt::format("{} vertices and {} tetrahedra exceed the grid's 32-bit indices; raise it", vertices, tets));
+  std::exception_ptr refused;
+  try {
+    if (me == 0)
+      check_memory(tets * 36 + vertices * (shared ? 41 : 33), fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
+    else
+      check_memory((leaves[last] - base) * 16 + vertices * 16,
+                   fmt::format("process {}'s {} of {} tetrahedra", me, leaves[last] - base, tets), "max_error",
+                   "raise it, or share over more processes");
+    if (vertices >= std::numeric_limits<std::uint32_t>::max() || tets >= std::numeric_limits<std::uint32_t>::max())
+      throw OptionError("max_error",
+                        fmt::format("{} vertices and {} tetrahedra exceed the grid's 32-bit indices; raise it", vertices, tets));
+  } catch (...) {
+    if (!shared) throw;
+    refused = std::current_exception();
+  }
+  if (shared) share::agree(*shared, refused);
   report(progress, "select", 0.5);
   TetGrid& g = out.grid;
   size(vertices);

@@ -2,7 +2,8 @@
 // one over an in-process transport: process 0's grid is the one bisection_select makes alone, byte
 // for byte (vertices, values, tetrahedra in order, codes and value spans), for 2 to 5 processes,
 // volumes of odd, anisotropic and 2-voxel-thick sizes, bounds from 0 to the coarsest, with the
-// displacement criterion; a message another process cannot use is refused.
+// displacement criterion; a message another process cannot use is refused; process 0 can stop the
+// others before the selection, and a check one process fails ends every process's selection.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
@@ -19,7 +20,9 @@
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/error.hpp"
+#include "adaptiso/memory.hpp"
 #include "adaptiso/select_shares.hpp"
+#include "util/memory.hpp"
 
 using namespace adaptiso;
 
@@ -110,7 +113,7 @@ BisectionGrid shared_select(const Volume& v, const ValueRange& range, const Bise
   for (int p = 1; p < processes; ++p)
     others.push_back(std::async(std::launch::async, [&hub, p, processes] {
       ThreadTransport t(hub, p, processes);
-      bisection_select_share(t);
+      EXPECT_TRUE(bisection_select_share(t));
     }));
   ThreadTransport t0(hub, 0, processes);
   o.share = &t0;
@@ -161,14 +164,74 @@ TEST(SelectShares, SmoothFieldsWithAndWithoutTheDisplacementCriterion) {
   check_shares(random_volume({19, 12, 7}, 99), "random", true);
 }
 
-TEST(SelectShares, AMessageAnotherProcessCannotUseIsRefused) {
+// Process 0 played by hand: a head process 1 cannot use, then its side of the agreement, which
+// learns that process 1 refused.
+TEST(SelectShares, AMessageAnotherProcessCannotUseIsRefusedAndProcessZeroLearnsIt) {
   Hub hub;
   ThreadTransport zero(hub, 0, 2), one(hub, 1, 2);
+  auto agree_on_zero = [&] {
+    return std::async(std::launch::async, [&] {
+      std::int64_t first = -1, theirs = -1;
+      zero.receive(1, std::as_writable_bytes(std::span(&theirs, 1)));
+      if (first < 0) first = theirs;
+      zero.broadcast(std::as_writable_bytes(std::span(&first, 1)));
+      return first;
+    });
+  };
   std::int64_t head[6] = {9, 9, 9, 300, 0, 0};  // a threshold beyond a byte
   zero.broadcast(std::as_writable_bytes(std::span(head)));
+  auto told = agree_on_zero();
   EXPECT_THROW(bisection_select_share(one), InputError);
+  EXPECT_EQ(told.get(), 1);
   std::int64_t flat[6] = {9, 1, 9, 3, 0, 0};  // a flat lattice
   zero.broadcast(std::as_writable_bytes(std::span(flat)));
+  told = agree_on_zero();
   EXPECT_THROW(bisection_select_share(one), InputError);
+  EXPECT_EQ(told.get(), 1);
+  EXPECT_EQ(hub.left(), 0u);
   EXPECT_THROW(bisection_select_share(zero), std::logic_error);  // process 0 runs bisection_select
+}
+
+TEST(SelectShares, ProcessZeroThatWillNotSelectStopsTheOthers) {
+  Hub hub;
+  ThreadTransport zero(hub, 0, 3), one(hub, 1, 3), two(hub, 2, 3);
+  bisection_select_stop(zero);
+  EXPECT_FALSE(bisection_select_share(one));
+  EXPECT_FALSE(bisection_select_share(two));
+  EXPECT_EQ(hub.left(), 0u);
+  EXPECT_THROW(bisection_select_stop(one), std::logic_error);
+}
+
+// Process 1 cannot hold the codes (a memory limit just above what this process holds): it throws
+// its own refusal, process 0 an InputError naming it, and neither waits for the other.
+TEST(SelectShares, ACheckOneProcessFailsEndsEveryProcesssSelection) {
+  const Volume v = random_volume({129, 65, 65}, 7);  // codes of 545 K voxels
+  const ValueRange range = value_range(v);
+  const BisectionErrors errors = bisection_errors(v, range);
+  BisectionOptions o;
+  o.max_error = 0.1;
+  Hub hub;
+  set_memory_limit(detail::process_status_bytes("VmRSS") + (std::uint64_t{1} << 18));
+  auto other = std::async(std::launch::async, [&hub] {
+    ThreadTransport t(hub, 1, 2);
+    return bisection_select_share(t);
+  });
+  ThreadTransport t0(hub, 0, 2);
+  o.share = &t0;
+  std::string zero_said;
+  try {
+    bisection_select(v, range, errors, o);
+  } catch (const InputError& e) {
+    zero_said = e.what();
+  }
+  std::string one_said;
+  try {
+    other.get();
+  } catch (const std::exception& e) {
+    one_said = e.what();
+  }
+  set_memory_limit(0);
+  EXPECT_NE(zero_said.find("process 1 cannot take its share of the selection"), std::string::npos) << zero_said;
+  EXPECT_NE(one_said.find("process 1's copy of the selection's codes"), std::string::npos) << one_said;
+  EXPECT_EQ(hub.left(), 0u);
 }
