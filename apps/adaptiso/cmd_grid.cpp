@@ -118,9 +118,12 @@ void add_prepare(CLI::App& app) {
     Volume v = in->load();
     const double t_load = seconds_since(t_all);
     DistributedStats dist;
-    const char* route = RegionReader::route_of(in->path, in->read_options());  // the headers only
-    const bool scatter = ranks.distributed() && scattered_route(route);
-    if (ranks.distributed()) dist.ranks_read = scatter ? "regions sent by rank 0" : route;
+    bool scatter = false;
+    if (ranks.distributed()) {
+      const char* route = RegionReader::route_of(in->path, in->read_options());  // the headers only
+      scatter = scattered_route(route);
+      dist.ranks_read = scatter ? "regions sent by rank 0" : route;
+    }
     if (bricked) options.error_hierarchy = bricked_errors(ranks, side, scatter, dist);
     if (ranks.distributed()) options.select_share = &ranks;
     const std::uint64_t exchanged_before = ranks.bytes_exchanged();

@@ -98,18 +98,19 @@ std::vector<std::vector<std::byte>> Ranks::gather(const std::vector<std::byte>& 
 
 namespace {
 
-// MPI counts are ints: a message goes in pieces of at most 1 GiB.
-constexpr std::size_t kPiece = std::size_t{1} << 30;
+// MPI counts are ints: a message goes in pieces of at most 1 GiB, f(offset, count) for each.
+template <class F>
+void each_piece(std::size_t bytes, F f) {
+  constexpr std::size_t piece = std::size_t{1} << 30;
+  for (std::size_t at = 0; at < bytes; at += piece) f(at, static_cast<int>(std::min(piece, bytes - at)));
+}
 
 }  // namespace
 
 void Ranks::broadcast(std::span<std::byte> bytes) {
 #ifdef ADAPTISO_HAVE_MPI
   if (!distributed()) return;
-  for (std::size_t at = 0; at < bytes.size(); at += kPiece) {
-    const std::size_t n = std::min(kPiece, bytes.size() - at);
-    MPI_Bcast(bytes.data() + at, static_cast<int>(n), MPI_BYTE, 0, MPI_COMM_WORLD);
-  }
+  each_piece(bytes.size(), [&](std::size_t at, int n) { MPI_Bcast(bytes.data() + at, n, MPI_BYTE, 0, MPI_COMM_WORLD); });
   exchanged_ += bytes.size();
 #else
   (void)bytes;
@@ -120,10 +121,7 @@ void Ranks::send(std::span<const std::byte> bytes) { send_to(0, bytes); }
 
 void Ranks::send_to(int to, std::span<const std::byte> bytes) {
 #ifdef ADAPTISO_HAVE_MPI
-  for (std::size_t at = 0; at < bytes.size(); at += kPiece) {
-    const std::size_t n = std::min(kPiece, bytes.size() - at);
-    MPI_Send(bytes.data() + at, static_cast<int>(n), MPI_BYTE, to, 2, MPI_COMM_WORLD);
-  }
+  each_piece(bytes.size(), [&](std::size_t at, int n) { MPI_Send(bytes.data() + at, n, MPI_BYTE, to, 2, MPI_COMM_WORLD); });
   exchanged_ += bytes.size();
 #else
   (void)to, (void)bytes;
@@ -132,10 +130,8 @@ void Ranks::send_to(int to, std::span<const std::byte> bytes) {
 
 void Ranks::receive(int from, std::span<std::byte> into) {
 #ifdef ADAPTISO_HAVE_MPI
-  for (std::size_t at = 0; at < into.size(); at += kPiece) {
-    const std::size_t n = std::min(kPiece, into.size() - at);
-    MPI_Recv(into.data() + at, static_cast<int>(n), MPI_BYTE, from, 2, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-  }
+  each_piece(into.size(),
+             [&](std::size_t at, int n) { MPI_Recv(into.data() + at, n, MPI_BYTE, from, 2, MPI_COMM_WORLD, MPI_STATUS_IGNORE); });
   exchanged_ += into.size();
 #else
   (void)from, (void)into;

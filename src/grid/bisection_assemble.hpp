@@ -119,18 +119,25 @@ std::span<std::byte> bytes(std::vector<T>& v) {
   return std::as_writable_bytes(std::span(v));
 }
 
-// Each process counted its own subtrees (the others' counts 0): the sums, on every process.
-inline void sum_counts(ShareTransport& t, std::vector<std::uint64_t>& counts) {
+// `values` combined over the processes, on every process: the others' sent to process 0, which
+// folds each into its own in process order (combine(own, theirs)), then broadcasts the result.
+template <class T, class Combine>
+void combine_at_zero(ShareTransport& t, std::span<T> values, Combine combine) {
   if (t.process() != 0) {
-    t.send(bytes(counts));
+    t.send(std::as_bytes(values));
   } else {
-    std::vector<std::uint64_t> theirs(counts.size());
+    std::vector<T> theirs(values.size());
     for (int p = 1; p < t.processes(); ++p) {
-      t.receive(p, bytes(theirs));
-      for (std::size_t i = 0; i < counts.size(); ++i) counts[i] += theirs[i];
+      t.receive(p, std::as_writable_bytes(std::span(theirs)));
+      for (std::size_t i = 0; i < values.size(); ++i) combine(values[i], theirs[i]);
     }
   }
-  t.broadcast(bytes(counts));
+  t.broadcast(std::as_writable_bytes(values));
+}
+
+// Each process counted its own subtrees (the others' counts 0): the sums, on every process.
+inline void sum_counts(ShareTransport& t, std::vector<std::uint64_t>& counts) {
+  combine_at_zero(t, std::span(counts), [](std::uint64_t& own, std::uint64_t theirs) { own += theirs; });
 }
 
 // Each process's checks, agreed before anything is sent that only a process going on would
@@ -138,16 +145,9 @@ inline void sum_counts(ShareTransport& t, std::vector<std::uint64_t>& counts) {
 // InputError naming the first such process.
 inline void agree(ShareTransport& t, const std::exception_ptr& failed) {
   std::int64_t first = failed ? t.process() : -1;
-  if (t.process() != 0) {
-    t.send(std::as_bytes(std::span(&first, 1)));
-  } else {
-    for (int p = 1; p < t.processes(); ++p) {
-      std::int64_t theirs = -1;
-      t.receive(p, std::as_writable_bytes(std::span(&theirs, 1)));
-      if (first < 0) first = theirs;
-    }
-  }
-  t.broadcast(std::as_writable_bytes(std::span(&first, 1)));
+  combine_at_zero(t, std::span(&first, 1), [](std::int64_t& own, std::int64_t theirs) {
+    if (own < 0) own = theirs;
+  });
   if (failed) std::rethrow_exception(failed);
   if (first >= 0) throw InputError(fmt::format("process {} cannot take its share of the selection (its own message says why)", first));
 }
@@ -165,10 +165,9 @@ inline std::vector<std::size_t> runs(const std::vector<std::uint64_t>& leaves, i
 }
 
 // Process p's run lands in place in process 0's tetrahedra, its spans merge into process 0's.
-template <class Merge>
-void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& leaves, const std::vector<std::size_t>& run,
-                 std::vector<std::array<std::uint32_t, 4>>& tets, std::vector<std::array<float, 2>>& spans,
-                 std::vector<ValueSpan>& root_spans, Merge merge) {
+inline void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& leaves, const std::vector<std::size_t>& run,
+                        std::vector<std::array<std::uint32_t, 4>>& tets, std::vector<std::array<float, 2>>& spans,
+                        std::vector<ValueSpan>& root_spans) {
   const auto own = [&](int p) { return std::pair{run[static_cast<std::size_t>(p)], run[static_cast<std::size_t>(p) + 1]}; };
   if (t.process() != 0) {
     const auto [first, last] = own(t.process());
@@ -183,7 +182,10 @@ void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& leaves, co
     t.receive(p, bytes(tets).subspan(leaves[first] * sizeof tets[0], (leaves[last] - leaves[first]) * sizeof tets[0]));
     t.receive(p, bytes(theirs));
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, spans.size(), 1 << 16), [&](const auto& r) {
-      for (std::size_t i = r.begin(); i < r.end(); ++i) merge(i, theirs[i]);
+      for (std::size_t i = r.begin(); i < r.end(); ++i) {
+        spans[i][0] = std::min(spans[i][0], theirs[i][0]);
+        spans[i][1] = std::max(spans[i][1], theirs[i][1]);
+      }
     });
     t.receive(p, std::as_writable_bytes(std::span(root_spans).subspan(first, last - first)));
   }
@@ -318,10 +320,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
         [&](std::int64_t, std::uint32_t id, const Tet&, const ValueSpan& s) { merge(id, s); });
   });
   if (shared) {
-    share::gather_runs(*shared, leaves, run, g.tets, spans, root_spans, [&](std::size_t id, const std::array<float, 2>& s) {
-      spans[id][0] = std::min(spans[id][0], s[0]);
-      spans[id][1] = std::max(spans[id][1], s[1]);
-    });
+    share::gather_runs(*shared, leaves, run, g.tets, spans, root_spans);
     if (me != 0) return;
   }
   for (const auto& split : top.splits) {  // children first: the spans of the subtrees below
