@@ -54,6 +54,7 @@
 #pragma once
 #include <array>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "adaptiso/progress.hpp"
@@ -62,6 +63,8 @@
 namespace adaptiso {
 
 class ShareTransport;  // select_shares.hpp
+struct BisectionGrid;
+class TetrahedraSink;
 
 // A tetrahedron is split when either criterion asks for it.
 struct BisectionOptions {
@@ -74,6 +77,12 @@ struct BisectionOptions {
   // bisection_select only: the processes that share its walks (select_shares.hpp), this one being
   // their process 0 (the others call bisection_select_share); null: this process alone.
   ShareTransport* share = nullptr;
+  // bisection_select only: where its tetrahedra go, in order, instead of into the grid it returns
+  // (whose tets stay empty); null: kept. prepare_to_file writes them straight into the file.
+  TetrahedraSink* sink = nullptr;
+  // bisection_select only: how many tetrahedra go to the sink at once (a larger subtree goes
+  // whole), and from one process to another at once (the others take process 0's); 64 MB of them.
+  std::uint64_t piece = std::uint64_t{1} << 22;
 };
 
 // Conservative one-byte codes for error bounds relative to a scale (the value range): code 0 is
@@ -115,6 +124,20 @@ struct BisectionGrid {
   // Under a cell floor: per tetrahedron, the code of its own bound (the diamond it would split
   // at; 0 for a unit tetrahedron), so a surface's error can be that of the tetrahedra it cuts.
   std::vector<std::uint8_t> tet_code;
+};
+
+// The receiver of a selection's tetrahedra (BisectionOptions::sink): with it no process holds them
+// all (the CT bunny's 54 M are 0.87 GB, half of prepare's peak, and faulting that memory in was a
+// fifth of two MPI ranks' time). Called on the calling thread.
+class TetrahedraSink {
+public:
+  virtual ~TetrahedraSink() = default;
+  // Before the first tetrahedra: the grid's vertices (ijk, values), its hierarchy's codes,
+  // thresholds and error bounds are final; `tets` tetrahedra will follow. The value spans are
+  // not: they are complete when bisection_select returns.
+  virtual void begin(BisectionGrid& grid, std::uint64_t tets) = 0;
+  // The next tetrahedra, in the grid's order (four vertex numbers each); valid for the call only.
+  virtual void write(std::span<const std::array<std::uint32_t, 4>> tets) = 0;
 };
 
 // The error hierarchy alone: a saturated code per voxel (1 byte each), then the selection at a

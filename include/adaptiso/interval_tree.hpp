@@ -59,15 +59,20 @@ constexpr std::size_t kDefaultIndexScratch = std::size_t{1} << 30;
 IntervalTree build_interval_tree(const TetGrid& grid, std::uint32_t depth = kDefaultTreeDepth,
                                  std::size_t scratch_bytes = kDefaultIndexScratch);
 
-// What build_interval_tree(grid, depth) gives, known before it is built: its depth and its
-// entries (the non-constant tetrahedra). A writer that streams the grid file needs them in the
-// header, ahead of the tree (prepare_to_file). Two reads of the tetrahedra, parallel.
+// What build_interval_tree(grid, depth) gives, known without building it: its depth and its
+// entries (the non-constant tetrahedra), for the statistics of a grid whose file leaves the index
+// to loading (prepare_to_file). Two reads of the tetrahedra, parallel.
 struct IntervalTreeShape {
   std::uint32_t depth = 0;
   std::uint64_t entries = 0;
   std::size_t nodes() const { return (std::size_t{2} << depth) - 1; }
 };
 IntervalTreeShape interval_tree_shape(const TetGrid& grid, std::uint32_t depth = kDefaultTreeDepth);
+// The same from counts taken as the tetrahedra pass by, none of them kept (prepare_to_file writes
+// them straight into the file): of `tets` tetrahedra, `entries` are non-constant, and `sampled` of
+// those have an id that is a multiple of interval_tree_sample_stride(tets).
+std::size_t interval_tree_sample_stride(std::uint64_t tets);
+IntervalTreeShape interval_tree_shape(std::uint64_t tets, std::uint64_t entries, std::uint64_t sampled, std::uint32_t depth);
 
 // Checks a tree loaded from disk against its grid: sizes, ranges nested in pre-order, every
 // non-constant tetrahedron exactly once in each list, lists sorted, entries straddling their split.

@@ -20,10 +20,12 @@
 // Throws OptionError for a bad option (named as in PrepareOptions), InputError when the volume
 // cannot be prepared (flat, too many vertices for 32-bit indices, more memory than the machine has).
 #pragma once
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -119,11 +121,27 @@ PreparedGrid coarsen_floored(const PreparedGrid& grid, double max_error, int cel
 // the grid file without its index).
 namespace detail {
 
+// Where prepare_unindexed hands a bisection grid as it is made, instead of keeping its tetrahedra
+// (prepare_to_file: straight into the file). Called on the calling thread.
+class PreparedGridSink {
+public:
+  virtual ~PreparedGridSink() = default;
+  // The vertices with their gradients, the hierarchy's codes and the statistics (stages but the
+  // last, tetrahedra counted) are final; stats.tetrahedra tetrahedra follow.
+  virtual void begin(const PrepareStats& stats, const TetGrid& vertices, const BisectionHierarchy& hierarchy) = 0;
+  virtual void write(std::span<const std::array<std::uint32_t, 4>> tets) = 0;
+};
+
+// Whether prepare_unindexed can hand these options' grid to a sink: a bisection grid whose
+// gradients come from the volume and whose tetrahedra nothing after the selection reads.
+bool can_sink(const PrepareOptions& options);
+
 // Every stage before the index (the grid, its gradients, the check of `verify`), timed into the
 // grid's stats. `release`, when not null, is v itself, whose voxels go once nothing reads them.
-// Throws what prepare throws.
+// With `sink` (can_sink), the grid's tetrahedra go there and the grid returned has none; the time
+// spent in the sink is the stage "save". Throws what prepare throws.
 PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& options, const Progress& progress,
-                               Volume* release);
+                               Volume* release, PreparedGridSink* sink = nullptr);
 
 // Records a stage that took `seconds` in stats, with the process's peak memory so far.
 void record_stage(PrepareStats& stats, const std::string& name, double seconds);

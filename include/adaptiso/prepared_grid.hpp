@@ -27,19 +27,20 @@ struct PrepareStats {
   std::uint64_t kept = 0;      // the volume's voxels the grid keeps as vertices
   std::uint64_t vertices = 0;  // all its vertices: kept and, on a padded lattice, the copies past the far faces
   std::uint64_t tetrahedra = 0;
-  double max_error = 0;                         // the absolute bound asked for
-  double threshold = 0;                         // the absolute structural threshold used
-  double error_bound = -1;                      // bisection: the guaranteed max-norm error (< 0: no guarantee)
-  double max_displacement = 0;                  // bisection: the displacement criterion used (voxels; 0: none)
-  double pl_max_error = -1, pl_rms_error = -1;  // measured (< 0: not measured)
-  std::uint32_t index_depth = 0;
+  double max_error = 0;                          // the absolute bound asked for
+  double threshold = 0;                          // the absolute structural threshold used
+  double error_bound = -1;                       // bisection: the guaranteed max-norm error (< 0: no guarantee)
+  double max_displacement = 0;                   // bisection: the displacement criterion used (voxels; 0: none)
+  double pl_max_error = -1, pl_rms_error = -1;   // measured (< 0: not measured)
+  std::uint32_t index_depth = 0;                 // the index's, reduced from tree_depth where there are fewer tetrahedra than leaves
+  std::uint32_t tree_depth = kDefaultTreeDepth;  // the index's depth asked for (PrepareOptions::tree_depth)
   double grid_bytes_per_vertex = 0;
   std::vector<StageStats> stages;
   double seconds(const std::string& stage) const;  // 0 when the stage did not run
 };
 
 // One JSON object: grid, voxels, kept, ratio (kept / voxels), vertices (when counted), tetrahedra,
-// max_error, pl_max_error, pl_rms_error, error_bound, index_depth, grid_bytes_per_vertex,
+// max_error, pl_max_error, pl_rms_error, error_bound, index_depth, tree_depth, grid_bytes_per_vertex,
 // seconds{stage}, peak_bytes{stage}; and back (fields that are missing keep their defaults, so older
 // grid files load).
 std::string to_json(const PrepareStats& stats);
@@ -71,8 +72,8 @@ double surface_error_bound(const PreparedGrid& grid, const std::vector<std::uint
 double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index);
 
 namespace detail {
-// The same for an index of that shape, before it is built (prepare_to_file).
-double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTreeShape& shape);
+// The same for a grid of these counts and an index of that shape, neither held (prepare_to_file).
+double grid_bytes_per_vertex(std::uint64_t vertices, std::uint64_t tets, const IntervalTreeShape& shape);
 }  // namespace detail
 
 }  // namespace adaptiso

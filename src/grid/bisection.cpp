@@ -37,6 +37,7 @@ namespace {
 struct ShareHead {
   std::int64_t dims[3] = {0, 0, 0};
   std::int64_t threshold = 0, displacement = 0, displacement_threshold = 0;
+  std::int64_t piece = 0;  // tetrahedra a message of a run holds (BisectionOptions::piece)
 };
 
 // The threshold of a head that tells the others process 0 will not select (bisection_select_stop).
@@ -66,7 +67,7 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   const std::uint8_t displacement_threshold = displacement ? errors.displacement_codes.threshold(o.max_displacement) : 0;
   const CodedSplits rule{errors.code, threshold, displacement ? &errors.displacement_code : nullptr, displacement_threshold};
   if (o.share) {
-    ShareHead head{{v.dims[0], v.dims[1], v.dims[2]}, threshold, displacement, displacement_threshold};
+    ShareHead head{{v.dims[0], v.dims[1], v.dims[2]}, threshold, displacement, displacement_threshold, static_cast<std::int64_t>(o.piece)};
     o.share->broadcast(std::as_writable_bytes(std::span(&head, 1)));
     detail::share::agree(*o.share, nullptr);  // whether the others can hold the codes
     send_codes(*o.share, errors.code);
@@ -77,6 +78,14 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
   g.source.method = "bisection";
   g.source.max_error = o.max_error;
   auto& h = out.hierarchy;
+  // All but the tetrahedra and spans before the walks: a sink's begin sees them final.
+  h.error_threshold = threshold;
+  if (displacement) {
+    h.displacement_codes = errors.displacement_codes;
+    h.displacement_threshold = displacement_threshold;
+    out.displacement_bound = errors.displacement_codes.error(displacement_threshold);
+  }
+  out.error_bound = errors.codes.error(threshold);
   visit_values(v, [&]<class T>(std::span<const T> values) {
     auto size = [&](std::uint64_t n) {
       resize_big(g.ijk, n);
@@ -92,15 +101,9 @@ BisectionGrid bisection_select(const Volume& v, const ValueRange& range, const B
       h.error_code[id] = errors.code[i];
       if (displacement) h.displacement_code[id] = errors.displacement_code[i];
     };
-    assemble(lat, rule, static_cast<std::size_t>(v.voxel_count()), size, fill, out, progress, nullptr, 0, o.share);
+    assemble(lat, rule, static_cast<std::size_t>(v.voxel_count()), size, fill, out, progress, nullptr, 0,
+             Handover{o.share, o.sink, o.piece});
   });
-  h.error_threshold = threshold;
-  if (displacement) {
-    h.displacement_codes = errors.displacement_codes;
-    h.displacement_threshold = displacement_threshold;
-    out.displacement_bound = errors.displacement_codes.error(displacement_threshold);
-  }
-  out.error_bound = errors.codes.error(threshold);
   return out;
 }
 
@@ -125,7 +128,7 @@ bool bisection_select_share(ShareTransport& transport) {
   std::size_t voxels = 0;
   try {
     if (head.threshold < 0 || head.threshold > 255 || head.displacement_threshold < 0 || head.displacement_threshold > 255 ||
-        (head.displacement != 0 && head.displacement != 1))
+        (head.displacement != 0 && head.displacement != 1) || head.piece < 1)
       throw InputError("process 0's selection message is not one this process can use");
     lat = make_lattice(dims);  // InputError for a flat or oversized lattice
     voxels = static_cast<std::size_t>(dims[0] * dims[1] * dims[2]);
@@ -147,7 +150,8 @@ bool bisection_select_share(ShareTransport& transport) {
                          static_cast<std::uint8_t>(head.displacement_threshold)};
   BisectionGrid run;  // this process's run of tetrahedra, handed to process 0
   assemble(
-      lat, rule, voxels, [](std::uint64_t) {}, [](std::size_t, std::uint64_t) {}, run, {}, nullptr, 0, &transport);
+      lat, rule, voxels, [](std::uint64_t) {}, [](std::size_t, std::uint64_t) {}, run, {}, nullptr, 0,
+      Handover{&transport, nullptr, static_cast<std::uint64_t>(head.piece)});
   return true;
 }
 

@@ -164,14 +164,18 @@ inline std::vector<std::size_t> runs(const std::vector<std::uint64_t>& leaves, i
   return at;
 }
 
-// Process p's run lands in place in process 0's tetrahedra, its spans merge into process 0's.
+// Process p's run goes to process 0 in pieces of `piece` tetrahedra (so process 0 can hand each
+// to a sink as it comes instead of holding them all): in place in its tetrahedra, or to its sink
+// through `buffer`; its spans merge into process 0's.
 inline void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& leaves, const std::vector<std::size_t>& run,
                         std::vector<std::array<std::uint32_t, 4>>& tets, std::vector<std::array<float, 2>>& spans,
-                        std::vector<ValueSpan>& root_spans) {
+                        std::vector<ValueSpan>& root_spans, TetrahedraSink* sink, std::uint64_t piece,
+                        std::vector<std::array<std::uint32_t, 4>>& buffer) {
   const auto own = [&](int p) { return std::pair{run[static_cast<std::size_t>(p)], run[static_cast<std::size_t>(p) + 1]}; };
   if (t.process() != 0) {
     const auto [first, last] = own(t.process());
-    t.send(bytes(tets));
+    for (std::uint64_t at = 0; at < tets.size(); at += piece)
+      t.send(bytes(tets).subspan(at * sizeof tets[0], std::min<std::uint64_t>(piece, tets.size() - at) * sizeof tets[0]));
     t.send(bytes(spans));
     t.send(std::as_bytes(std::span(root_spans).subspan(first, last - first)));
     return;
@@ -179,7 +183,16 @@ inline void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& lea
   std::vector<std::array<float, 2>> theirs(spans.size());
   for (int p = 1; p < t.processes(); ++p) {
     const auto [first, last] = own(p);
-    t.receive(p, bytes(tets).subspan(leaves[first] * sizeof tets[0], (leaves[last] - leaves[first]) * sizeof tets[0]));
+    for (std::uint64_t at = leaves[first]; at < leaves[last]; at += piece) {
+      const std::uint64_t n = std::min(piece, leaves[last] - at);
+      if (sink) {
+        buffer.resize(n);
+        t.receive(p, bytes(buffer));
+        sink->write(buffer);
+      } else {
+        t.receive(p, bytes(tets).subspan(at * sizeof tets[0], n * sizeof tets[0]));
+      }
+    }
     t.receive(p, bytes(theirs));
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, spans.size(), 1 << 16), [&](const auto& r) {
       for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -192,6 +205,14 @@ inline void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& lea
 }
 
 }  // namespace share
+
+// Where a selection's tetrahedra go besides this process's grid: the processes sharing it, a sink
+// (BisectionOptions::share, sink, piece).
+struct Handover {
+  ShareTransport* shared = nullptr;
+  TetrahedraSink* sink = nullptr;
+  std::uint64_t piece = BisectionOptions{}.piece;
+};
 
 // The grid of a traversal's leaves inside the box. A first walk counts the leaves of each subtree.
 // The vertices are the split diamonds' centres (split_centres) under a rule closed upwards; under
@@ -210,9 +231,16 @@ inline void gather_runs(ShareTransport& t, const std::vector<std::uint64_t>& lea
 // With `shared` (select_shares.hpp; a rule closed upwards), on every process alike: it counts its
 // subtrees, writes its run of them and hands them to process 0, whose `out` gets the grid; another
 // process's size and fill do nothing, and its `out` holds its run only.
+//
+// With `sink` (BisectionOptions::sink; not with own_code), process 0 hands it the tetrahedra in
+// order, its own run walked in pieces of consecutive subtrees (`piece` tetrahedra, or one larger
+// subtree), the others' as they arrive: out.grid.tets stays empty.
 template <class Rule, class Size, class Fill>
 void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size size, Fill fill, BisectionGrid& out, const Progress& progress,
-              const std::vector<std::uint8_t>* own_code = nullptr, std::uint8_t own_least = 0, ShareTransport* shared = nullptr) {
+              const std::vector<std::uint8_t>* own_code = nullptr, std::uint8_t own_least = 0, const Handover& handover = {}) {
+  ShareTransport* const shared = handover.shared;
+  TetrahedraSink* sink = handover.sink;
+  const std::uint64_t piece_size = std::max<std::uint64_t>(handover.piece, 1);
   const Traversal<Rule> walk(lat, rule);
   const Frontier top = walk.frontier(12);
   const std::vector<Subtree>& roots = top.roots;
@@ -220,6 +248,8 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   const std::size_t processes = shared ? static_cast<std::size_t>(shared->processes()) : 1;
   const std::size_t me = shared ? static_cast<std::size_t>(shared->process()) : 0;
   if (shared && (!Rule::kUpwardClosed || own_code)) throw std::logic_error("assemble: only a selection at a bound is shared");
+  if (sink && own_code) throw std::logic_error("assemble: a sink takes no tetrahedra's own codes");
+  if (me != 0) sink = nullptr;  // process 0's alone
   report(progress, "select", 0);
   constexpr bool kMarked = !Rule::kUpwardClosed;  // the vertices marked by the leaves, not found from the codes
   std::vector<std::uint8_t> used;
@@ -268,8 +298,9 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   // run, the vertices' values and its spans.
   std::exception_ptr refused;
   try {
-    if (me == 0)
-      check_memory(tets * 36 + vertices * (shared ? 41 : 33), fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
+    if (me == 0)  // with a sink, a piece of tetrahedra instead of them all and their index
+      check_memory((sink ? std::min(tets, piece_size) * 16 : tets * 36) + vertices * (shared ? 41 : 33),
+                   fmt::format("a grid of {} tetrahedra", tets), "max_error", "raise it");
     else
       check_memory((leaves[last] - base) * 16 + vertices * 16,
                    fmt::format("process {}'s {} of {} tetrahedra", me, leaves[last] - base, tets), "max_error",
@@ -284,6 +315,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
   if (shared) share::agree(*shared, refused);
   report(progress, "select", 0.5);
   TetGrid& g = out.grid;
+  out.hierarchy.root_size = lat.S;
   size(vertices);
   if (me == 0)
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, numbers.words.size(), 1024), [&](const auto& r) {
@@ -296,7 +328,7 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
     if (me != 0) resize_big(g.values, vertices);
     shared->broadcast(share::bytes(g.values));
   }
-  resize_big(g.tets, me == 0 ? tets : leaves[last] - base);
+  if (!sink) resize_big(g.tets, me == 0 ? tets : leaves[last] - base);
   if (own_code) resize_big(out.tet_code, tets);
   auto& spans = out.hierarchy.value_span;
   assign_big(spans, vertices, {std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity()});
@@ -306,21 +338,43 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
     atomic_max(span[1], up(s.hi));
   };
   std::vector<ValueSpan> root_spans(roots.size());
-  tbb::parallel_for(first, last, [&](std::size_t f) {
-    std::uint64_t at = leaves[f] - base;
+  // Subtree f's tetrahedra written from `to` on (its tetrahedron `at` of the grid first).
+  auto write_subtree = [&](std::size_t f, std::array<std::uint32_t, 4>* to, std::uint64_t at) {
     root_spans[f] = walk.visit(
         roots[f], numbers, g.values,
         [&](const Tet&, const Corners& c, std::int64_t split_at) {
           if (own_code)
-            out.tet_code[at] = split_at >= 0 ? std::max((*own_code)[static_cast<std::size_t>(split_at)], own_least) : std::uint8_t{0};
-          g.tets[at++] = c.id;
+            out.tet_code[at++] = split_at >= 0 ? std::max((*own_code)[static_cast<std::size_t>(split_at)], own_least) : std::uint8_t{0};
+          *to++ = c.id;
           return ValueSpan{std::min({c.value[0], c.value[1], c.value[2], c.value[3]}),
                            std::max({c.value[0], c.value[1], c.value[2], c.value[3]})};
         },
         [&](std::int64_t, std::uint32_t id, const Tet&, const ValueSpan& s) { merge(id, s); });
-  });
+  };
+  std::vector<std::array<std::uint32_t, 4>> piece;  // the sink's
+  if (sink) {
+    sink->begin(out, tets);
+    // Pieces of consecutive subtrees: [cut[i], cut[i + 1]).
+    std::vector<std::size_t> cut{first};
+    std::uint64_t largest = 0;
+    for (std::size_t f = first; f < last; ++f)
+      if (f > cut.back() && leaves[f + 1] - leaves[cut.back()] > piece_size) {
+        largest = std::max(largest, leaves[f] - leaves[cut.back()]);
+        cut.push_back(f);
+      }
+    largest = std::max(largest, leaves[last] - leaves[cut.back()]);
+    cut.push_back(last);
+    resize_big(piece, largest);
+    for (std::size_t i = 0; i + 1 < cut.size(); ++i) {
+      const std::uint64_t start = leaves[cut[i]];
+      tbb::parallel_for(cut[i], cut[i + 1], [&](std::size_t f) { write_subtree(f, piece.data() + (leaves[f] - start), leaves[f]); });
+      sink->write(std::span(piece).first(leaves[cut[i + 1]] - start));
+    }
+  } else {
+    tbb::parallel_for(first, last, [&](std::size_t f) { write_subtree(f, g.tets.data() + (leaves[f] - base), leaves[f]); });
+  }
   if (shared) {
-    share::gather_runs(*shared, leaves, run, g.tets, spans, root_spans);
+    share::gather_runs(*shared, leaves, run, g.tets, spans, root_spans, sink, piece_size, piece);
     if (me != 0) return;
   }
   for (const auto& split : top.splits) {  // children first: the spans of the subtrees below
@@ -329,7 +383,6 @@ void assemble(const Lattice& lat, const Rule& rule, std::size_t voxels, Size siz
     merge(numbers.id(split.voxel), s);
   }
   report(progress, "select", 1);
-  out.hierarchy.root_size = lat.S;
 }
 
 inline void check_bounds(const BisectionOptions& o) {
@@ -339,6 +392,8 @@ inline void check_bounds(const BisectionOptions& o) {
     throw OptionError("max_error", fmt::format("must be a non-negative number, got {}", o.max_error));
   if (!(o.max_displacement >= 0) || !std::isfinite(o.max_displacement))
     throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {}", o.max_displacement));
+  if (o.piece == 0 || o.piece > std::numeric_limits<std::int64_t>::max())
+    throw OptionError("piece", fmt::format("must be positive, got {}", o.piece));
 }
 
 }  // namespace adaptiso::detail

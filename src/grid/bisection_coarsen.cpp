@@ -23,7 +23,7 @@ namespace adaptiso {
 BisectionGrid bisection_coarsen(const TetGrid& fine, const BisectionHierarchy& fh, const BisectionOptions& o, const Progress& progress) {
   using namespace detail;
   check_bounds(o);
-  if (o.share) throw std::invalid_argument("bisection_coarsen: a coarsening is not shared over processes");
+  if (o.share || o.sink) throw std::invalid_argument("bisection_coarsen: a coarsening keeps its tetrahedra, on this process");
   const Lattice lat = make_lattice(fine.source.dims);
   if (fh.root_size != lat.S || fh.error_code.size() != fine.vertex_count() || fh.value_span.size() != fine.vertex_count())
     throw InputError("this grid's hierarchy does not match it");

@@ -524,7 +524,13 @@ IntervalTreeShape interval_tree_shape(const TetGrid& grid, std::uint32_t depth) 
   const std::size_t stride = sample_stride(grid.tet_count());
   // The entries are every non-constant tetrahedron; the depth, choose_splits' from its sample.
   const std::uint64_t entries = sampled_starts(grid, 1).back();
-  return {reduced_depth(depth, stride == 1 ? entries : sampled_starts(grid, stride).back(), stride), entries};
+  return interval_tree_shape(grid.tet_count(), entries, stride == 1 ? entries : sampled_starts(grid, stride).back(), depth);
+}
+
+std::size_t interval_tree_sample_stride(std::uint64_t tets) { return sample_stride(static_cast<std::size_t>(tets)); }
+
+IntervalTreeShape interval_tree_shape(std::uint64_t tets, std::uint64_t entries, std::uint64_t sampled, std::uint32_t depth) {
+  return {reduced_depth(depth, sampled, sample_stride(static_cast<std::size_t>(tets))), entries};
 }
 
 void finish_interval_tree(IntervalTree& tree, const TetGrid& grid) { compute_bounds(tree, grid); }

@@ -15,6 +15,7 @@
 
 #include "adaptiso/atomic_file.hpp"
 #include "io/grid_check.hpp"
+#include "io/grid_file_stream.hpp"
 #include "util/big_array.hpp"
 #include "util/memory.hpp"
 #include "volume/io_util.hpp"
@@ -103,22 +104,22 @@ class GridFileWriter {
 public:
   explicit GridFileWriter(std::ostream& out) : out_(out), w_(out) {}
 
-  // Header and metadata. Timings and memory peaks vary from run to run: the file keeps the rest
-  // of the statistics, so the same input and options give the same bytes.
+  // Header and metadata. Timings and memory peaks vary from run to run, and the index's shape
+  // is known only once the tetrahedra are (a file written as they are made: GridFileStream): the
+  // file keeps the rest of the statistics, so the same input and options give the same bytes.
   // Without an index, `depth` is the depth loading builds it at.
-  void head(const PreparedGrid& p, const IntervalTreeShape* index, std::uint32_t depth) {
-    nlohmann::json stats = nlohmann::json::parse(to_json(p.stats));
-    stats.erase("seconds");
-    stats.erase("peak_bytes");
-    const std::string m = nlohmann::json{{"source", source_json(p.grid.source)}, {"prepare", stats}}.dump();
-    const BisectionHierarchy* h = p.hierarchy ? &*p.hierarchy : nullptr;
+  void head(const PrepareStats& st, const GridSource& source, std::uint64_t N, std::uint64_t T, const BisectionHierarchy* h,
+            const IntervalTreeShape* index, std::uint32_t depth) {
+    nlohmann::json stats = nlohmann::json::parse(to_json(st));
+    for (const char* key : {"seconds", "peak_bytes", "index_depth", "grid_bytes_per_vertex", "tree_depth"}) stats.erase(key);
+    const std::string m = nlohmann::json{{"source", source_json(source)}, {"prepare", stats}}.dump();
     const bool moves = h && !h->displacement_code.empty();
     w_.write(kMagic, 16);
     w_.put(kVersion);
     w_.put((index ? kHasIndex : 0) | (h ? kHasHierarchy : 0) | (moves ? kHasDisplacement : 0));
     w_.put(static_cast<std::uint64_t>(m.size()));
-    w_.put(static_cast<std::uint64_t>(p.grid.vertex_count()));
-    w_.put(static_cast<std::uint64_t>(p.grid.tet_count()));
+    w_.put(N);
+    w_.put(T);
     w_.put(static_cast<std::uint64_t>(index ? index->entries : 0));
     w_.put(index ? index->depth : depth);
     w_.put(std::uint32_t{0});
@@ -129,7 +130,7 @@ public:
     w_.write(grid.values.data(), grid.values.size() * sizeof(double));
     w_.write(grid.gradients.data(), grid.gradients.size() * sizeof grid.gradients[0]);
   }
-  void tetrahedra(const TetGrid& grid) { w_.write(grid.tets.data(), grid.tets.size() * sizeof grid.tets[0]); }
+  void tetrahedra(std::span<const std::array<std::uint32_t, 4>> tets) { w_.write(tets.data(), tets.size_bytes()); }
   void index(const IntervalTree& index) {
     for (const auto& n : index.nodes) {
       w_.put(n.split);
@@ -139,9 +140,7 @@ public:
     w_.write(index.by_min.data(), index.by_min.size() * 4);
     w_.write(index.by_max.data(), index.by_max.size() * 4);
   }
-  void hierarchy(const std::optional<BisectionHierarchy>& hierarchy) {
-    if (!hierarchy) return;
-    const BisectionHierarchy& h = *hierarchy;
+  void hierarchy(const BisectionHierarchy& h) {
     w_.put(h.root_size);
     w_.put(h.error_threshold);
     w_.put(h.displacement_threshold);
@@ -168,21 +167,59 @@ private:
 
 }  // namespace
 
+namespace {
+
+// The depth a file without its index gives loading to build it at: the depth asked for, which
+// loading reduces as the build did (a file written as its grid is made knows no other), unless the
+// grid's index was built at another (then its own).
+std::uint32_t depth_to_build(const PreparedGrid& p) {
+  const std::uint32_t asked = std::min(p.stats.tree_depth, kMaxTreeDepth);
+  if (p.index.nodes.empty() || p.index.depth == asked) return asked;
+  if (p.index.depth < asked && interval_tree_shape(p.grid, asked).depth == p.index.depth) return asked;  // reduced
+  return p.index.depth;
+}
+
+}  // namespace
+
 void save_grid(const PreparedGrid& p, const std::string& path, bool with_index) {
   const IntervalTreeShape shape{p.index.depth, p.index.entries()};
-  // The depth its index has (loading builds the same from the same tetrahedra), or was asked.
-  std::uint32_t depth = p.index.nodes.empty() ? p.stats.index_depth : p.index.depth;
-  if (depth > kMaxTreeDepth) depth = kDefaultTreeDepth;  // statistics read from a file of another kind
+  const std::uint32_t depth = with_index ? p.index.depth : depth_to_build(p);
+  const BisectionHierarchy* h = p.hierarchy ? &*p.hierarchy : nullptr;
   write_file_atomically(path, [&](std::ostream& out) {
     GridFileWriter w(out);
-    w.head(p, with_index ? &shape : nullptr, depth);
+    w.head(p.stats, p.grid.source, p.grid.vertex_count(), p.grid.tet_count(), h, with_index ? &shape : nullptr, depth);
     w.vertices(p.grid);
-    w.tetrahedra(p.grid);
+    w.tetrahedra(p.grid.tets);
     if (with_index) w.index(p.index);
-    w.hierarchy(p.hierarchy);
+    if (h) w.hierarchy(*h);
     w.checksum();
   });
 }
+
+namespace detail {
+
+struct GridFileStream::Writer {
+  explicit Writer(std::ostream& out) : w(out) {}
+  GridFileWriter w;
+};
+
+GridFileStream::GridFileStream(std::ostream& out) : writer_(std::make_unique<Writer>(out)) {}
+GridFileStream::~GridFileStream() = default;
+
+void GridFileStream::head(const PrepareStats& stats, const TetGrid& vertices, const BisectionHierarchy& hierarchy) {
+  writer_->w.head(stats, vertices.source, vertices.vertex_count(), stats.tetrahedra, &hierarchy, nullptr,
+                  std::min(stats.tree_depth, kMaxTreeDepth));
+  writer_->w.vertices(vertices);
+}
+
+void GridFileStream::tetrahedra(std::span<const std::array<std::uint32_t, 4>> tets) { writer_->w.tetrahedra(tets); }
+
+void GridFileStream::finish(const BisectionHierarchy& hierarchy) {
+  writer_->w.hierarchy(hierarchy);
+  writer_->w.checksum();
+}
+
+}  // namespace detail
 
 namespace {
 
@@ -361,6 +398,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     p.stats.kept = grid.volume_vertex_count();
     p.stats.vertices = grid.vertex_count();
   }
+  p.stats.tree_depth = has_index ? depth : build_depth;
   if (!keep_tets) {
     p.index = IntervalTree{};
     if (p.stats.tetrahedra == 0) p.stats.tetrahedra = T;  // an older file's metadata without them
@@ -374,6 +412,10 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     report(progress, "build index", 0);
     p.index = build_interval_tree(grid, build_depth);
     report(progress, "build index", 1);
+  }
+  if (keep_index) {  // the index's figures from the index (files since 2026-11-30 leave them out)
+    p.stats.index_depth = p.index.depth;
+    p.stats.grid_bytes_per_vertex = grid_bytes_per_vertex(grid, p.index);
   }
   return p;
 }

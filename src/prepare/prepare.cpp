@@ -99,32 +99,91 @@ TetGrid delaunay_pipeline(const Volume& v, const ValueRange& range, const Prepar
   return grid;
 }
 
-// The bisection grid, with its hierarchy for coarser queries.
+// What the grid's source says of the volume it came from: its own box (before padding) and file.
+void describe_source(GridSource& source, const Dims& volume_dims, const PrepareOptions& o) {
+  source.volume_dims = volume_dims;
+  source.file = std::filesystem::path(o.source_name).filename().string();
+}
+
+// Hands the selection's grid to a PreparedGridSink: first what the file's head needs (the
+// gradients, the statistics), then the tetrahedra. The sink's time is kept apart: the stage "save".
+class SinkFeed final : public TetrahedraSink {
+public:
+  SinkFeed(detail::PreparedGridSink& sink, const Volume& lattice_volume, const Dims& volume_dims, const PrepareOptions& o,
+           PrepareStats& stats, const Progress& progress)
+      : sink_(sink), volume_(lattice_volume), volume_dims_(volume_dims), o_(o), stats_(stats), progress_(progress) {}
+  void begin(BisectionGrid& g, std::uint64_t tets) override {
+    describe_source(g.grid.source, volume_dims_, o_);
+    stats_.error_bound = g.error_bound;
+    stats_.kept = g.grid.volume_vertex_count();
+    stats_.vertices = g.grid.vertex_count();
+    stats_.tetrahedra = tets;
+    const auto t0 = Clock::now();
+    central_difference_gradients(g.grid, volume_, progress_);
+    const auto t1 = Clock::now();
+    gradient_seconds = std::chrono::duration<double>(t1 - t0).count();
+    sink_.begin(stats_, g.grid, g.hierarchy);
+    sink_seconds += std::chrono::duration<double>(Clock::now() - t1).count();
+  }
+  void write(std::span<const std::array<std::uint32_t, 4>> tets) override {
+    const auto t0 = Clock::now();
+    sink_.write(tets);
+    sink_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
+  }
+  double gradient_seconds = 0, sink_seconds = 0;
+
+private:
+  detail::PreparedGridSink& sink_;
+  const Volume& volume_;
+  Dims volume_dims_;
+  const PrepareOptions& o_;
+  PrepareStats& stats_;
+  const Progress& progress_;
+};
+
+// The bisection grid, with its hierarchy for coarser queries; its tetrahedra to `feed`, if given.
 TetGrid bisection_pipeline(const Volume& v, const ValueRange& range, const PrepareOptions& o, StageClock& clock, PreparedGrid& p,
-                           const Progress& progress) {
+                           const Progress& progress, SinkFeed* feed) {
   BisectionOptions b;
   b.max_error = absolute_max_error(o, range);
   b.max_displacement = o.max_displacement;
   b.share = o.select_share;
+  b.sink = feed;
   const bool displacement = b.max_displacement > 0;
   const BisectionErrors errors = clock.run("error_hierarchy", [&] {
     return o.error_hierarchy ? o.error_hierarchy(v, range, displacement, progress) : bisection_errors(v, range, displacement, progress);
   });
-  BisectionGrid grid = clock.run("select", [&] { return bisection_select(v, range, errors, b, progress); });
-  p.stats.max_error = b.max_error;
-  p.stats.error_bound = grid.error_bound;
+  p.stats.max_error = b.max_error;  // before the selection: a sink's head holds them
   p.stats.max_displacement = b.max_displacement;
+  BisectionGrid grid = clock.run("select", [&] { return bisection_select(v, range, errors, b, progress); });
+  p.stats.error_bound = grid.error_bound;
   p.hierarchy = std::move(grid.hierarchy);
   return std::move(grid.grid);
+}
+
+// The select stage without what ran inside it for the feed: its gradients, and its sink ("save").
+void split_sunk_stages(PrepareStats& stats, const SinkFeed& feed) {
+  auto& select = stats.stages.back();  // the stage just recorded
+  select.seconds = std::max(0.0, select.seconds - feed.gradient_seconds - feed.sink_seconds);
+  const std::uint64_t peak = select.peak_bytes;
+  stats.stages.push_back({"gradients", feed.gradient_seconds, peak});
+  stats.stages.push_back({"save", feed.sink_seconds, peak});
+}
+
+bool central_gradients(const PrepareOptions& o) {
+  return o.gradients == GradientMethod::central || (o.gradients == GradientMethod::automatic && o.grid == GridKind::bisection);
 }
 
 }  // namespace
 
 namespace detail {
 
-PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress,
-                               Volume* release) {
+bool can_sink(const PrepareOptions& o) { return o.grid == GridKind::bisection && !o.verify && central_gradients(o); }
+
+PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const PrepareOptions& o, const Progress& progress, Volume* release,
+                               PreparedGridSink* sink) {
   check_options(o);
+  if (sink && !can_sink(o)) throw std::logic_error("prepare_unindexed: these options' grid cannot go to a sink");
   // The grid file's loader refuses such geometry: refused here, no file is written that cannot be read.
   check_geometry(v, o.source_name.empty() ? std::string("the volume") : o.source_name);
   PreparedGrid p;
@@ -133,6 +192,7 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
   const bool bisection = o.grid == GridKind::bisection;
   stats.grid = bisection ? "bisection" : "delaunay";
   stats.voxels = v.voxel_count();
+  stats.tree_depth = o.tree_depth;
   const Dims volume_dims = v.dims;
   // The padded lattice's volume; the volume itself goes at once when the caller gave it up.
   std::optional<Volume> padded;
@@ -144,16 +204,22 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
     if (release) release->bytes = VoxelBuffer();
   }
   const Volume& lv = padded ? *padded : v;
-  p.grid = bisection ? bisection_pipeline(lv, range, o, clock, p, progress) : delaunay_pipeline(v, range, o, clock, stats, progress);
-  p.grid.source.volume_dims = volume_dims;
-  p.grid.source.file = std::filesystem::path(o.source_name).filename().string();
-  const bool central = o.gradients == GradientMethod::central || (o.gradients == GradientMethod::automatic && bisection);
-  clock.run("gradients", [&] {
-    if (central)
-      central_difference_gradients(p.grid, lv, progress);
-    else
-      least_squares_gradients(p.grid, progress);
-  });
+  std::optional<SinkFeed> feed;
+  if (sink) feed.emplace(*sink, lv, volume_dims, o, stats, progress);
+  p.grid = bisection ? bisection_pipeline(lv, range, o, clock, p, progress, feed ? &*feed : nullptr)
+                     : delaunay_pipeline(v, range, o, clock, stats, progress);
+  describe_source(p.grid.source, volume_dims, o);
+  if (feed) {
+    split_sunk_stages(stats, *feed);
+  } else {
+    clock.run("gradients", [&] {
+      if (central_gradients(o))
+        central_difference_gradients(p.grid, lv, progress);
+      else
+        least_squares_gradients(p.grid, progress);
+    });
+    stats.tetrahedra = p.grid.tet_count();
+  }
   if (!bisection || o.verify) {
     const ReconstructionError pl = clock.run("pl_error", [&] { return piecewise_linear_error(lv, p.grid, progress); });
     stats.pl_max_error = pl.max;
@@ -163,7 +229,6 @@ PreparedGrid prepare_unindexed(const Volume& v, const ValueRange& range, const P
   }
   stats.kept = p.grid.volume_vertex_count();
   stats.vertices = p.grid.vertex_count();
-  stats.tetrahedra = p.grid.tet_count();
   if (release) release->bytes = VoxelBuffer();
   release_free_heap();  // what the selection freed in the heap's arenas (the MR head: 9 MiB)
   return p;
@@ -242,7 +307,8 @@ PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, c
     p.tet_error_code = std::move(grid.tet_code);
     p.tet_codes = fine.hierarchy->codes;
   }
-  p.index = clock.run("index", [&] { return build_interval_tree(p.grid, fine.index.depth ? fine.index.depth : kDefaultTreeDepth); });
+  p.stats.tree_depth = fine.index.depth ? fine.index.depth : kDefaultTreeDepth;
+  p.index = clock.run("index", [&] { return build_interval_tree(p.grid, p.stats.tree_depth); });
   p.stats.grid = "bisection";
   p.stats.voxels = fine.stats.voxels;
   p.stats.kept = p.grid.volume_vertex_count();

@@ -33,6 +33,7 @@ std::string to_json(const PrepareStats& s) {
                       {"max_error", s.max_error},
                       {"threshold", s.threshold},
                       {"index_depth", s.index_depth},
+                      {"tree_depth", s.tree_depth},
                       {"grid_bytes_per_vertex", s.grid_bytes_per_vertex},
                       {"seconds", seconds},
                       {"peak_bytes", peak}};
@@ -77,6 +78,7 @@ PrepareStats prepare_stats_from_json(const std::string& text) {
   get("pl_max_error", s.pl_max_error);
   get("pl_rms_error", s.pl_rms_error);
   get("index_depth", s.index_depth);
+  get("tree_depth", s.tree_depth);
   get("grid_bytes_per_vertex", s.grid_bytes_per_vertex);
   if (auto it = j.find("seconds"); it != j.end() && it->is_object())
     for (auto st = it->begin(); st != it->end(); ++st) {
@@ -90,19 +92,20 @@ PrepareStats prepare_stats_from_json(const std::string& text) {
 }
 
 namespace {
-double bytes_per_vertex(const TetGrid& grid, std::uint64_t entries, std::uint64_t nodes) {
-  const double bytes = grid.vertex_count() * (12.0 + 8 + 12) + grid.tet_count() * 16.0 + entries * 8.0 + nodes * 24.0;
-  return grid.vertex_count() ? bytes / static_cast<double>(grid.vertex_count()) : 0;
+double bytes_per_vertex(std::uint64_t vertices, std::uint64_t tets, std::uint64_t entries, std::uint64_t nodes) {
+  const double bytes = static_cast<double>(vertices) * (12.0 + 8 + 12) + static_cast<double>(tets) * 16.0 +
+                       static_cast<double>(entries) * 8.0 + static_cast<double>(nodes) * 24.0;
+  return vertices ? bytes / static_cast<double>(vertices) : 0;
 }
 }  // namespace
 
 double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index) {
-  return bytes_per_vertex(grid, index.entries(), index.nodes.size());
+  return bytes_per_vertex(grid.vertex_count(), grid.tet_count(), index.entries(), index.nodes.size());
 }
 
 namespace detail {
-double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTreeShape& shape) {
-  return bytes_per_vertex(grid, shape.entries, shape.nodes());
+double grid_bytes_per_vertex(std::uint64_t vertices, std::uint64_t tets, const IntervalTreeShape& shape) {
+  return bytes_per_vertex(vertices, tets, shape.entries, shape.nodes());
 }
 }  // namespace detail
 

@@ -2,8 +2,9 @@
 // one over an in-process transport: process 0's grid is the one bisection_select makes alone, byte
 // for byte (vertices, values, tetrahedra in order, codes and value spans), for 2 to 5 processes,
 // volumes of odd, anisotropic and 2-voxel-thick sizes, bounds from 0 to the coarsest, with the
-// displacement criterion; a message another process cannot use is refused; process 0 can stop the
-// others before the selection, and a check one process fails ends every process's selection.
+// displacement criterion; a sink on process 0 gets the tetrahedra in order, in pieces; a message
+// another process cannot use is refused; process 0 can stop the others before the selection, and a
+// check one process fails ends every process's selection.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
@@ -164,6 +165,74 @@ TEST(SelectShares, SmoothFieldsWithAndWithoutTheDisplacementCriterion) {
   check_shares(random_volume({19, 12, 7}, 99), "random", true);
 }
 
+namespace {
+
+// Collects what a selection hands over, checking the order of the calls.
+class CollectingSink final : public TetrahedraSink {
+public:
+  void begin(BisectionGrid& grid, std::uint64_t tets) override {
+    EXPECT_EQ(begun++, 0) << "begin twice";
+    expected = tets;
+    ijk = grid.grid.ijk;
+    values = grid.grid.values;
+    error_bound = grid.error_bound;
+  }
+  void write(std::span<const std::array<std::uint32_t, 4>> t) override {
+    EXPECT_EQ(begun, 1) << "tetrahedra before begin";
+    tets.insert(tets.end(), t.begin(), t.end());
+    largest = std::max<std::uint64_t>(largest, t.size());
+    ++writes;
+  }
+  int begun = 0, writes = 0;
+  std::uint64_t expected = 0, largest = 0;
+  std::vector<std::array<std::uint32_t, 3>> ijk;
+  std::vector<double> values;
+  std::vector<std::array<std::uint32_t, 4>> tets;
+  double error_bound = -1;
+};
+
+}  // namespace
+
+// A sink on process 0 gets the grid's tetrahedra in order, in pieces, whatever their size and
+// whether the others share the selection: the grid it returns has none and is the rest of the grid
+// alone (vertices, values and codes final at begin; spans complete at the end).
+TEST(SelectShares, ASinkGetsTheTetrahedraInOrderInPiecesAloneOrShared) {
+  const Volume v = smooth_volume({41, 29, 25});
+  const ValueRange range = value_range(v);
+  const BisectionErrors errors = bisection_errors(v, range);
+  BisectionOptions o;
+  o.max_error = 0.01 * (range.max - range.min);
+  const BisectionGrid alone = bisection_select(v, range, errors, o);
+  ASSERT_GT(alone.grid.tet_count(), 20000u);
+  for (const std::uint64_t piece : {std::uint64_t{1}, std::uint64_t{37}, std::uint64_t{5000}, o.piece})
+    for (int processes : {1, 2, 3}) {
+      const std::string what = fmt::format("pieces of {}, {} processes", piece, processes);
+      CollectingSink sink;
+      BisectionOptions so = o;
+      so.sink = &sink;
+      so.piece = piece;
+      BisectionGrid sunk = processes == 1 ? bisection_select(v, range, errors, so) : shared_select(v, range, errors, so, processes);
+      EXPECT_TRUE(sunk.grid.tets.empty()) << what;
+      EXPECT_EQ(sink.expected, alone.grid.tet_count()) << what;
+      EXPECT_EQ(sink.ijk, alone.grid.ijk) << what;
+      EXPECT_EQ(sink.values, alone.grid.values) << what;
+      EXPECT_EQ(sink.error_bound, alone.error_bound) << what;
+      EXPECT_TRUE(sink.tets == alone.grid.tets) << what;
+      // Subtrees go whole (up to some 50 tetrahedra here), so small pieces are exceeded; larger
+      // ones are not, and the default holds a process's whole run.
+      if (piece >= 5000) {
+        EXPECT_LE(sink.largest, piece) << what;
+        EXPECT_GE(static_cast<std::uint64_t>(sink.writes), (alone.grid.tet_count() + piece - 1) / piece) << what;
+      }
+      if (piece == o.piece) EXPECT_EQ(sink.writes, processes) << what;
+      sunk.grid.tets = alone.grid.tets;
+      expect_same(alone, sunk, what);
+    }
+  BisectionOptions none = o;
+  none.piece = 0;
+  EXPECT_THROW(bisection_select(v, range, errors, none), OptionError);
+}
+
 // Process 0 played by hand: a head process 1 cannot use, then its side of the agreement, which
 // learns that process 1 refused.
 TEST(SelectShares, AMessageAnotherProcessCannotUseIsRefusedAndProcessZeroLearnsIt) {
@@ -178,13 +247,18 @@ TEST(SelectShares, AMessageAnotherProcessCannotUseIsRefusedAndProcessZeroLearnsI
       return first;
     });
   };
-  std::int64_t head[6] = {9, 9, 9, 300, 0, 0};  // a threshold beyond a byte
+  std::int64_t head[7] = {9, 9, 9, 300, 0, 0, 1};  // a threshold beyond a byte
   zero.broadcast(std::as_writable_bytes(std::span(head)));
   auto told = agree_on_zero();
   EXPECT_THROW(bisection_select_share(one), InputError);
   EXPECT_EQ(told.get(), 1);
-  std::int64_t flat[6] = {9, 1, 9, 3, 0, 0};  // a flat lattice
+  std::int64_t flat[7] = {9, 1, 9, 3, 0, 0, 1};  // a flat lattice
   zero.broadcast(std::as_writable_bytes(std::span(flat)));
+  told = agree_on_zero();
+  EXPECT_THROW(bisection_select_share(one), InputError);
+  EXPECT_EQ(told.get(), 1);
+  std::int64_t empty_pieces[7] = {9, 9, 9, 3, 0, 0, 0};  // runs in pieces of no tetrahedra
+  zero.broadcast(std::as_writable_bytes(std::span(empty_pieces)));
   told = agree_on_zero();
   EXPECT_THROW(bisection_select_share(one), InputError);
   EXPECT_EQ(told.get(), 1);

@@ -128,6 +128,30 @@ TEST(PrepareToFile, WritesTheBytesOfPrepareThenSave) {
   }
 }
 
+// A bisection grid's tetrahedra go into the file in pieces of 4 M as the selection makes them, and
+// the index's figures are counted as they pass, its sample then every third tetrahedron: more
+// than one piece must still give save_grid(prepare(...))'s bytes and prepare's figures.
+TEST(PrepareToFile, AGridOfSeveralPiecesIsTheSavedGridWithTheIndexFigures) {
+  testutil::TempDir dir("prepare_to_file_pieces");
+  Volume v = make_volume({90, 90, 90}, ScalarType::u8);
+  std::uint32_t x = 12345;
+  for (std::int64_t i = 0; i < v.voxel_count(); ++i) {
+    x = x * 1664525u + 1013904223u;
+    v.set(i, (x >> 24) & 0x1f);  // a few values, so some tetrahedra are constant
+  }
+  PrepareOptions o;
+  o.max_error = 0;
+  const PreparedGrid p = prepare(v, o);
+  ASSERT_GT(p.grid.tet_count(), BisectionOptions{}.piece);
+  const PrepareStats stats = prepare_to_file(v, o, (dir.path / "streamed.adg").string());
+  save_grid(p, (dir.path / "saved.adg").string());
+  EXPECT_TRUE(testutil::read_bytes(dir.path / "streamed.adg") == testutil::read_bytes(dir.path / "saved.adg"));
+  EXPECT_EQ(stats.tetrahedra, p.stats.tetrahedra);
+  EXPECT_EQ(stats.index_depth, p.stats.index_depth);
+  EXPECT_EQ(stats.grid_bytes_per_vertex, p.stats.grid_bytes_per_vertex);
+  EXPECT_LT(p.index.entries(), p.grid.tet_count());
+}
+
 // Bad options and an unwritable path fail as prepare and save_grid do (the path before any work),
 // and leave no file behind.
 TEST(PrepareToFile, FailuresLeaveNoFile) {
