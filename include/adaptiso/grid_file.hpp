@@ -13,9 +13,13 @@
 //   40  u64       T, tetrahedra
 //   48  u64       E, index entries (non-constant tetrahedra)       [version 2]
 //   56  u32       D, index depth (without the index: 0, or from version 6 the depth it is
-//                 built at when loaded); u32 reserved                  [version 2]
+//                 built at when loaded, reduced there as prepare's build reduces the depth
+//                 asked for; since 2026-11-30 that depth itself); u32 reserved   [version 2]
 //   64  char[M]   metadata: UTF-8 JSON: "source" (GridSource: dims, spacing, origin, direction,
-//                 value range, reduction settings) and "prepare" (PrepareStats, prepared_grid.hpp)
+//                 value range, reduction settings) and "prepare" (PrepareStats, prepared_grid.hpp,
+//                 without its times and peaks; since 2026-11-30 without the index's depth and
+//                 size, which loading takes from the index, and are not known when the header is
+//                 written as prepare_to_file makes the grid)
 //       u32[N][3] ijk;  f64[N] values;  f32[N][3] gradients;  u32[T][4] tets
 //       index: (f64 split, u64 begin, u64 end)[2^(D+1) - 1];  u32[E] by_min;  u32[E] by_max
 //       hierarchy: i32 root size; u8 error threshold; u8 displacement threshold; u16 0;
@@ -49,7 +53,8 @@
 namespace adaptiso {
 
 // Writes the grid and its statistics, atomically; its index only with with_index (loading builds it
-// otherwise, at the depth of the grid's index, or of its statistics' index_depth without one).
+// otherwise, at the depth asked for, stats.tree_depth, when that is what the grid's index was
+// reduced from; at the index's own depth when it was built at another).
 void save_grid(const PreparedGrid& grid, const std::string& path, bool with_index = false);
 // What load_grid keeps of a file.
 enum class GridParts {
