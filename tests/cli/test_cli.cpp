@@ -510,6 +510,14 @@ TEST(ExtractCli, RunExtractSeveralIsoValuesAndBadInput) {
   EXPECT_TRUE(std::filesystem::exists(t / "m-0.72.obj"));
   EXPECT_FALSE(j["surfaces"][2]["in_range"].get<bool>());
   EXPECT_EQ(j["surfaces"][2]["triangles"], 0);
+  // Up to 4 iso-values extract scans the tetrahedra, without the index; more sweep its index: the
+  // same meshes, byte for byte.
+  EXPECT_TRUE(j["surfaces"][0].value("scanned", false));
+  r = testutil::run_cli("extract " + (t / "s.adg") + " --relative --iso 0.3,0.5,0.7,0.72,0.8 --json -o " + (t / "five.obj"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_FALSE(nlohmann::json::parse(r.out)["surfaces"][0].value("scanned", false));
+  EXPECT_TRUE(testutil::read_bytes(t / "five-0.7.obj") == testutil::read_bytes(t / "m-0.7.obj"));
+  EXPECT_TRUE(testutil::read_bytes(t / "five-0.72.obj") == testutil::read_bytes(t / "m-0.72.obj"));
   r = testutil::run_cli("extract " + (t / "s.adg") + " --iso 900 -o " + (t / "m.ply"));
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.out.find("triangles"), std::string::npos);
