@@ -51,6 +51,10 @@ public:
     each_piece(const_cast<std::byte*>(bytes.data()), bytes.size(),
                [&](std::byte* p, std::size_t n) { comm_.attr("Send")(view(p, n, true), py::arg("dest") = 0, py::arg("tag") = kTag); });
   }
+  void send_to(int to, std::span<const std::byte> bytes) override {
+    each_piece(const_cast<std::byte*>(bytes.data()), bytes.size(),
+               [&](std::byte* p, std::size_t n) { comm_.attr("Send")(view(p, n, true), py::arg("dest") = to, py::arg("tag") = kTag); });
+  }
   void receive(int from, std::span<std::byte> into) override {
     each_piece(into.data(), into.size(), [&](std::byte* p, std::size_t n) {
       comm_.attr("Recv")(view(p, n, false), py::arg("source") = from, py::arg("tag") = kTag);
@@ -76,8 +80,9 @@ private:
 };
 
 // Rank 0's range travels as Python floats: the same bits on every rank.
-py::tuple go_message(const ValueRange& range, const Dims& dims, std::int64_t side, bool displacement) {
-  return py::make_tuple("go", range.min, range.max, py::make_tuple(dims[0], dims[1], dims[2]), side, displacement);
+py::tuple go_message(const ValueRange& range, const Dims& dims, std::int64_t side, bool displacement, ScalarType type, bool scatter) {
+  return py::make_tuple("go", range.min, range.max, py::make_tuple(dims[0], dims[1], dims[2]), side, displacement, static_cast<int>(type),
+                        scatter);
 }
 
 RegionReader open_file(const std::string& path) {
@@ -114,6 +119,19 @@ CommShare::CommShare(const py::object& comm, std::optional<std::int64_t> brick_s
   }
 }
 
+bool CommShare::scatters(const PrepareInput& in) const {
+  return size_ > 1 && !in.volume && transport_ && scattered_route(RegionReader::route_of(in.path));
+}
+
+bool CommShare::all_ready(const std::string& own_error) {
+  const py::object mine = own_error.empty() ? py::object(py::make_tuple("ready")) : py::object(py::make_tuple("error", own_error));
+  const py::object all = comm_.attr("gather")(mine, py::arg("root") = 0);
+  bool ready = own_error.empty();
+  if (rank_ == 0)
+    for (const auto& m : all.cast<py::list>()) ready = ready && m.cast<py::tuple>()[0].cast<std::string>() == "ready";
+  return comm_.attr("bcast")(ready, py::arg("root") = 0).cast<bool>();
+}
+
 void CommShare::stop_the_selection() {
   if (!transport_ || static_cast<CommTransport&>(*transport_).started()) return;  // none, or rank 0 began it
   bisection_select_stop(*transport_);
@@ -134,7 +152,7 @@ void CommShare::tell_the_others(const py::object& message) {
 }
 
 // Rank 0's hook: its own bricks and the others', combined as one process would.
-void CommShare::share_hierarchy(PrepareOptions& options) {
+void CommShare::share_hierarchy(PrepareOptions& options, bool scatter) {
   if (!brick_side_ && size_ <= 1) return;
   const std::int64_t side = brick_side_.value_or(0);  // 0: the default, once the lattice is known
   if (brick_side_) check_brick_side(side);
@@ -152,7 +170,8 @@ void CommShare::share_hierarchy(PrepareOptions& options) {
     return;
   }
   options.select_share = transport_.get();
-  options.error_hierarchy = [this, given = side](const Volume& v, const ValueRange& range, bool displacement, const Progress& progress) {
+  options.error_hierarchy = [this, given = side, scatter](const Volume& v, const ValueRange& range, bool displacement,
+                                                          const Progress& progress) {
     const std::int64_t side = given > 0 ? given : default_share_brick_side(v.dims, size_);
     stats_->brick_side = side;
     const BrickGrid bricks = brick_grid(v.dims, side);
@@ -161,13 +180,23 @@ void CommShare::share_hierarchy(PrepareOptions& options) {
     stats_->peak_bytes_per_rank.assign(static_cast<std::size_t>(size_), 0);
     {
       py::gil_scoped_acquire gil;
-      tell_the_others(go_message(range, v.dims, side, displacement));
+      tell_the_others(go_message(range, v.dims, side, displacement, v.type, scatter));
     }
     // The others wait in the gather below: rank 0 reaches it whatever happens to its own bricks.
     std::vector<BrickErrors> results;
     std::exception_ptr failed;
     try {
-      results = bisection_share_errors(bricks, 0, size_, region_source(v), range, displacement);
+      if (!scatter) {
+        results = bisection_share_errors(bricks, 0, size_, region_source(v), range, displacement);
+      } else {
+        bool ready = false;
+        {
+          py::gil_scoped_acquire gil;
+          ready = all_ready("");
+        }
+        // A rank that is not ready says why in the gather below.
+        if (ready) results = bisection_scatter_errors(*transport_, bricks, v.type, region_source(v), range, displacement);
+      }
     } catch (...) {
       failed = std::current_exception();
     }
@@ -206,6 +235,8 @@ void CommShare::serve(const Setup& setup) {
   const std::string what = m[0].cast<std::string>();
   if (what == "done") return;
   if (what == "failed") throw OptionError("comm", "rank 0: " + m[1].cast<std::string>());
+  const bool scatter = m[7].cast<bool>();  // rank 0 sends the regions: first agreed whether every rank is ready
+  bool agreed = false;
   py::tuple reply;
   try {
     const ValueRange range{m[1].cast<double>(), m[2].cast<double>()};
@@ -213,27 +244,46 @@ void CommShare::serve(const Setup& setup) {
     const Dims dims{d[0].cast<std::int64_t>(), d[1].cast<std::int64_t>(), d[2].cast<std::int64_t>()};
     const std::int64_t side = m[4].cast<std::int64_t>();
     const bool displacement = m[5].cast<bool>();
+    const auto type = static_cast<ScalarType>(m[6].cast<int>());
     const PrepareInput in = setup();
     if (in.options.grid != GridKind::bisection) throw OptionError("comm", kBisectionOnly);
     std::vector<std::byte> bytes;
     std::string route = "volume in memory";
+    std::optional<RegionReader> reader;
     {
       py::gil_scoped_release release;
-      std::optional<RegionReader> reader;
       if (!in.volume) route = reader.emplace(open_file(in.path)).route();
       // Rank 0 sends the padded lattice it builds on (prepare.hpp: pad_lattice); every rank pads alike.
-      const Dims& d = in.volume ? in.volume->dims : reader->header().dims;
-      const Dims lattice = bisection_lattice_dims(d);
-      if (lattice != dims)
-        throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, a lattice of {}×{}×{} on rank 0", d[0], d[1], d[2], rank_,
+      const Dims& v = in.volume ? in.volume->dims : reader->header().dims;
+      if (bisection_lattice_dims(v) != dims)
+        throw InputError(fmt::format("the volume has {}×{}×{} voxels on rank {}, a lattice of {}×{}×{} on rank 0", v[0], v[1], v[2], rank_,
                                      dims[0], dims[1], dims[2]));
-      const ReaderSource read =
-          reader ? reader_source(*reader, lattice, range) : ReaderSource{padded_source(region_source(*in.volume), d, range), {}};
-      bytes = pack_brick_errors(bisection_share_errors(brick_grid(dims, side), rank_, size_, read.source, range, displacement, read.hold));
+    }
+    if (scatter) {
+      agreed = true;
+      if (!all_ready("")) {  // another rank said why: rank 0 reports it
+        comm_.attr("gather")(py::make_tuple("ok", py::bytes(), peak_resident_bytes(), route), py::arg("root") = 0);
+        share_the_selection();
+        return;
+      }
+    }
+    {
+      py::gil_scoped_release release;
+      const BrickGrid bricks = brick_grid(dims, side);
+      if (scatter) {
+        route = "regions sent by rank 0";
+        bytes = pack_brick_errors(bisection_scatter_errors(*transport_, bricks, type, {}, range, displacement));
+      } else {
+        const Dims& v = in.volume ? in.volume->dims : reader->header().dims;
+        const ReaderSource read =
+            reader ? reader_source(*reader, dims, range) : ReaderSource{padded_source(region_source(*in.volume), v, range), {}};
+        bytes = pack_brick_errors(bisection_share_errors(bricks, rank_, size_, read.source, range, displacement, read.hold));
+      }
     }
     check_message_size(bytes.size(), rank_);
     reply = py::make_tuple("ok", py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size()), peak_resident_bytes(), route);
-  } catch (const std::exception& e) {  // the GIL is held again here
+  } catch (const std::exception& e) {             // the GIL is held again here
+    if (scatter && !agreed) all_ready(e.what());  // rank 0 waits to hear whether every rank is ready
     comm_.attr("gather")(py::make_tuple("error", std::string(e.what())), py::arg("root") = 0);
     share_the_selection();  // rank 0, told of the error, stops it
     throw;

@@ -8,15 +8,20 @@
 //
 // Every process calls prepare with its own Volume of the same dimensions (a numpy.memmap, or a
 // Volume over one, is read only in the process's bricks) or the same file's path (rank 0 reads it
-// whole; the others read their bricks by RegionReader's route). Rank 0 makes the grid; the others
+// whole; the others read their bricks by RegionReader's route, or, where that route would decode
+// the file up to their bricks (scattered_route, brick_shares.hpp), rank 0 sends them their regions
+// when the communicator has the buffer methods). Rank 0 makes the grid; the others
 // compute their bricks, hand them to rank 0 and return None. The protocol always completes, so an
 // error on any process (a bad option, a volume of other dimensions, a file it cannot read, memory
 // refused) raises on every process, naming the rank, instead of leaving the others waiting:
-//   1. rank 0 broadcasts ("go", range min, range max, dims, brick side, displacement) when its
-//      preparation reaches the error hierarchy, or ("failed", message) / ("done",) when it fails
-//      or finishes before it;
+//   1. rank 0 broadcasts ("go", range min, range max, dims, brick side, displacement, sample type,
+//      whether it sends the regions) when its preparation reaches the error hierarchy, or
+//      ("failed", message) / ("done",) when it fails or finishes before it;
 //   2. every other rank computes its bricks with rank 0's range, side and criterion, and every
 //      rank gathers to rank 0 ("ok", bytes, peak resident bytes, how it read) or ("error", message).
+//      When rank 0 sends the regions, the ranks first gather ("ready",) or ("error", message) and
+//      rank 0 broadcasts whether they go on (bisection_scatter_errors over Send and Recv) before
+//      that gather.
 //   3. with a communicator that has mpi4py's buffer methods (Bcast, Send, Recv) and a rank 0 that
 //      sent "go", the ranks then share the selection's walks (select_shares.hpp) over them, the
 //      others whether their bricks succeeded or not: rank 0 selects, or stops them
@@ -79,7 +84,12 @@ public:
 private:
   void serve(const Setup& setup);
   static Volume read_file(const std::string& path);  // FileError when it cannot be read
-  void share_hierarchy(PrepareOptions& options);
+  // `scatter`: rank 0 sends the others their regions of the file it reads whole.
+  void share_hierarchy(PrepareOptions& options, bool scatter);
+  // Rank 0: whether it will send the others their regions of `in`'s file (over the buffer methods).
+  bool scatters(const PrepareInput& in) const;
+  // Rank 0 and the others agree before regions are sent: whether every rank is ready.
+  bool all_ready(const std::string& own_error);
   void tell_the_others(const pybind11::object& message);
   void stop_the_selection();
   void share_the_selection();
@@ -100,7 +110,7 @@ std::optional<R> CommShare::run(const Setup& setup, const std::function<R(const 
   std::optional<R> r;
   try {
     PrepareInput in = setup();
-    share_hierarchy(in.options);
+    share_hierarchy(in.options, scatters(in));
     pybind11::gil_scoped_release release;
     if (in.volume) {
       r.emplace(prepare(*in.volume, in.options));

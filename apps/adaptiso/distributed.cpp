@@ -3,15 +3,11 @@
 #include "distributed.hpp"
 
 #include <fmt/format.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
-#include <algorithm>
 #include <bit>
 #include <chrono>
 #include <cstring>
 #include <span>
-#include <string_view>
 
 #include "adaptiso/brick_shares.hpp"
 #include "adaptiso/error.hpp"
@@ -41,75 +37,7 @@ std::vector<BrickErrors> unpack(std::span<const std::byte> bytes, Trailer& t) {
   return unpack_brick_errors(bytes.first(bytes.size() - sizeof t));
 }
 
-// Rank r's bricks of slab z (bricks are numbered x fastest, z slowest; brick n is rank n mod N's).
-std::vector<std::int64_t> slab_bricks(const BrickGrid& bricks, std::int64_t z, int r, int ranks) {
-  std::vector<std::int64_t> out;
-  const std::int64_t per = bricks.count[0] * bricks.count[1];
-  for (std::int64_t n = z * per; n < (z + 1) * per; ++n)
-    if (n % ranks == r) out.push_back(n);
-  return out;
-}
-
-// What a rank receiving its regions holds at once: a code per owned voxel until they are handed up,
-// one slab's regions, and per thread one brick at work (as brick_shares.hpp counts them).
-void check_scattered_memory(const Ranks& ranks, const BrickGrid& bricks, std::size_t sample, bool displacement) {
-  const std::uint64_t per_code = displacement ? 2 : 1;
-  std::uint64_t owned = 0, slab = 0, brick = 0, count = 0;
-  for (std::int64_t z = 0; z < bricks.count[2]; ++z) {
-    std::uint64_t held = 0;
-    for (const std::int64_t n : slab_bricks(bricks, z, ranks.rank(), ranks.size())) {
-      const auto voxels = static_cast<std::uint64_t>(bricks.reads(n, displacement).voxel_count());
-      owned += static_cast<std::uint64_t>(bricks.owns(n).voxel_count());
-      held += voxels * sample;
-      brick = std::max(brick, voxels);
-      ++count;
-    }
-    slab = std::max(slab, held);
-  }
-  const auto threads = static_cast<std::uint64_t>(std::min<std::size_t>(tbb::this_task_arena::max_concurrency(), count));
-  require_memory(owned * per_code + slab + threads * brick * (per_code + 2 + 8),
-                 fmt::format("the error hierarchy of rank {}'s {} bricks of side {} (one slab of them sent by rank 0)", ranks.rank(), count,
-                             bricks.side),
-                 "brick_side", "more ranks, or a smaller brick side");
-}
-
-// The brick step with rank 0 sending the others their regions, slab after slab: each slab's
-// regions go out before rank 0 computes its own bricks of it, so the ranks work on a slab at once.
-// `source` (rank 0's) gives the regions.
-std::vector<BrickErrors> scattered_share(Ranks& ranks, const BrickGrid& bricks, ScalarType type, const RegionSource& source,
-                                         const ValueRange& range, bool displacement) {
-  check_scattered_memory(ranks, bricks, scalar_size(type), displacement);
-  std::vector<BrickErrors> out;
-  for (std::int64_t z = 0; z < bricks.count[2]; ++z) {
-    const std::vector<std::int64_t> mine = slab_bricks(bricks, z, ranks.rank(), ranks.size());
-    std::vector<Volume> regions;
-    if (ranks.root()) {
-      for (int r = 1; r < ranks.size(); ++r)
-        for (const std::int64_t n : slab_bricks(bricks, z, r, ranks.size())) {
-          const Volume region = source(bricks.reads(n, displacement));
-          ranks.send_to(r, std::as_bytes(std::span(region.bytes.data(), region.bytes.size())));
-        }
-    } else {
-      for (const std::int64_t n : mine) {
-        Volume& region = regions.emplace_back(make_volume(bricks.reads(n, displacement).dims(), type));
-        ranks.receive(0, std::as_writable_bytes(std::span(region.bytes.data(), region.bytes.size())));
-      }
-    }
-    const std::size_t at = out.size();
-    out.resize(at + mine.size());
-    tbb::parallel_for(std::size_t{0}, mine.size(), [&](std::size_t i) {
-      out[at + i] = bisection_brick_errors(bricks, mine[i], ranks.root() ? source(bricks.reads(mine[i], displacement)) : regions[i], range,
-                                           displacement);
-    });
-  }
-  return out;
-}
-
 }  // namespace
-
-bool scattered_route(const char* route) {
-  return std::string_view(route) == "slabs of the stream" || std::string_view(route) == "whole volume";
-}
 
 nlohmann::json DistributedStats::to_json(int ranks) const {
   nlohmann::json j = {
@@ -143,7 +71,7 @@ BisectionErrors distributed_errors(Ranks& ranks, Dims dims, ScalarType type, con
   std::vector<BrickErrors> results;
   if (scatter) {
     const std::uint64_t before = ranks.bytes_exchanged();
-    results = scattered_share(ranks, bricks, type, ranks.root() ? read(range).source : RegionSource{}, range, displacement);
+    results = bisection_scatter_errors(ranks, bricks, type, ranks.root() ? read(range).source : RegionSource{}, range, displacement);
     stats.regions_sent_bytes = ranks.bytes_exchanged() - before;
   } else {
     const ReaderSource source = read(range);

@@ -40,8 +40,8 @@ struct DistributedStats {
 // The error hierarchy of a volume of `dims` over the ranks: each computes its bricks, reading them
 // from the source `read` makes (with its hold: slab after slab, front to back), or with `scatter`
 // receiving them from rank 0, which sends each rank its regions slab by slab from its own source
-// (the route for files a rank could only read by decoding the whole stream or volume:
-// scattered_route); rank 0 receives the others' results and returns the combined hierarchy, the
+// (bisection_scatter_errors, for files a rank could only read by decoding the whole stream or
+// volume: scattered_route, brick_shares.hpp); rank 0 receives the others' results and returns the combined hierarchy, the
 // others return an empty one. The value range, lattice (`dims`) and sample type are rank 0's (the
 // others' are not looked at; `read` is not called on a rank that receives its regions). Brick side
 // 0: the default for the lattice and the ranks (default_share_brick_side). Collective: every rank
@@ -51,9 +51,5 @@ struct DistributedStats {
 BisectionErrors distributed_errors(Ranks& ranks, Dims dims, ScalarType type, const std::function<ReaderSource(const ValueRange&)>& read,
                                    ValueRange range, std::int64_t brick_side, bool displacement, bool scatter, const Progress& progress,
                                    DistributedStats& stats);
-
-// Whether a rank other than 0 reading by `route` (RegionReader::route) would decode the whole file
-// up to its bricks: then rank 0, which holds the decoded volume, sends it its regions instead.
-bool scattered_route(const char* route);
 
 }  // namespace adaptiso::cli

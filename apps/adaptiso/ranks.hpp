@@ -41,7 +41,7 @@ public:
   void send(std::span<const std::byte> bytes) override;
   void receive(int from, std::span<std::byte> into) override;
   // Bytes from rank 0 to rank `to` (which receives them with receive(0, …)), in pieces likewise.
-  void send_to(int to, std::span<const std::byte> bytes);
+  void send_to(int to, std::span<const std::byte> bytes) override;
   // Bytes this rank sent to or received from others so far.
   std::uint64_t bytes_exchanged() const { return exchanged_; }
   // Stops every rank with this exit code (after this rank's message) when the ranks were started

@@ -50,6 +50,10 @@ public:
   // Bytes from this process (not 0) to process 0, which receives them with receive(this, …);
   // messages between two processes arrive in the order they were sent.
   virtual void send(std::span<const std::byte> bytes) = 0;
+  // Bytes from process 0 to process `to` (not 0), which receives them with receive(0, …): the
+  // regions of a volume only process 0 reads (brick_shares.hpp: bisection_scatter_errors).
+  virtual void send_to(int to, std::span<const std::byte> bytes) = 0;
+  // On this process, the bytes process `from` sent it (send, or send_to from process 0).
   virtual void receive(int from, std::span<std::byte> into) = 0;
 };
 

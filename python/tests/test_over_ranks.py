@@ -114,7 +114,7 @@ def write_nrrd(path, array, encoding):
 @needs_mpi
 @pytest.mark.parametrize("encoding", ["raw", "gzip"])
 def test_prepare_over_mpi_ranks_from_a_path_writes_the_one_process_grid(tmp_path, encoding):
-    # Raw: the other ranks seek their bricks; gzip: they read slabs of the stream.
+    # Raw: the other ranks seek their bricks; gzip: rank 0, which decodes the stream, sends them theirs.
     path = tmp_path / "f.nrrd"
     write_nrrd(path, field(), encoding)
     one = tmp_path / "one.adg"
@@ -125,7 +125,21 @@ def test_prepare_over_mpi_ranks_from_a_path_writes_the_one_process_grid(tmp_path
     assert lines == [f"rank {r}: ok" for r in range(3)]
     assert out.read_bytes() == one.read_bytes()
     bricks = json.loads((tmp_path / "ranks.adg.bricks.json").read_text())
-    assert bricks["ranks_read"] == ("regions" if encoding == "raw" else "slabs of the stream")
+    assert bricks["ranks_read"] == ("regions" if encoding == "raw" else "regions sent by rank 0")
+
+
+@needs_mpi
+def test_a_bad_option_on_a_rank_rank_0_sends_regions_to_raises_there_and_on_rank_0(tmp_path):
+    # The ranks agree they are ready before rank 0 sends a region: none waits for a message.
+    path = tmp_path / "f.nrrd"
+    write_nrrd(path, field(), "gzip")
+    out = tmp_path / "ranks.adg"
+    lines = mpi_run(tmp_path, 3, {"path": str(path), "options": {}, "route": "prepare_file", "brick_side": 8, "output": str(out),
+                                  "bad_option_rank": 1})
+    assert lines[0].startswith("rank 0: ValueError: comm: rank 1: gradients: must be"), lines
+    assert lines[1].startswith("rank 1: ValueError: gradients: must be"), lines
+    assert lines[2] == "rank 2: ok", lines  # its part done; rank 0 reports the failure
+    assert not out.exists()
 
 
 @needs_mpi

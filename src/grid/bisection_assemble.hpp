@@ -21,6 +21,7 @@
 #include "adaptiso/error.hpp"
 #include "adaptiso/select_shares.hpp"
 #include "grid/diamond.hpp"
+#include "grid/share_agree.hpp"
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"
 #include "util/memory.hpp"
@@ -114,42 +115,9 @@ void split_centres(const Lattice& lat, const Rule& rule, std::size_t voxels, Ver
 // these the moves between them.
 namespace share {
 
-template <class T>
-std::span<std::byte> bytes(std::vector<T>& v) {
-  return std::as_writable_bytes(std::span(v));
-}
-
-// `values` combined over the processes, on every process: the others' sent to process 0, which
-// folds each into its own in process order (combine(own, theirs)), then broadcasts the result.
-template <class T, class Combine>
-void combine_at_zero(ShareTransport& t, std::span<T> values, Combine combine) {
-  if (t.process() != 0) {
-    t.send(std::as_bytes(values));
-  } else {
-    std::vector<T> theirs(values.size());
-    for (int p = 1; p < t.processes(); ++p) {
-      t.receive(p, std::as_writable_bytes(std::span(theirs)));
-      for (std::size_t i = 0; i < values.size(); ++i) combine(values[i], theirs[i]);
-    }
-  }
-  t.broadcast(std::as_writable_bytes(values));
-}
-
 // Each process counted its own subtrees (the others' counts 0): the sums, on every process.
 inline void sum_counts(ShareTransport& t, std::vector<std::uint64_t>& counts) {
   combine_at_zero(t, std::span(counts), [](std::uint64_t& own, std::uint64_t theirs) { own += theirs; });
-}
-
-// Each process's checks, agreed before anything is sent that only a process going on would
-// receive: a process whose check failed rethrows its error once the others know, and they throw an
-// InputError naming the first such process.
-inline void agree(ShareTransport& t, const std::exception_ptr& failed) {
-  std::int64_t first = failed ? t.process() : -1;
-  combine_at_zero(t, std::span(&first, 1), [](std::int64_t& own, std::int64_t theirs) {
-    if (own < 0) own = theirs;
-  });
-  if (failed) std::rethrow_exception(failed);
-  if (first >= 0) throw InputError(fmt::format("process {} cannot take its share of the selection (its own message says why)", first));
 }
 
 // The subtrees [runs[p], runs[p + 1]) process p writes: consecutive, about as many leaves each

@@ -7,9 +7,12 @@
 
 #include <algorithm>
 #include <cstring>
+#include <exception>
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/memory.hpp"
+#include "adaptiso/select_shares.hpp"
+#include "grid/share_agree.hpp"
 
 namespace adaptiso {
 namespace {
@@ -68,11 +71,12 @@ void each_array(IO& io, B& b) {
       io(b.coarse_voxel), io(b.coarse_value), io(b.coarse_gradient);
 }
 
-// What this process's bricks hold at once: a code per owned voxel (two with the displacement
+// What a process's bricks hold at once: a code per owned voxel (two with the displacement
 // criterion) until they are handed up, and per thread one brick at work: its region (at most 8
 // bytes a sample), codes and the hierarchy's state (as bisection_errors counts it: 14 bytes per 8
-// voxels); from a stream, one slab of slices.
-void check_share_memory(const BrickGrid& bricks, int process, const std::vector<std::int64_t>& mine, bool slabs, bool displacement) {
+// voxels); and `slab` bytes of one slab (of a stream's slices, or of the regions sent).
+void check_share_memory(const BrickGrid& bricks, int process, const std::vector<std::int64_t>& mine, std::uint64_t slab, bool displacement,
+                        const char* how) {
   if (mine.empty()) return;
   const std::uint64_t per_code = displacement ? 2 : 1;
   std::uint64_t owned = 0, brick = 0;
@@ -81,14 +85,30 @@ void check_share_memory(const BrickGrid& bricks, int process, const std::vector<
     brick = std::max(brick, static_cast<std::uint64_t>(bricks.reads(n, displacement).voxel_count()));
   }
   const auto threads = static_cast<std::uint64_t>(std::min<std::size_t>(tbb::this_task_arena::max_concurrency(), mine.size()));
-  const std::uint64_t slab =
-      slabs ? static_cast<std::uint64_t>(bricks.side + 2) * static_cast<std::uint64_t>(bricks.dims[0] * bricks.dims[1]) * 8 : 0;
   const std::uint64_t bytes = owned * per_code + threads * brick * (8 + per_code + 2) + slab;
   require_memory(bytes,
                  fmt::format("the error hierarchy of rank {}'s {} bricks of side {} ({} at a time{})", process, mine.size(), bricks.side,
-                             threads, slabs ? ", from a slab of the stream" : ""),
+                             threads, how),
                  "brick_side", "more ranks, or a smaller brick side");
 }
+
+std::vector<std::int64_t> bricks_of(const BrickGrid& bricks, int process, int processes) {
+  std::vector<std::int64_t> mine;
+  for (std::int64_t n = process; n < bricks.size(); n += processes) mine.push_back(n);
+  return mine;
+}
+
+// Process p's bricks of slab z: consecutive numbers, x fastest.
+std::vector<std::int64_t> slab_bricks(const BrickGrid& bricks, std::int64_t z, int p, int processes) {
+  std::vector<std::int64_t> out;
+  const std::int64_t per = bricks.count[0] * bricks.count[1];
+  for (std::int64_t n = z * per; n < (z + 1) * per; ++n)
+    if (n % processes == p) out.push_back(n);
+  return out;
+}
+
+// Process 0's word before each region it sends: the region follows, or it failed and no more will.
+enum class RegionWord : std::uint8_t { region = 1, failed = 2 };
 
 }  // namespace
 
@@ -103,9 +123,10 @@ std::vector<BrickErrors> bisection_share_errors(const BrickGrid& bricks, int pro
                                                 const ValueRange& range, bool displacement, const HoldSlices& hold) {
   if (processes < 1 || process < 0 || process >= processes)
     throw InputError(fmt::format("process {} of {}: not a process of the job", process, processes));
-  std::vector<std::int64_t> mine;
-  for (std::int64_t n = process; n < bricks.size(); n += processes) mine.push_back(n);
-  check_share_memory(bricks, process, mine, hold != nullptr, displacement);
+  const std::vector<std::int64_t> mine = bricks_of(bricks, process, processes);
+  const std::uint64_t slab =
+      hold ? static_cast<std::uint64_t>(bricks.side + 2) * static_cast<std::uint64_t>(bricks.dims[0] * bricks.dims[1]) * 8 : 0;
+  check_share_memory(bricks, process, mine, slab, displacement, hold ? ", from a slab of the stream" : "");
   std::vector<BrickErrors> out(mine.size());
   auto run = [&](std::size_t from, std::size_t to) {
     tbb::parallel_for(from, to, [&](std::size_t i) {
@@ -129,6 +150,79 @@ std::vector<BrickErrors> bisection_share_errors(const BrickGrid& bricks, int pro
     run(from, to);
     from = to;
   }
+  return out;
+}
+
+bool scattered_route(std::string_view route) { return route == "slabs of the stream" || route == "whole volume"; }
+
+std::vector<BrickErrors> bisection_scatter_errors(ShareTransport& t, const BrickGrid& bricks, ScalarType type, const RegionSource& source,
+                                                  const ValueRange& range, bool displacement) {
+  const int me = t.process(), processes = t.processes();
+  const std::vector<std::int64_t> mine = bricks_of(bricks, me, processes);
+  std::exception_ptr refused;
+  try {
+    std::uint64_t slab = 0;  // the largest slab's regions of this process
+    for (std::int64_t z = 0; z < bricks.count[2]; ++z) {
+      std::uint64_t held = 0;
+      for (const std::int64_t n : slab_bricks(bricks, z, me, processes))
+        held += static_cast<std::uint64_t>(bricks.reads(n, displacement).voxel_count()) * scalar_size(type);
+      slab = std::max(slab, held);
+    }
+    check_share_memory(bricks, me, mine, slab, displacement, ", one slab of them sent by rank 0");
+  } catch (...) {
+    refused = std::current_exception();
+  }
+  detail::share::agree(t, refused, "the error hierarchy's bricks");
+  // Regions still owed to each process: told when process 0 fails, so that none waits.
+  std::vector<std::size_t> owed(static_cast<std::size_t>(processes), 0);
+  for (int p = 1; p < processes; ++p) owed[static_cast<std::size_t>(p)] = bricks_of(bricks, p, processes).size();
+  auto word = [&](int to, RegionWord w) { t.send_to(to, std::as_bytes(std::span(&w, 1))); };
+  std::vector<BrickErrors> out;
+  std::exception_ptr failed;  // another process's own failure: it still takes its regions
+  for (std::int64_t z = 0; z < bricks.count[2]; ++z) {
+    const std::vector<std::int64_t> slab = slab_bricks(bricks, z, me, processes);
+    std::vector<Volume> regions;
+    if (me == 0) {
+      try {
+        for (int p = 1; p < processes; ++p)
+          for (const std::int64_t n : slab_bricks(bricks, z, p, processes)) {
+            const Volume region = source(bricks.reads(n, displacement));
+            word(p, RegionWord::region);
+            t.send_to(p, std::as_bytes(std::span(region.bytes.data(), region.bytes.size())));
+            --owed[static_cast<std::size_t>(p)];
+          }
+      } catch (...) {
+        for (int p = 1; p < processes; ++p)
+          if (owed[static_cast<std::size_t>(p)] > 0) word(p, RegionWord::failed);
+        throw;
+      }
+    } else {
+      for (const std::int64_t n : slab) {
+        RegionWord w{};
+        t.receive(0, std::as_writable_bytes(std::span(&w, 1)));
+        if (w != RegionWord::region) throw InputError("process 0 could not read the regions it sends (its own message says why)");
+        Volume& region = regions.emplace_back(make_volume(bricks.reads(n, displacement).dims(), type));
+        t.receive(0, std::as_writable_bytes(std::span(region.bytes.data(), region.bytes.size())));
+      }
+    }
+    if (failed) continue;
+    const std::size_t at = out.size();
+    out.resize(at + slab.size());
+    try {
+      tbb::parallel_for(std::size_t{0}, slab.size(), [&](std::size_t i) {
+        out[at + i] = bisection_brick_errors(bricks, slab[i], me == 0 ? source(bricks.reads(slab[i], displacement)) : regions[i], range,
+                                             displacement);
+      });
+    } catch (...) {
+      if (me == 0) {  // the others wait for the next slab's regions: told instead
+        for (int p = 1; p < processes; ++p)
+          if (owed[static_cast<std::size_t>(p)] > 0) word(p, RegionWord::failed);
+        throw;
+      }
+      failed = std::current_exception();
+    }
+  }
+  if (failed) std::rethrow_exception(failed);
   return out;
 }
 

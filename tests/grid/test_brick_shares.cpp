@@ -1,18 +1,22 @@
 // The error hierarchy shared out over processes (brick_shares.hpp), the processes played in turn
 // by this one: every process's share, packed to bytes and unpacked, combines to the whole volume's
 // hierarchy byte for byte; the shares partition the bricks; bytes cut short, with bytes left over
-// or with a length beyond their end are refused.
+// or with a length beyond their end are refused. Regions sent by process 0 (processes played by
+// threads) give the same hierarchy, and a region process 0 cannot read ends every process's step.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstring>
+#include <future>
 #include <random>
 #include <set>
+#include <stdexcept>
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/brick_shares.hpp"
 #include "adaptiso/error.hpp"
+#include "thread_transport.hpp"
 
 using namespace adaptiso;
 
@@ -140,4 +144,78 @@ TEST(BrickShares, DefaultSideIsTheLargestUpTo256LeavingFourBricksAProcess) {
   EXPECT_EQ(default_share_brick_side({513, 513, 361}, 2), 256);
   EXPECT_EQ(default_share_brick_side({513, 513, 361}, 4), 128);
   EXPECT_EQ(default_share_brick_side({257, 257, 133}, 2), 128);
+}
+
+namespace {
+
+// Process 0 sends the others their regions from `source` (a region it cannot read throws there);
+// every process's share, as process 0 gathers them. The others' errors come back in `theirs`.
+std::vector<BrickErrors> scattered(const Volume& v, std::int64_t side, int processes, const RegionSource& source,
+                                   std::vector<std::string>* theirs = nullptr) {
+  const ValueRange range = value_range(v);
+  const BrickGrid bricks = brick_grid(v.dims, side);
+  testutil::Hub hub;
+  std::vector<std::future<std::vector<BrickErrors>>> others;
+  for (int p = 1; p < processes; ++p)
+    others.push_back(std::async(std::launch::async, [&, p] {
+      testutil::ThreadTransport t(hub, p, processes);
+      return bisection_scatter_errors(t, bricks, v.type, {}, range);
+    }));
+  testutil::ThreadTransport t0(hub, 0, processes);
+  std::vector<BrickErrors> all;
+  std::exception_ptr failed;
+  try {
+    all = bisection_scatter_errors(t0, bricks, v.type, source, range);
+  } catch (...) {
+    failed = std::current_exception();
+  }
+  for (auto& f : others) try {
+      for (BrickErrors& b : f.get()) all.push_back(std::move(b));
+    } catch (const std::exception& e) {
+      if (theirs) theirs->push_back(e.what());
+    }
+  EXPECT_EQ(hub.left(), 0u) << "messages left unread";
+  if (failed) std::rethrow_exception(failed);
+  return all;
+}
+
+}  // namespace
+
+// Process 0 reads every region and sends the others theirs, slab after slab: the bricks combine to
+// the whole volume's hierarchy byte for byte, for 2 to 4 processes, bricks of 2 to 8 voxels, on
+// odd and 2-voxel-thick volumes, with processes that have no brick at all.
+TEST(BrickShares, RegionsSentByProcessZeroCombineToTheWholeVolumesHierarchy) {
+  for (const Dims& d : {Dims{13, 9, 11}, Dims{17, 2, 9}, Dims{5, 5, 5}}) {
+    const Volume v = noisy_sines(d, static_cast<unsigned>(d[0]));
+    const ValueRange range = value_range(v);
+    const BisectionErrors whole = bisection_errors(v, range);
+    for (const std::int64_t side : {2, 4, 8})
+      for (int processes : {2, 3, 4}) {
+        SCOPED_TRACE(fmt::format("{}x{}x{}, side {}, {} processes", d[0], d[1], d[2], side, processes));
+        const BrickGrid bricks = brick_grid(v.dims, side);
+        const BisectionErrors combined = bisection_combine_bricks(bricks, scattered(v, side, processes, region_source(v)), range);
+        EXPECT_TRUE(combined.code == whole.code);
+      }
+  }
+}
+
+// A region process 0 cannot read (its third) ends its step with its own error and the others'
+// with one naming process 0, none left waiting, no message left unread.
+TEST(BrickShares, ARegionProcessZeroCannotReadEndsEveryProcesssStep) {
+  const Volume v = noisy_sines({17, 13, 9}, 5);
+  int reads = 0;
+  const RegionSource base = region_source(v);
+  const RegionSource failing = [&](const VoxelBox& box) {
+    if (++reads == 3) throw InputError("bricks.raw: truncated at slice 4");
+    return base(box);
+  };
+  std::vector<std::string> theirs;
+  try {
+    scattered(v, 4, 3, failing, &theirs);
+    ADD_FAILURE() << "process 0 did not fail";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("truncated at slice 4"), std::string::npos) << e.what();
+  }
+  ASSERT_FALSE(theirs.empty());
+  for (const auto& m : theirs) EXPECT_NE(m.find("process 0 could not read"), std::string::npos) << m;
 }

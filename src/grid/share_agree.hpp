@@ -1,0 +1,50 @@
+// The moves every shared step makes between processes (select_shares.hpp: the selection;
+// brick_shares.hpp: regions sent by process 0): a combination at process 0 broadcast back, and
+// checks agreed before anything is sent that only a process going on would receive. Internal.
+#pragma once
+#include <fmt/format.h>
+
+#include <cstdint>
+#include <exception>
+#include <span>
+#include <vector>
+
+#include "adaptiso/error.hpp"
+#include "adaptiso/select_shares.hpp"
+
+namespace adaptiso::detail::share {
+
+template <class T>
+std::span<std::byte> bytes(std::vector<T>& v) {
+  return std::as_writable_bytes(std::span(v));
+}
+
+// `values` combined over the processes, on every process: the others' sent to process 0, which
+// folds each into its own in process order (combine(own, theirs)), then broadcasts the result.
+template <class T, class Combine>
+void combine_at_zero(ShareTransport& t, std::span<T> values, Combine combine) {
+  if (t.process() != 0) {
+    t.send(std::as_bytes(values));
+  } else {
+    std::vector<T> theirs(values.size());
+    for (int p = 1; p < t.processes(); ++p) {
+      t.receive(p, std::as_writable_bytes(std::span(theirs)));
+      for (std::size_t i = 0; i < values.size(); ++i) combine(values[i], theirs[i]);
+    }
+  }
+  t.broadcast(std::as_writable_bytes(values));
+}
+
+// Each process's checks, agreed before anything is sent that only a process going on would
+// receive: a process whose check failed rethrows its error once the others know, and they throw an
+// InputError naming the first such process and `step`.
+inline void agree(ShareTransport& t, const std::exception_ptr& failed, const char* step = "the selection") {
+  std::int64_t first = failed ? t.process() : -1;
+  combine_at_zero(t, std::span(&first, 1), [](std::int64_t& own, std::int64_t theirs) {
+    if (own < 0) own = theirs;
+  });
+  if (failed) std::rethrow_exception(failed);
+  if (first >= 0) throw InputError(fmt::format("process {} cannot take its share of {} (its own message says why)", first, step));
+}
+
+}  // namespace adaptiso::detail::share
