@@ -247,6 +247,8 @@ void CommShare::serve(const Setup& setup) {
     const auto type = static_cast<ScalarType>(m[6].cast<int>());
     const PrepareInput in = setup();
     if (in.options.grid != GridKind::bisection) throw OptionError("comm", kBisectionOnly);
+    if (scatter && !transport_)
+      throw OptionError("comm", "rank 0 sends the regions over Send and Recv, which this rank's communicator lacks");
     std::vector<std::byte> bytes;
     std::string route = "volume in memory";
     std::optional<RegionReader> reader;

@@ -169,7 +169,9 @@ TEST(SelectShares, ASinkGetsTheTetrahedraInOrderInPiecesAloneOrShared) {
         EXPECT_LE(sink.largest, piece) << what;
         EXPECT_GE(static_cast<std::uint64_t>(sink.writes), (alone.grid.tet_count() + piece - 1) / piece) << what;
       }
-      if (piece == o.piece) EXPECT_EQ(sink.writes, processes) << what;
+      if (piece == o.piece) {
+        EXPECT_EQ(sink.writes, processes) << what;
+      }
       sunk.grid.tets = alone.grid.tets;
       expect_same(alone, sunk, what);
     }
