@@ -12,6 +12,7 @@
 // that side. Output order: triangles in the order of the given tetrahedra, vertices by first use
 // (the same for any thread count).
 #pragma once
+#include <atomic>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -23,6 +24,9 @@ namespace adaptiso {
 
 struct MarchOptions {
   std::size_t parallel_min_tetrahedra = 65536;  // below this many, one thread numbers the vertices
+  // Raised from another thread: the march stops within about 0.1 s and throws ExtractCancelled
+  // (extractor.hpp); nullptr: never.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 // A vertex the clip to the volume's box made (a padded lattice, tet_grid.hpp): it lies on one of

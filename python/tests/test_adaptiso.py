@@ -142,6 +142,24 @@ def test_save_after_a_load_in_part_writes_the_file_it_loaded(tmp_path):
     assert faces_as_points(loaded.extract(9.1)) == faces_as_points(grid.extract(9.1))
 
 
+def test_a_whole_surface_of_a_grid_loaded_in_part_is_found_without_the_index(tmp_path):
+    # extract(iso) reads the tetrahedra once, without building the index, and scans them for the
+    # surface's (as the command line's extract does for up to 4 iso-values): the same arrays, in the
+    # same order, as an extraction over the whole grid with its index.
+    grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.02, relative=True)
+    grid.save(tmp_path / "s.adg")
+    loaded = adaptiso.load(tmp_path / "s.adg")
+    first, second = loaded.extract(9.1), loaded.extract(9.2)
+    assert first.stats["scanned"] and second.stats["scanned"]
+    indexed = grid.extract(9.1)
+    assert "scanned" not in indexed.stats
+    assert all(np.array_equal(a, b) for a, b in zip(first, indexed))
+    assert first.stats["triangles"] == indexed.stats["triangles"] and first.stats["active_tetrahedra"] == indexed.stats["active_tetrahedra"]
+    incremental = loaded.extractor().extract(9.2)  # reads the whole grid, with its index
+    assert all(np.array_equal(a, b) for a, b in zip(second, incremental))
+    assert "scanned" not in loaded.extract(9.2).stats
+
+
 def test_load_in_part_reads_the_rest_once_for_two_threads(tmp_path):
     grid = adaptiso.prepare(adaptiso.Volume(sphere_distance()), max_error=0.02, relative=True)
     grid.save(tmp_path / "s.adg")

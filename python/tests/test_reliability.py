@@ -294,6 +294,16 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
         print(kw, interrupted(lambda: grid.extract(0.5, **kw), whole))
         if kw:
             print(kw, "then whole:", grid.extract(0.5, **kw).stats["triangles"] == n)
+    # A grid loaded in part: its whole surface scanned for, without the index (its tetrahedra read
+    # by the first call).
+    import tempfile
+    path = os.path.join(tempfile.mkdtemp(), "g.adg")
+    grid.save(path)
+    loaded = adaptiso.load(path)
+    loaded.extract(0.5)
+    mesh, whole = timed(lambda: loaded.extract(0.5))
+    print("loaded", mesh.stats.get("scanned"), interrupted(lambda: loaded.extract(0.5), whole))
+    print("loaded then whole:", loaded.extract(0.5).stats["triangles"] == n)
     # The incremental extractor: interrupted, its next call marches afresh, the same surface. A new
     # one each try (a try that ran to its end would leave the next nothing to do); the last is the
     # one interrupted.
@@ -305,5 +315,6 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
     print("extractor", interrupted(first_extraction, whole))
     print("extractor then whole:", extractors[-1].extract(0.5).stats["triangles"] == n)
     """)
-    assert out.count("stopped early") == 4, out
-    assert out.count("then whole: True") == 3 and "extractor then whole: True" in out, out
+    assert out.count("stopped early") == 5, out
+    assert "loaded True stopped early" in out, out
+    assert out.count("then whole: True") == 4 and "extractor then whole: True" in out, out

@@ -247,6 +247,7 @@ Mesh march_tetrahedra(const TetGrid& grid, std::span<const std::uint32_t> active
                       std::vector<std::uint64_t>* vertex_edges) {
   detail::MarchScratch scratch;
   scratch.parallel_min_tetrahedra = options.parallel_min_tetrahedra;
+  scratch.cancel = options.cancel;  // the march throws ExtractCancelled itself
   Mesh mesh;
   detail::march_tetrahedra_into(grid, active, iso, mesh, scratch, nullptr, nullptr);
   Mesh clipped;
