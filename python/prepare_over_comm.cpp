@@ -185,11 +185,11 @@ void CommShare::share_hierarchy(PrepareOptions& options, bool scatter) {
     // The others wait in the gather below: rank 0 reaches it whatever happens to its own bricks.
     std::vector<BrickErrors> results;
     std::exception_ptr failed;
+    bool ready = true;  // sending the regions: every rank said it was (the others' bytes are empty otherwise)
     try {
       if (!scatter) {
         results = bisection_share_errors(bricks, 0, size_, region_source(v), range, displacement);
       } else {
-        bool ready = false;
         {
           py::gil_scoped_acquire gil;
           ready = all_ready("");
@@ -212,7 +212,7 @@ void CommShare::share_hierarchy(PrepareOptions& options, bool scatter) {
           errors.push_back(fmt::format("rank {}: {}", r, m[1].cast<std::string>()));
           continue;
         }
-        if (failed || !errors.empty()) continue;
+        if (failed || !errors.empty() || !ready) continue;
         const std::string_view bytes = m[1].cast<std::string_view>();
         std::vector<BrickErrors> theirs = unpack_brick_errors(std::as_bytes(std::span(bytes.data(), bytes.size())));
         stats_->bricks_per_rank[at] = static_cast<std::int64_t>(theirs.size());
