@@ -165,10 +165,6 @@ private:
   CrcWriter w_;
 };
 
-}  // namespace
-
-namespace {
-
 // The depth a file without its index gives loading to build it at: the depth asked for, which
 // loading reduces as the build did (a file written as its grid is made knows no other), unless the
 // grid's index was built at another (then its own).
