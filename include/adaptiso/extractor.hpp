@@ -57,7 +57,10 @@ struct ExtractStats {
 
 // One JSON object, the figures the command line's --json and Python's Mesh.stats give: iso,
 // in_range, triangles, vertices, active_tetrahedra, walked_entries, marched_tetrahedra,
-// incremental, seconds (sweep and march), sweep_seconds, march_seconds.
+// incremental, seconds (sweep and march), sweep_seconds, march_seconds. A surface found by a scan
+// instead of the index (scan_active: `adaptiso extract` for up to 4 iso-values, Python's
+// extract(iso) of a grid loaded in part) gives the same figures, the scan as the sweep (every
+// tetrahedron walked), and its callers add "scanned": true.
 std::string to_json(const ExtractStats& stats);
 
 struct ExtractCancelled : std::runtime_error {
