@@ -297,13 +297,14 @@ def test_ctrl_c_interrupts_a_long_extraction_inside_the_call():
     # A grid loaded in part: its whole surface scanned for, without the index (its tetrahedra read
     # by the first call).
     import tempfile
-    path = os.path.join(tempfile.mkdtemp(), "g.adg")
-    grid.save(path)
-    loaded = adaptiso.load(path)
-    loaded.extract(0.5)
-    mesh, whole = timed(lambda: loaded.extract(0.5))
-    print("loaded", mesh.stats.get("scanned"), interrupted(lambda: loaded.extract(0.5), whole))
-    print("loaded then whole:", loaded.extract(0.5).stats["triangles"] == n)
+    with tempfile.TemporaryDirectory() as folder:  # the grid's 51 MB go with it
+        path = os.path.join(folder, "g.adg")
+        grid.save(path)
+        loaded = adaptiso.load(path)
+        loaded.extract(0.5)
+        mesh, whole = timed(lambda: loaded.extract(0.5))
+        print("loaded", mesh.stats.get("scanned"), interrupted(lambda: loaded.extract(0.5), whole))
+        print("loaded then whole:", loaded.extract(0.5).stats["triangles"] == n)
     # The incremental extractor: interrupted, its next call marches afresh, the same surface. A new
     # one each try (a try that ran to its end would leave the next nothing to do); the last is the
     # one interrupted.
