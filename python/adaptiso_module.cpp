@@ -37,9 +37,7 @@
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
-#include "adaptiso/interval_tree.hpp"
 #include "adaptiso/marching_cubes.hpp"
-#include "adaptiso/marching_tetrahedra.hpp"
 #include "adaptiso/memory.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
@@ -487,31 +485,6 @@ GradientMethod gradient_method(const std::string& s) {
 
 py::dict extract_stats(const ExtractStats& s) { return py::module_::import("json").attr("loads")(to_json(s)); }
 
-// The whole surface of a grid without its index: its tetrahedra found by a scan (scan_active), as
-// `adaptiso extract` finds a few iso-values'; the Extractor's fresh march, byte for byte.
-ExtractStats scanned_surface(const PreparedGrid& p, double iso, Mesh& mesh) {
-  using Clock = std::chrono::steady_clock;
-  ExtractStats st;
-  st.iso = iso;
-  st.in_range = iso >= p.grid.source.min && iso <= p.grid.source.max;
-  const auto t0 = Clock::now();
-  std::vector<std::uint32_t> active;
-  scan_active(p.grid, iso, active);
-  const auto t1 = Clock::now();
-  interruptible([&](const std::atomic<bool>* cancel) {
-    MarchOptions o;
-    o.cancel = cancel;
-    mesh = march_tetrahedra(p.grid, active, iso, o);
-  });
-  st.active = st.marched = active.size();
-  st.walked = p.grid.tet_count();
-  st.triangles = mesh.triangle_count();
-  st.vertices = mesh.vertex_count();
-  st.sweep_seconds = std::chrono::duration<double>(t1 - t0).count();
-  st.march_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
-  return st;
-}
-
 py::dict distance_stats(const DistanceQueryStats& s) {
   py::dict d;
   d["iso"] = s.iso;
@@ -691,7 +664,6 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
             std::optional<HierarchyQueryStats> query;
             std::optional<DistanceQueryStats> within;
             std::optional<ExtractStats> full;
-            bool scanned = false;
             {
               py::gil_scoped_release release;
               const auto loaded = g.loaded();
@@ -713,13 +685,10 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
                 interruptible([&](const std::atomic<bool>* cancel) { full = ex.extract(value, cancel); });
                 mesh = ex.mesh();
               } else {
-                full = scanned_surface(*grid, value, mesh);
-                scanned = true;
+                interruptible([&](const std::atomic<bool>* cancel) { full = extract_scanned(grid->grid, value, mesh, cancel); });
               }
             }
-            py::dict stats = within ? distance_stats(*within) : query ? query_stats(*query) : extract_stats(*full);
-            if (scanned) stats["scanned"] = true;
-            return make_mesh(std::move(mesh), std::move(stats));
+            return make_mesh(std::move(mesh), within ? distance_stats(*within) : query ? query_stats(*query) : extract_stats(*full));
           },
           py::arg("iso"), py::arg("max_error") = py::none(), py::arg("relative") = false, py::arg("distance") = py::none(),
           py::arg("collapse") = py::none(),

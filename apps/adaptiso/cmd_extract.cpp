@@ -7,9 +7,7 @@
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
-#include "adaptiso/interval_tree.hpp"
 #include "adaptiso/marching_cubes.hpp"
-#include "adaptiso/marching_tetrahedra.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/simplify.hpp"
@@ -155,30 +153,14 @@ nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const M
 // to sweep (the CT bunny: a scan 0.2 s; the index 1.0-1.5 s on load, and 0.8 GB at its peak).
 constexpr std::size_t kMostScannedIsoValues = 4;
 
-// Every iso-value by a scan of the tetrahedra (scan_active): a grid loaded without its index.
-// The same meshes as the Extractor's fresh march, byte for byte.
+// Every iso-value by a scan of the tetrahedra (extract_scanned): a grid loaded without its index.
 nlohmann::json scan_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
                         const OutputFlags& out) {
-  const TetGrid& grid = prepared->grid;
   return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
-    const auto t0 = Clock::now();
-    std::vector<std::uint32_t> active;
-    scan_active(grid, iso, active);
-    const double scan = seconds_since(t0);
-    const auto t1 = Clock::now();
-    const Mesh mesh = march_tetrahedra(grid, active, iso);
-    ExtractStats st;
-    st.iso = iso;
-    st.in_range = iso >= grid.source.min && iso <= grid.source.max;
-    st.active = st.marched = active.size();
-    st.walked = grid.tet_count();  // every tetrahedron scanned
-    st.triangles = mesh.triangle_count();
-    st.vertices = mesh.vertex_count();
-    st.sweep_seconds = scan;
-    st.march_seconds = seconds_since(t1);
-    nlohmann::json stats = nlohmann::json::parse(to_json(st));
-    stats["scanned"] = true;
-    record(mesh, std::move(stats), fmt::format("from {} active tetrahedra", st.active), st.sweep_seconds + st.march_seconds);
+    Mesh mesh;
+    const ExtractStats st = extract_scanned(prepared->grid, iso, mesh);
+    record(mesh, nlohmann::json::parse(to_json(st)), fmt::format("from {} active tetrahedra", st.active),
+           st.sweep_seconds + st.march_seconds);
   });
 }
 
@@ -328,9 +310,7 @@ void add_extract(CLI::App& app) {
 // index's depth and size, as prepare_to_file's do.
 PreparedGrid unindexed(Volume&& v, const ValueRange& range, const PrepareOptions& options, const Progress& progress) {
   PreparedGrid p = detail::prepare_unindexed(v, range, options, progress, &v);
-  const IntervalTreeShape shape = interval_tree_shape(p.grid, options.tree_depth);
-  p.stats.index_depth = shape.depth;
-  p.stats.grid_bytes_per_vertex = detail::grid_bytes_per_vertex(p.grid.vertex_count(), p.grid.tet_count(), shape);
+  detail::set_index_figures(p.stats, interval_tree_shape(p.grid, options.tree_depth));
   return p;
 }
 

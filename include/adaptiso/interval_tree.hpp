@@ -112,9 +112,8 @@ void active_tetrahedra(const IntervalTree& tree, const SweepState& state, std::v
 void query_active(const IntervalTree& tree, const TetGrid& grid, double iso, std::vector<std::uint32_t>& out);
 
 // The reference: test every tetrahedron (parallel), ascending ids, the order a fresh sweep's
-// tetrahedra are marched in. For a few iso-values it costs less than building the index would:
-// `adaptiso extract` scans for up to 4 (the CT bunny's 54 M tetrahedra: 0.2 s a scan, against
-// 1.0-1.5 s and 0.8 GB more at the peak for the index).
+// tetrahedra are marched in. For a few iso-values it costs less than building the index would
+// (extractor.hpp: extract_scanned).
 void scan_active(const TetGrid& grid, double iso, std::vector<std::uint32_t>& out);
 
 }  // namespace adaptiso

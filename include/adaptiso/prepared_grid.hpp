@@ -72,8 +72,10 @@ double surface_error_bound(const PreparedGrid& grid, const std::vector<std::uint
 double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index);
 
 namespace detail {
-// The same for a grid of these counts and an index of that shape, neither held (prepare_to_file).
-double grid_bytes_per_vertex(std::uint64_t vertices, std::uint64_t tets, const IntervalTreeShape& shape);
+// The statistics' index figures (index_depth, grid_bytes_per_vertex as loaded, with the index) for
+// an index of that shape over stats.vertices and stats.tetrahedra, not built (loading builds it:
+// prepare_to_file, and the command line's run).
+void set_index_figures(PrepareStats& stats, const IntervalTreeShape& shape);
 }  // namespace detail
 
 }  // namespace adaptiso

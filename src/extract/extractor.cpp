@@ -32,6 +32,8 @@
 #include <numeric>
 #include <stdexcept>
 
+#include "adaptiso/interval_tree.hpp"
+#include "adaptiso/marching_tetrahedra.hpp"
 #include "extract/extractor_state.hpp"
 #include "util/radix_sort.hpp"
 
@@ -595,18 +597,41 @@ ExtractStats Extractor::extract(double iso, const std::atomic<bool>* cancel) {
 }
 
 std::string to_json(const ExtractStats& s) {
-  return nlohmann::json{{"iso", s.iso},
-                        {"in_range", s.in_range},
-                        {"triangles", s.triangles},
-                        {"vertices", s.vertices},
-                        {"active_tetrahedra", s.active},
-                        {"walked_entries", s.walked},
-                        {"marched_tetrahedra", s.marched},
-                        {"incremental", s.incremental},
-                        {"seconds", s.sweep_seconds + s.march_seconds},
-                        {"sweep_seconds", s.sweep_seconds},
-                        {"march_seconds", s.march_seconds}}
-      .dump();
+  nlohmann::json j = {{"iso", s.iso},
+                      {"in_range", s.in_range},
+                      {"triangles", s.triangles},
+                      {"vertices", s.vertices},
+                      {"active_tetrahedra", s.active},
+                      {"walked_entries", s.walked},
+                      {"marched_tetrahedra", s.marched},
+                      {"incremental", s.incremental},
+                      {"seconds", s.sweep_seconds + s.march_seconds},
+                      {"sweep_seconds", s.sweep_seconds},
+                      {"march_seconds", s.march_seconds}};
+  if (s.scanned) j["scanned"] = true;
+  return j.dump();
+}
+
+ExtractStats extract_scanned(const TetGrid& grid, double iso, Mesh& mesh, const std::atomic<bool>* cancel) {
+  using Clock = std::chrono::steady_clock;
+  ExtractStats st;
+  st.iso = iso;
+  st.in_range = iso >= grid.source.min && iso <= grid.source.max;
+  st.scanned = true;
+  const auto t0 = Clock::now();
+  std::vector<std::uint32_t> active;
+  scan_active(grid, iso, active);
+  const auto t1 = Clock::now();
+  MarchOptions o;
+  o.cancel = cancel;
+  mesh = march_tetrahedra(grid, active, iso, o);
+  st.active = st.marched = active.size();
+  st.walked = grid.tet_count();
+  st.triangles = mesh.triangle_count();
+  st.vertices = mesh.vertex_count();
+  st.sweep_seconds = std::chrono::duration<double>(t1 - t0).count();
+  st.march_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
+  return st;
 }
 
 }  // namespace adaptiso

@@ -177,6 +177,10 @@ std::vector<BrickErrors> bisection_scatter_errors(ShareTransport& t, const Brick
   std::vector<std::size_t> owed(static_cast<std::size_t>(processes), 0);
   for (int p = 1; p < processes; ++p) owed[static_cast<std::size_t>(p)] = bricks_of(bricks, p, processes).size();
   auto word = [&](int to, RegionWord w) { t.send_to(to, std::as_bytes(std::span(&w, 1))); };
+  auto tell_failed = [&] {  // process 0 failed: the others still owed a region wait for no more
+    for (int p = 1; p < processes; ++p)
+      if (owed[static_cast<std::size_t>(p)] > 0) word(p, RegionWord::failed);
+  };
   std::vector<BrickErrors> out;
   std::exception_ptr failed;  // another process's own failure: it still takes its regions
   for (std::int64_t z = 0; z < bricks.count[2]; ++z) {
@@ -192,8 +196,7 @@ std::vector<BrickErrors> bisection_scatter_errors(ShareTransport& t, const Brick
             --owed[static_cast<std::size_t>(p)];
           }
       } catch (...) {
-        for (int p = 1; p < processes; ++p)
-          if (owed[static_cast<std::size_t>(p)] > 0) word(p, RegionWord::failed);
+        tell_failed();
         throw;
       }
     } else {
@@ -215,8 +218,7 @@ std::vector<BrickErrors> bisection_scatter_errors(ShareTransport& t, const Brick
       });
     } catch (...) {
       if (me == 0) {  // the others wait for the next slab's regions: told instead
-        for (int p = 1; p < processes; ++p)
-          if (owed[static_cast<std::size_t>(p)] > 0) word(p, RegionWord::failed);
+        tell_failed();
         throw;
       }
       failed = std::current_exception();

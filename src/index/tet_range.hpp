@@ -1,7 +1,9 @@
 // A tetrahedron's value range [tmin, tmax], the key of the interval tree: read by its build,
-// its validation and its sweep (interval_tree*.cpp). Internal.
+// its validation and its sweep (interval_tree*.cpp), and the count of its entries prepare_to_file
+// takes as the tetrahedra pass. Internal.
 #pragma once
 #include <algorithm>
+#include <array>
 #include <cstdint>
 
 #include "adaptiso/tet_grid.hpp"
@@ -13,12 +15,14 @@ struct Range {
   double lo, hi;
 };
 
-inline Range tet_range(const TetGrid& grid, std::uint32_t t) {
-  const auto& q = grid.tets[t];
-  const double* v = grid.values.data();
+// Of the tetrahedron q over the vertices' values v (a tetrahedron held apart from its grid: the
+// pieces prepare_to_file counts as they go into the file).
+inline Range tet_range(const double* v, const std::array<std::uint32_t, 4>& q) {
   double a = v[q[0]], b = v[q[1]], c = v[q[2]], d = v[q[3]];
   return {std::min(std::min(a, b), std::min(c, d)), std::max(std::max(a, b), std::max(c, d))};
 }
+
+inline Range tet_range(const TetGrid& grid, std::uint32_t t) { return tet_range(grid.values.data(), grid.tets[t]); }
 
 inline double tet_min(const TetGrid& grid, std::uint32_t t) { return tet_range(grid, t).lo; }
 inline double tet_max(const TetGrid& grid, std::uint32_t t) { return tet_range(grid, t).hi; }

@@ -7,12 +7,12 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_reduce.h>
 
-#include <algorithm>
 #include <chrono>
 #include <utility>
 
 #include "adaptiso/atomic_file.hpp"
 #include "adaptiso/grid_file.hpp"
+#include "index/tet_range.hpp"
 #include "io/grid_file_stream.hpp"
 
 namespace adaptiso {
@@ -39,16 +39,14 @@ public:
   IntervalTreeShape shape(std::uint32_t depth) const { return interval_tree_shape(tets_, entries_, sampled_, depth); }
 
 private:
-  // The non-constant tetrahedra, as the index's build and interval_tree_shape count them.
+  // The non-constant tetrahedra, as the index's build and interval_tree_shape count them (tet_range).
   void count(std::span<const std::array<std::uint32_t, 4>> tets) {
     using Counts = std::pair<std::uint64_t, std::uint64_t>;
     const Counts c = tbb::parallel_reduce(
         tbb::blocked_range<std::size_t>(0, tets.size(), 1 << 16), Counts{0, 0},
         [&](const auto& r, Counts n) {
           for (std::size_t i = r.begin(); i < r.end(); ++i) {
-            const auto& q = tets[i];
-            const double a = values_[q[0]], b = values_[q[1]], c = values_[q[2]], d = values_[q[3]];
-            if (std::min(std::min(a, b), std::min(c, d)) < std::max(std::max(a, b), std::max(c, d))) {
+            if (const detail::Range q = detail::tet_range(values_, tets[i]); q.lo < q.hi) {
               ++n.first;
               n.second += (next_ + i) % stride_ == 0;
             }
@@ -90,8 +88,7 @@ PrepareStats prepare_sunk(const Volume& v, const ValueRange& range, const Prepar
   });
   report(progress, "save", 1);
   add_to_save(p.stats, std::chrono::duration<double>(Clock::now() - t0).count());
-  p.stats.index_depth = shape.depth;  // the depth it will have (fewer tetrahedra than leaves: reduced), loading builds it at
-  p.stats.grid_bytes_per_vertex = detail::grid_bytes_per_vertex(p.stats.vertices, p.stats.tetrahedra, shape);  // as loaded, with the index
+  detail::set_index_figures(p.stats, shape);
   return std::move(p.stats);
 }
 
@@ -100,9 +97,7 @@ PrepareStats prepare_file(const Volume& v, const ValueRange& range, const Prepar
   check_output_path(path);  // before minutes of work, not after
   if (detail::can_sink(o)) return prepare_sunk(v, range, o, path, progress, release);
   PreparedGrid p = detail::prepare_unindexed(v, range, o, progress, release);
-  const IntervalTreeShape shape = interval_tree_shape(p.grid, o.tree_depth);
-  p.stats.index_depth = shape.depth;
-  p.stats.grid_bytes_per_vertex = detail::grid_bytes_per_vertex(p.grid.vertex_count(), p.grid.tet_count(), shape);
+  detail::set_index_figures(p.stats, interval_tree_shape(p.grid, o.tree_depth));
   const auto t0 = Clock::now();
   report(progress, "save", 0);
   save_grid(p, path);

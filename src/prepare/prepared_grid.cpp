@@ -104,8 +104,9 @@ double grid_bytes_per_vertex(const TetGrid& grid, const IntervalTree& index) {
 }
 
 namespace detail {
-double grid_bytes_per_vertex(std::uint64_t vertices, std::uint64_t tets, const IntervalTreeShape& shape) {
-  return bytes_per_vertex(vertices, tets, shape.entries, shape.nodes());
+void set_index_figures(PrepareStats& stats, const IntervalTreeShape& shape) {
+  stats.index_depth = shape.depth;  // reduced where there are fewer tetrahedra than leaves
+  stats.grid_bytes_per_vertex = bytes_per_vertex(stats.vertices, stats.tetrahedra, shape.entries, shape.nodes());
 }
 }  // namespace detail
 
