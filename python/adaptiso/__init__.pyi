@@ -69,7 +69,7 @@ class Extractor:
     def last_stats(self) -> dict: ...
 
 class Grid:
-    """A prepared tetrahedral grid with its extraction index (prepare or load)."""
+    """A prepared tetrahedral grid (prepare or load); its extraction index is built when extractor() first needs it."""
 
     def extract(self, iso: float, max_error: Optional[float] = ..., relative: bool = ..., distance: Optional[float] = ...,
                 collapse: Optional[int] = ...) -> Mesh: ...

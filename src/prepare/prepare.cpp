@@ -293,6 +293,21 @@ PreparedGrid prepare(Volume&& v, const PrepareOptions& o, const Progress& progre
   return prepare_grid(v, range, o, progress, &v);
 }
 
+PreparedGrid prepare_without_index(const Volume& v, const PrepareOptions& o, const Progress& progress) {
+  PreparedGrid p = detail::prepare_unindexed(v, value_range(v), o, progress, nullptr);
+  detail::set_index_figures(p.stats, interval_tree_shape(p.grid, o.tree_depth));
+  return p;
+}
+
+void add_index(PreparedGrid& p, const Progress& progress) {
+  if (!p.index.nodes.empty() || p.grid.tet_count() == 0) return;
+  report(progress, "build index", 0);
+  p.index = build_interval_tree(p.grid, p.stats.tree_depth);
+  report(progress, "build index", 1);
+  p.stats.index_depth = p.index.depth;
+  p.stats.grid_bytes_per_vertex = grid_bytes_per_vertex(p.grid, p.index);
+}
+
 namespace {
 
 PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, const Progress& progress) {
@@ -307,7 +322,8 @@ PreparedGrid coarsen_with(const PreparedGrid& fine, const BisectionOptions& b, c
     p.tet_error_code = std::move(grid.tet_code);
     p.tet_codes = fine.hierarchy->codes;
   }
-  p.stats.tree_depth = fine.index.depth ? fine.index.depth : kDefaultTreeDepth;
+  // A fine grid without its index (prepare_without_index, a file loaded without it) gives the depth it was prepared for.
+  p.stats.tree_depth = fine.index.depth ? fine.index.depth : fine.stats.tree_depth ? fine.stats.tree_depth : kDefaultTreeDepth;
   p.index = clock.run("index", [&] { return build_interval_tree(p.grid, p.stats.tree_depth); });
   p.stats.grid = "bisection";
   p.stats.voxels = fine.stats.voxels;

@@ -76,6 +76,47 @@ TEST(Prepare, TakingTheVolumeReleasesItsVoxelsAndGivesTheSameGrid) {
   EXPECT_EQ(taken.stats.voxels, lent.stats.voxels);
 }
 
+// prepare_without_index then add_index is prepare: the same grid, index and index figures, on both
+// grids, at a reduced tree depth and on a constant volume (no entries, an empty index); before
+// add_index the figures are already the index's, and add_index does nothing twice.
+TEST(Prepare, WithoutTheIndexThenAddingItIsPrepare) {
+  struct Case {
+    const char* name;
+    Volume v;
+    GridKind grid;
+    std::uint32_t depth;
+  };
+  Volume flat = make_volume({9, 8, 7}, ScalarType::f32);  // zeros
+  Case cases[] = {{"bisection", make_synthetic("marschner-lobb", 19, ScalarType::u16), GridKind::bisection, kDefaultTreeDepth},
+                  {"bisection, depth 3", make_synthetic("sphere", 21, ScalarType::f32), GridKind::bisection, 3},
+                  {"delaunay", make_synthetic("sphere", 17, ScalarType::f32), GridKind::delaunay, kDefaultTreeDepth},
+                  {"constant", std::move(flat), GridKind::bisection, kDefaultTreeDepth}};
+  for (Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    PrepareOptions o;
+    o.grid = c.grid;
+    o.max_error = 0.05;
+    o.relative = true;
+    o.tree_depth = c.depth;
+    const PreparedGrid full = prepare(c.v, o);
+    PreparedGrid lazy = prepare_without_index(c.v, o);
+    EXPECT_TRUE(lazy.index.nodes.empty());
+    EXPECT_EQ(lazy.grid.tets, full.grid.tets);
+    EXPECT_EQ(lazy.stats.index_depth, full.stats.index_depth);
+    EXPECT_EQ(lazy.stats.grid_bytes_per_vertex, full.stats.grid_bytes_per_vertex);
+    EXPECT_EQ(lazy.stats.tree_depth, full.stats.tree_depth);
+    for (const auto& st : lazy.stats.stages) EXPECT_NE(st.name, "index");
+    add_index(lazy);
+    add_index(lazy);
+    EXPECT_EQ(lazy.index.depth, full.index.depth);
+    EXPECT_EQ(lazy.index.nodes.size(), full.index.nodes.size());
+    EXPECT_EQ(lazy.index.by_min, full.index.by_min);
+    EXPECT_EQ(lazy.index.by_max, full.index.by_max);
+    EXPECT_EQ(lazy.stats.index_depth, full.stats.index_depth);
+    EXPECT_EQ(lazy.stats.grid_bytes_per_vertex, full.stats.grid_bytes_per_vertex);
+  }
+}
+
 // prepare_to_file writes the grid without building its index: the file must be
 // save_grid(prepare(...))'s (which leaves the index out too), byte for byte, on both grids, with the
 // displacement criterion, on values that are not floats (the index's double keys), on a constant
