@@ -107,4 +107,20 @@ struct HierarchyIndex {
   }
 };
 
+// The index of a bisection grid's queries (HierarchyQuery's). Throws InputError for a grid
+// without a hierarchy, or one that does not match its dimensions.
+std::unique_ptr<HierarchyIndex> make_hierarchy_index(const PreparedGrid& grid);
+
+// For the tests of the distance query's probes (distance_query.cpp): at each point (lattice
+// units, inside the box) the side of iso on which the grid's interpolant lies, found level by
+// level from the root tetrahedron holding it and cube by cube from each scale in `from_halves`
+// (halves of cube sides, powers of two); counted: the answers the cubes gave, and of those the
+// ones that disagree with the level-by-level descent or that it does not judge (off the grid:
+// a leaf across the box's far faces).
+struct ProbeRouteCounts {
+  std::size_t points = 0, by_cubes = 0, disagreed = 0;  // points: those the level-by-level descent judges
+};
+ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, const std::vector<std::array<double, 3>>& points,
+                                      const std::vector<std::int32_t>& from_halves);
+
 }  // namespace adaptiso::detail

@@ -136,16 +136,24 @@ struct QueryRule {
 }  // namespace
 }  // namespace detail
 
-HierarchyQuery::HierarchyQuery(std::shared_ptr<const PreparedGrid> grid) : grid_(std::move(grid)) {
-  if (!grid_ || !grid_->hierarchy || grid_->hierarchy->error_code.size() != grid_->grid.vertex_count() ||
-      grid_->hierarchy->value_span.size() != grid_->grid.vertex_count())
+namespace detail {
+std::unique_ptr<HierarchyIndex> make_hierarchy_index(const PreparedGrid& grid) {
+  if (!grid.hierarchy || grid.hierarchy->error_code.size() != grid.grid.vertex_count() ||
+      grid.hierarchy->value_span.size() != grid.grid.vertex_count())
     throw InputError("this grid has no bisection hierarchy: queries at another error need a bisection grid");
-  const TetGrid& g = grid_->grid;
-  index_ = std::make_unique<detail::HierarchyIndex>();
-  index_->lat = detail::make_lattice(g.source.dims);
-  if (grid_->hierarchy->root_size != index_->lat.S) throw InputError("the grid's hierarchy does not match its dimensions");
-  index_->numbers = detail::grid_vertex_numbers(g);
-  index_->lining.build(index_->lat, index_->numbers, g, *grid_->hierarchy);
+  const TetGrid& g = grid.grid;
+  auto index = std::make_unique<HierarchyIndex>();
+  index->lat = make_lattice(g.source.dims);
+  if (grid.hierarchy->root_size != index->lat.S) throw InputError("the grid's hierarchy does not match its dimensions");
+  index->numbers = grid_vertex_numbers(g);
+  index->lining.build(index->lat, index->numbers, g, *grid.hierarchy);
+  return index;
+}
+}  // namespace detail
+
+HierarchyQuery::HierarchyQuery(std::shared_ptr<const PreparedGrid> grid) : grid_(std::move(grid)) {
+  if (!grid_) throw InputError("this grid has no bisection hierarchy: queries at another error need a bisection grid");
+  index_ = detail::make_hierarchy_index(*grid_);
 }
 
 HierarchyQuery::~HierarchyQuery() = default;

@@ -20,6 +20,7 @@
 #include "adaptiso/surface_distance.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "adaptiso/volume_io.hpp"
+#include "extract/hierarchy_index.hpp"
 #include "extract/triangle_cover.hpp"
 #include "test_util.hpp"
 
@@ -529,4 +530,54 @@ TEST(DistanceQuery, ATetrahedronShowingASpeckOfSurfaceIsSearchedForTheRest) {
   const auto p95 = p95_both_ways_on_the_default_grid(data + "/ct_chest_lidc2.nhdr", 100.5, 2, 200'000);
   EXPECT_LE(p95.grid_to_query, 2);
   EXPECT_LE(p95.query_to_grid, 2);
+}
+
+// The probes' cube-by-cube descent (value_by_cubes) answers as the level-by-level one does: at
+// random points and at lattice points, edge midpoints and cube centres, from every cube scale,
+// on noise over odd and 2-voxel-thick boxes, a sphere on a power-of-two box (the padded lattice),
+// integer data at half-integer iso-values and a field prepared coarse and fine.
+TEST(DistanceQuery, TheProbesCubeByCubeDescentAnswersAsTheLevelByLevelOne) {
+  std::mt19937 rng(7);
+  struct Case {
+    const char* name;
+    Volume v;
+    double error;
+    std::vector<double> isos;
+  };
+  std::vector<Case> cases;
+  {
+    std::uniform_real_distribution<double> u(0, 1);
+    cases.push_back({"noise 23x17x29", field({23, 17, 29}, {1, 1, 1}, [&](double, double, double) { return u(rng); }), 0.1, {0.3, 0.5}});
+    cases.push_back({"noise 2-voxel slab", field({31, 2, 19}, {1, 1, 1}, [&](double, double, double) { return u(rng); }), 0.05, {0.5}});
+  }
+  cases.push_back({"sphere 64", make_synthetic("sphere", 64, ScalarType::f32), 0.01, {0.3, 0.7}});
+  cases.push_back({"marschner-lobb 41, fine", make_synthetic("marschner-lobb", 41, ScalarType::f32), 0.002, {0.4}});
+  cases.push_back({"marschner-lobb 41, coarse", make_synthetic("marschner-lobb", 41, ScalarType::f32), 0.2, {0.4}});
+  {
+    std::uniform_int_distribution<int> u(0, 40);
+    cases.push_back({"integers 19x26x15", field({19, 26, 15}, {0.7, 1, 2.5}, [&](double, double, double) { return double(u(rng)); }), 0.05,
+                     {10.5, 20.5}});
+  }
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const auto grid = testutil::prepared_at(c.v, c.error, true);
+    const Dims& d = grid->grid.source.dims;
+    std::vector<std::int32_t> halves;
+    for (std::int32_t h = 1; h <= std::max({d[0], d[1], d[2]}); h *= 2) halves.push_back(h);
+    std::vector<std::array<double, 3>> points;
+    std::uniform_real_distribution<double> along[3] = {std::uniform_real_distribution<double>(0, double(d[0] - 1)),
+                                                       std::uniform_real_distribution<double>(0, double(d[1] - 1)),
+                                                       std::uniform_real_distribution<double>(0, double(d[2] - 1))};
+    for (int i = 0; i < 20000; ++i) points.push_back({along[0](rng), along[1](rng), along[2](rng)});
+    for (double z = 0; z <= double(d[2] - 1); z += 0.5)  // on the lattice, its edges' midpoints, its cubes' centres
+      for (double y = 0; y <= double(d[1] - 1); y += 1.5)
+        for (double x = 0; x <= double(d[0] - 1); x += 0.5) points.push_back({x, y, z});
+    for (double iso : c.isos) {
+      const auto n = detail::compare_probe_routes(*grid, iso, points, halves);
+      EXPECT_GT(n.points, points.size() * 9 / 10) << iso;  // the rest in leaves across the far faces
+      // From most scales at most points, but for cubes across the box (all of them in the slab).
+      if (std::min({d[0], d[1], d[2]}) > 2) EXPECT_GT(n.by_cubes, n.points) << iso;
+      EXPECT_EQ(n.disagreed, 0u) << iso;
+    }
+  }
 }
