@@ -54,8 +54,8 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
-#include <bit>
 #include <atomic>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -390,20 +390,21 @@ struct Query {
     return true;
   }
 
-  // The same answer cube by cube. The hierarchy's tetrahedra three levels apart are the Kuhn
-  // tetrahedra of the cubes of side 2h aligned to multiples of 2h, h = S/2, S/4, …, 1, each cube's
-  // six split together at its centre (diamond.hpp): so the tetrahedron holding p three levels
-  // down from a cube-level one lies in the cube of side h holding p, split in the grid exactly when
-  // that cube's centre is a grid vertex, and the span there covers the whole cube. A cube per
-  // three levels is one lookup of the vertex bitmap and one of the span, with no orientation test
-  // and no table (the level-by-level descent took 9.9 steps a probe on the CT bunny at 2 voxels).
-  // From the cubes of side 2·h0 down (h0 a power of two), while they lie inside the box; below the
-  // last split cube the leaf is found by bisecting that cube's Kuhn tetrahedron holding p at its
-  // longest edge (unique in this hierarchy). Returns false where it cannot tell (a cube across
-  // the box's far faces, or the first cube not split): the caller descends level by level.
+  // The same answer cube by cube. Every third level of the hierarchy is the Kuhn tetrahedra of
+  // the cubes of side 2h aligned to multiples of 2h (h = S/2, S/4, …, 1), a cube's six split
+  // together at its centre (diamond.hpp). So at that level the tetrahedron holding p lies in the
+  // cube of side 2h holding p, it is split in the grid exactly when that cube's centre is a grid
+  // vertex, and the centre's span covers the whole cube: three levels for one lookup of the
+  // vertex bitmap and one of the span, with no orientation test and no table (the level-by-level
+  // descent took 9.9 steps a probe on the CT bunny at 2 voxels). From the cubes of side 2·h0 down
+  // (h0 a power of two, at most S/2), while they lie inside the box; below the last split cube
+  // the leaf is found by bisecting that cube's Kuhn tetrahedron holding p at its longest edge
+  // (unique in this hierarchy). Returns false where it cannot tell (a cube across the box's far
+  // faces, or the first cube not split): the caller descends level by level.
   bool value_by_cubes(const Point& p, double& value, std::int32_t h0) const {
     std::int32_t last = 0;  // the side of the last split cube, 0 before the first
     Coord lo_last{};
+    h0 = std::min(h0, lat.S / 2);  // larger "cubes" hold no diamond: the root cube's centre is S/2
     for (std::int32_t half = h0; half >= 1; half >>= 1) {
       const std::int32_t side = 2 * half;
       Coord lo, c;
@@ -425,6 +426,7 @@ struct Query {
       last = side, lo_last = lo;
       if (half == 1) break;
     }
+    if (last == 0) return false;  // no cube looked at (S = 1)
     // The Kuhn tetrahedron of the last split cube holding p: from the cube's corner at odd
     // multiples of its side along the diagonal, the axes in decreasing order of p's distance from
     // that corner.

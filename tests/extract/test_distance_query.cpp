@@ -533,9 +533,10 @@ TEST(DistanceQuery, ATetrahedronShowingASpeckOfSurfaceIsSearchedForTheRest) {
 }
 
 // The probes' cube-by-cube descent (value_by_cubes) answers as the level-by-level one does: at
-// random points and at lattice points, edge midpoints and cube centres, from every cube scale,
-// on noise over odd and 2-voxel-thick boxes, a sphere on a power-of-two box (the padded lattice),
-// integer data at half-integer iso-values and a field prepared coarse and fine.
+// random points and at lattice points, edge midpoints and cube centres, from every cube scale
+// (and larger ones, which it clamps), on noise over odd and 2-voxel-thick boxes, a sphere on a
+// power-of-two box (the padded lattice) and on a box that is the root cube, one cell, integer data
+// at half-integer iso-values and a field prepared coarse and fine.
 TEST(DistanceQuery, TheProbesCubeByCubeDescentAnswersAsTheLevelByLevelOne) {
   std::mt19937 rng(7);
   struct Case {
@@ -551,6 +552,8 @@ TEST(DistanceQuery, TheProbesCubeByCubeDescentAnswersAsTheLevelByLevelOne) {
     cases.push_back({"noise 2-voxel slab", field({31, 2, 19}, {1, 1, 1}, [&](double, double, double) { return u(rng); }), 0.05, {0.5}});
   }
   cases.push_back({"sphere 64", make_synthetic("sphere", 64, ScalarType::f32), 0.01, {0.3, 0.7}});
+  cases.push_back({"sphere 33 (the box the root cube)", make_synthetic("sphere", 33, ScalarType::f32), 0.01, {0.5}});
+  cases.push_back({"one cell", field({2, 2, 2}, {1, 1, 1}, [](double x, double y, double z) { return x + 2 * y + 4 * z; }), 0.01, {2.5}});
   cases.push_back({"marschner-lobb 41, fine", make_synthetic("marschner-lobb", 41, ScalarType::f32), 0.002, {0.4}});
   cases.push_back({"marschner-lobb 41, coarse", make_synthetic("marschner-lobb", 41, ScalarType::f32), 0.2, {0.4}});
   {
