@@ -347,11 +347,7 @@ struct Query {
         // Everything beneath on one side: so is p (most probes stop a few levels above the leaf).
         // A diamond across the box keeps the span of its tetrahedra inside it only.
         const std::uint32_t id = numbers.id(voxel);
-        const auto& span = h.value_span[id];
-        if ((span[1] < iso || span[0] >= iso) && (tet_inside(lat, t) || !forced(id))) {  // the box test first: no load
-          value = span[0] >= iso ? iso : -std::numeric_limits<double>::infinity();
-          return true;
-        }
+        if (one_sided(id, value) && (tet_inside(lat, t) || !forced(id))) return true;  // the box test first: no load
       } else if (!placement(classify(m, lat.k), lat).forced) {
         break;
       }
@@ -375,6 +371,14 @@ struct Query {
     for (int k = 0; k < 3; ++k)
       extent = std::max(extent, std::max({t[0][k], t[1][k], t[2][k], t[3][k]}) - std::min({t[0][k], t[1][k], t[2][k], t[3][k]}));
     return std::max<std::int32_t>(1, static_cast<std::int32_t>(std::bit_floor(static_cast<std::uint32_t>(std::max(extent, 1)))));
+  }
+  // Everything beneath the diamond of grid vertex id on one side of the iso-value: so is any point
+  // of its tetrahedra, whose value this sets to one on that side.
+  bool one_sided(std::uint32_t id, double& value) const {
+    const auto& span = h.value_span[id];
+    if (!(span[1] < iso || span[0] >= iso)) return false;
+    value = span[0] >= iso ? iso : -std::numeric_limits<double>::infinity();
+    return true;
   }
   // The grid's interpolant at p in its leaf t.
   bool interpolate(const Tet& t, const Point& p, double& value) const {
@@ -418,11 +422,7 @@ struct Query {
         if (last == 0) return false;
         break;
       }
-      const auto& span = h.value_span[numbers.id(voxel)];
-      if (span[1] < iso || span[0] >= iso) {
-        value = span[0] >= iso ? iso : -std::numeric_limits<double>::infinity();
-        return true;
-      }
+      if (one_sided(numbers.id(voxel), value)) return true;
       last = side, lo_last = lo;
       if (half == 1) break;
     }
@@ -466,11 +466,7 @@ struct Query {
       if (unit) break;
       const std::int64_t voxel = lat.index(m);
       if (!numbers.used(voxel)) break;
-      const auto& span = h.value_span[numbers.id(voxel)];
-      if (span[1] < iso || span[0] >= iso) {
-        value = span[0] >= iso ? iso : -std::numeric_limits<double>::infinity();
-        return true;
-      }
+      if (one_sided(numbers.id(voxel), value)) return true;
       const auto& off = kCornersOff[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)];
       const Point ti{double(t[i][0]), double(t[i][1]), double(t[i][2])};
       const double sp = orient(m, t[off[0]], t[off[1]], p), si = orient(m, t[off[0]], t[off[1]], ti);
