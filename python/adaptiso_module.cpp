@@ -678,7 +678,9 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
       "read(path) -> Volume\n\nReads a volume: .nrrd/.nhdr, .nii/.nii.gz, .mha/.mhd, .vti, .vtk, or a folder holding one DICOM series. "
       "path: str, bytes or os.PathLike. OSError when it cannot be read.");
 
-  py::class_<Grid>(m, "Grid", "A prepared tetrahedral grid (adaptiso.prepare or adaptiso.load); its extraction index is built when extractor() first needs it.")
+  py::class_<Grid>(
+      m, "Grid",
+      "A prepared tetrahedral grid (adaptiso.prepare or adaptiso.load); its extraction index is built when extractor() first needs it.")
       .def(
           "extract",
           [](py::handle self, double iso, std::optional<double> max_error, bool relative, std::optional<double> distance,

@@ -169,7 +169,8 @@ constexpr std::array<std::array<std::array<std::uint8_t, 2>, 4>, 4> corners_off(
     for (int j = 0; j < 4; ++j) {
       int n = 0;
       for (int k = 0; k < 4 && n < 2; ++k)
-        if (k != i && k != j) off[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)][static_cast<std::size_t>(n++)] = static_cast<std::uint8_t>(k);
+        if (k != i && k != j)
+          off[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)][static_cast<std::size_t>(n++)] = static_cast<std::uint8_t>(k);
     }
   return off;
 }
@@ -1163,8 +1164,10 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
   Marks split(1);
   tbb::enumerable_thread_specific<std::vector<std::int64_t>> marked;
   tbb::enumerable_thread_specific<std::size_t> tested(0);
-  const Query q{index->lat, index->numbers, index->lining, grid.grid, *grid.hierarchy, iso, 1, 2, false, {1, 1, 1}, split, marked, tested,
-                nullptr};
+  // Only the probes' fields matter here: the distance, the tests and the marks are never read.
+  const double distance = 1;
+  const Query q{index->lat,   index->numbers, index->lining, grid.grid, *grid.hierarchy, iso,    distance,
+                2 * distance, false,          {1, 1, 1},     split,     marked,          tested, nullptr};
   ProbeRouteCounts n;
   for (const auto& p : points) {
     double level = 0;

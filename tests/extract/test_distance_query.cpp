@@ -558,7 +558,9 @@ TEST(DistanceQuery, TheProbesCubeByCubeDescentAnswersAsTheLevelByLevelOne) {
   cases.push_back({"marschner-lobb 41, coarse", make_synthetic("marschner-lobb", 41, ScalarType::f32), 0.2, {0.4}});
   {
     std::uniform_int_distribution<int> u(0, 40);
-    cases.push_back({"integers 19x26x15", field({19, 26, 15}, {0.7, 1, 2.5}, [&](double, double, double) { return double(u(rng)); }), 0.05,
+    cases.push_back({"integers 19x26x15",
+                     field({19, 26, 15}, {0.7, 1, 2.5}, [&](double, double, double) { return double(u(rng)); }),
+                     0.05,
                      {10.5, 20.5}});
   }
   for (const Case& c : cases) {
