@@ -581,7 +581,9 @@ TEST(DistanceQuery, TheProbesCubeByCubeDescentAnswersAsTheLevelByLevelOne) {
       const auto n = detail::compare_probe_routes(*grid, iso, points, halves);
       EXPECT_GT(n.points, points.size() * 9 / 10) << iso;  // the rest in leaves across the far faces
       // From most scales at most points, but for cubes across the box (all of them in the slab).
-      if (std::min({d[0], d[1], d[2]}) > 2) EXPECT_GT(n.by_cubes, n.points) << iso;
+      if (std::min({d[0], d[1], d[2]}) > 2) {
+        EXPECT_GT(n.by_cubes, n.points) << iso;
+      }
       EXPECT_EQ(n.disagreed, 0u) << iso;
     }
   }
