@@ -162,7 +162,7 @@ constexpr std::array<std::array<bool, 4>, 4> corner_i_side() {
   return side;
 }
 inline constexpr auto kCornerISide = corner_i_side();
-// The two corners off edge (i, j), k < l.
+// The two corners off edge (i, j), k < l: both descents step with them.
 constexpr std::array<std::array<std::array<std::uint8_t, 2>, 4>, 4> corners_off() {
   std::array<std::array<std::array<std::uint8_t, 2>, 4>, 4> off{};
   for (int i = 0; i < 4; ++i)
@@ -352,11 +352,8 @@ struct Query {
       } else if (!placement(classify(m, lat.k), lat).forced) {
         break;
       }
-      int k = 0;
-      while (k == i || k == j) ++k;
-      int l = k + 1;
-      while (l == i || l == j) ++l;
-      const bool keeps_i = (orient(m, t[k], t[l], p) >= 0) == kCornerISide[i][j];
+      const auto& off = kCornersOff[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)];
+      const bool keeps_i = (orient(m, t[off[0]], t[off[1]], p) >= 0) == kCornerISide[i][j];
       const auto& e = order_table::kTable[o];
       t[static_cast<std::size_t>(keeps_i ? j : i)] = m;
       o = keeps_i ? e.at_j : e.at_i;
