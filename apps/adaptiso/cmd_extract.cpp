@@ -1,19 +1,24 @@
 // adaptiso extract / adaptiso run: iso-surfaces from a grid file, or from a volume in one go (§2.4).
 #include <fmt/format.h>
+#include <tbb/global_control.h>
 
 #include <filesystem>
 #include <iostream>
+#include <numeric>
+#include <optional>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/grid_file.hpp"
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/marching_cubes.hpp"
+#include "adaptiso/memory.hpp"
 #include "adaptiso/mesh_io.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/simplify.hpp"
 #include "adaptiso/surface_distance.hpp"
 #include "cli_common.hpp"
 #include "options.hpp"
+#include "ranks.hpp"
 
 namespace adaptiso::cli {
 namespace {
@@ -68,9 +73,17 @@ struct MeshOutputFlags {
 
   // Simplifies the mesh when asked, writes it, and returns what the simplification did (JSON; null
   // without --simplify) and the line that tells it.
-  std::pair<nlohmann::json, std::string> write(const Mesh& mesh, const std::string& path, const Vec3& spacing) const {
+  // With `staged`, the file is staged there (atomic_file.hpp) for the caller to commit.
+  std::pair<nlohmann::json, std::string> write(const Mesh& mesh, const std::string& path, const Vec3& spacing,
+                                               std::vector<StagedFile>* staged = nullptr) const {
+    auto put = [&](const Mesh& m) {
+      if (staged)
+        staged->push_back(stage_mesh(m, path));
+      else
+        write_mesh(m, path);
+    };
     if (simplify <= 0) {
-      write_mesh(mesh, path);
+      put(mesh);
       return {nullptr, ""};
     }
     const double voxel = std::min({spacing[0], spacing[1], spacing[2]});
@@ -78,7 +91,7 @@ struct MeshOutputFlags {
     SimplifyOptions how;
     how.checked = checked;
     const Mesh simplified = simplify_mesh(mesh, simplify * voxel, &st, how);
-    write_mesh(simplified, path);
+    put(simplified);
     nlohmann::json j = {{"distance_voxels", simplify},
                         {"checked", checked},
                         {"triangles_before", st.triangles_before},
@@ -104,34 +117,50 @@ struct MeshOutputFlags {
 };
 
 // The human-readable line for one surface; `how` describes where its triangles came from.
+std::string surface_line(double iso, bool in_range, double min, double max, std::size_t triangles, std::size_t vertices,
+                         const std::string& how, double seconds, const std::string& path) {
+  if (!in_range)
+    return fmt::format("iso {:.6g} lies outside the value range [{:.6g}, {:.6g}]: empty mesh, wrote {}\n", iso, min, max, path);
+  return fmt::format("iso {:.6g}: {} triangles, {} vertices {} in {:.4f} s; wrote {}\n", iso, triangles, vertices, how, seconds, path);
+}
 void print_surface(double iso, bool in_range, double min, double max, std::size_t triangles, std::size_t vertices, const std::string& how,
                    double seconds, const std::string& path) {
-  if (!in_range)
-    std::cout << fmt::format("iso {:.6g} lies outside the value range [{:.6g}, {:.6g}]: empty mesh, wrote {}\n", iso, min, max, path);
-  else
-    std::cout << fmt::format("iso {:.6g}: {} triangles, {} vertices {} in {:.4f} s; wrote {}\n", iso, triangles, vertices, how, seconds,
-                             path);
+  std::cout << surface_line(iso, in_range, min, max, triangles, vertices, how, seconds, path);
 }
+
+// Where write_all puts the meshes and their lines: in place and on stdout (one process), or staged
+// and kept for rank 0 to print (one rank's share of the iso-values under mpirun).
+struct Written {
+  std::vector<std::size_t> numbers;           // each given iso-value's number among all (empty: 0, 1, 2, …)
+  std::vector<StagedFile>* staged = nullptr;  // staged here, not put in place
+  std::vector<std::string>* lines = nullptr;  // the lines kept here, not printed
+};
 
 // Writes one surface per iso-value, whichever way `extract` makes it, and returns the per-value
 // statistics. `extract(iso, record)` calls `record(mesh, stats, how, seconds)` once: `stats` holds at
 // least iso, in_range, triangles and vertices; `how` says where the triangles came from.
 template <class Extract>
 nlohmann::json write_all(const PreparedGrid& prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
-                         const OutputFlags& out, Extract extract) {
+                         const OutputFlags& out, const Written& written, Extract extract) {
   const GridSource& source = prepared.grid.source;
   nlohmann::json results = nlohmann::json::array();
   for (std::size_t i = 0; i < isos.size(); ++i) {
     extract(isos[i], [&](const Mesh& mesh, nlohmann::json stats, const std::string& how, double seconds) {
-      const std::string path = mesh_out.path(i);
+      const std::string path = mesh_out.path(written.numbers.empty() ? i : written.numbers[i]);
       const auto t0 = Clock::now();
-      const auto [simplified, simplified_how] = mesh_out.write(mesh, path, source.spacing);
+      const auto [simplified, simplified_how] = mesh_out.write(mesh, path, source.spacing, written.staged);
       stats["write_seconds"] = seconds_since(t0);
       stats["output"] = path;
       if (!simplified.is_null()) stats["simplify"] = simplified;
-      if (!out.json && !out.quiet)
-        print_surface(stats["iso"].get<double>(), stats["in_range"].get<bool>(), source.min, source.max,
-                      stats["triangles"].get<std::size_t>(), stats["vertices"].get<std::size_t>(), how + simplified_how, seconds, path);
+      if (!out.json && !out.quiet) {
+        const std::string line =
+            surface_line(stats["iso"].get<double>(), stats["in_range"].get<bool>(), source.min, source.max,
+                         stats["triangles"].get<std::size_t>(), stats["vertices"].get<std::size_t>(), how + simplified_how, seconds, path);
+        if (written.lines)
+          written.lines->push_back(line);
+        else
+          std::cout << line;
+      }
       results.push_back(std::move(stats));
     });
   }
@@ -140,9 +169,9 @@ nlohmann::json write_all(const PreparedGrid& prepared, const MeshOutputFlags& me
 
 // Every iso-value with one Extractor (so consecutive values sweep incrementally).
 nlohmann::json extract_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
-                           const OutputFlags& out) {
+                           const OutputFlags& out, const Written& written = {}) {
   Extractor ex(prepared);
-  return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
+  return write_all(*prepared, mesh_out, isos, out, written, [&](double iso, auto&& record) {
     const ExtractStats st = ex.extract(iso);
     record(ex.mesh(), nlohmann::json::parse(to_json(st)), fmt::format("from {} active tetrahedra", st.active),
            st.sweep_seconds + st.march_seconds);
@@ -155,8 +184,8 @@ constexpr std::size_t kMostScannedIsoValues = 4;
 
 // Every iso-value by a scan of the tetrahedra (extract_scanned): a grid loaded without its index.
 nlohmann::json scan_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
-                        const OutputFlags& out) {
-  return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
+                        const OutputFlags& out, const Written& written = {}) {
+  return write_all(*prepared, mesh_out, isos, out, written, [&](double iso, auto&& record) {
     Mesh mesh;
     const ExtractStats st = extract_scanned(prepared->grid, iso, mesh);
     record(mesh, nlohmann::json::parse(to_json(st)), fmt::format("from {} active tetrahedra", st.active),
@@ -166,9 +195,9 @@ nlohmann::json scan_all(std::shared_ptr<const PreparedGrid> prepared, const Mesh
 
 // Every iso-value from the bisection hierarchy at a coarser error (query-time error).
 nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
-                         double max_error, double max_displacement, const OutputFlags& out) {
+                         double max_error, double max_displacement, const OutputFlags& out, const Written& written = {}) {
   const HierarchyQuery query(prepared);
-  return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
+  return write_all(*prepared, mesh_out, isos, out, written, [&](double iso, auto&& record) {
     HierarchyQueryStats st;
     const Mesh mesh = query.extract(iso, max_error, max_displacement, &st);
     const double seconds = st.walk_seconds + st.march_seconds;
@@ -210,9 +239,9 @@ struct DistanceFlags {
 
 // Every iso-value within a distance of the grid's own surface (surface-adaptive extraction).
 nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
-                            const DistanceFlags& flags, const OutputFlags& out) {
+                            const DistanceFlags& flags, const OutputFlags& out, const Written& written = {}) {
   const HierarchyQuery query(prepared);
-  return write_all(*prepared, mesh_out, isos, out, [&](double iso, auto&& record) {
+  return write_all(*prepared, mesh_out, isos, out, written, [&](double iso, auto&& record) {
     DistanceQueryStats st;
     const Mesh mesh = query.extract_within(iso, flags.distance, &st, flags.collapse);
     const double seconds = st.refine_seconds + st.walk_seconds + st.march_seconds + st.collapse_seconds;
@@ -235,6 +264,81 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
             {"collapse_seconds", st.collapse_seconds}},
            fmt::format("within about {:g} voxels of the grid's surface", st.distance), seconds);
   });
+}
+
+// ---- extract over MPI ranks (issue 38) ----
+//
+// Under mpirun rank r extracts the iso-values r, r + N, r + 2N, … of the N ranks (neighbouring
+// values cost alike, so the ranks balance), loading what its route needs as one process would,
+// and stages its meshes
+// (atomic_file.hpp: written in full, nothing under their names). Once every rank has staged its
+// own, rank 0 tells them to put theirs in place, then prints every rank's lines and statistics in
+// the order of the iso-values. Each mesh is the one a single process writes, byte for byte (every
+// route gives the same surface; ctest extract_over_mpi_ranks). A rank that fails before then
+// stops the others (main: MPI_Abort) and no mesh reaches its name.
+struct IsoShare {
+  std::vector<std::size_t> mine;    // this rank's iso-values' numbers among all, ascending
+  std::vector<std::size_t> counts;  // every rank's count
+  mutable std::vector<StagedFile> staged;
+  mutable std::vector<std::string> lines;
+};
+IsoShare iso_share(std::size_t n, const Ranks& ranks) {
+  IsoShare s;
+  const auto size = static_cast<std::size_t>(ranks.size()), rank = static_cast<std::size_t>(ranks.rank());
+  for (std::size_t r = 0; r < size; ++r) s.counts.push_back(n / size + (r < n % size));
+  for (std::size_t i = rank; i < n; i += size) s.mine.push_back(i);
+  return s;
+}
+
+// A failure of this rank's own iso-values (its outputs, its memory) is not one every rank meets:
+// told with the rank's number (main.cpp: RankInputError), not left to rank 0.
+template <class F>
+void as_rank_failure(const Ranks& ranks, F&& f) {
+  if (!ranks.distributed() || ranks.root()) return f();
+  try {
+    f();
+  } catch (const InputError& e) {
+    throw RankInputError(e.what());
+  }
+}
+
+std::vector<std::byte> to_bytes(const std::string& s) {
+  const auto* b = reinterpret_cast<const std::byte*>(s.data());
+  return {b, b + s.size()};
+}
+
+// Every rank's staged meshes put in place once all are staged; on rank 0 the statistics of all
+// (the one-process JSON, its surfaces in the order of the iso-values, and "ranks") after the
+// lines, printed in the same order.
+nlohmann::json commit_shares(Ranks& ranks, const IsoShare& share, nlohmann::json mine, const OutputFlags& out) {
+  mine["peak_bytes"] = peak_resident_bytes();
+  mine["lines"] = share.lines;
+  const auto all = ranks.gather(to_bytes(mine.dump()));  // every rank staged its meshes by now
+  ranks.broadcast(std::uint64_t{1});                     // then: in place, every rank
+  for (auto& f : share.staged) f.commit();
+  ranks.gather({});  // every rank's are in place before rank 0 says so
+  if (!ranks.root()) return nullptr;
+  std::vector<nlohmann::json> got;
+  nlohmann::json j, per = {{"ranks", ranks.size()}, {"iso_values_per_rank", share.counts}};
+  for (const auto& bytes : all) {
+    got.push_back(nlohmann::json::parse(std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size())));
+    const auto& r = got.back();
+    per["peak_bytes_per_rank"].push_back(r["peak_bytes"]);
+    per["load_seconds_per_rank"].push_back(r.value("load_seconds", 0.0));
+    for (const char* key : {"grid", "vertices", "tetrahedra", "load_seconds"})
+      if (!j.contains(key) && r.contains(key)) j[key] = r[key];
+  }
+  // Iso-value i is rank i mod N's (i / N)-th.
+  j["surfaces"] = nlohmann::json::array();
+  const std::size_t n = got.size(), total = std::accumulate(share.counts.begin(), share.counts.end(), std::size_t{0});
+  for (std::size_t i = 0; i < total; ++i) {
+    const auto& r = got[i % n];
+    j["surfaces"].push_back(r["surfaces"][i / n]);
+    if (!out.json && !out.quiet) std::cout << r["lines"][i / n].get<std::string>();
+  }
+  per["bytes_exchanged"] = ranks.bytes_exchanged();
+  j["ranks"] = per;
+  return j;
 }
 
 }  // namespace
@@ -261,8 +365,12 @@ void add_extract(CLI::App& app) {
           ->check(finite_number());
   out->add(cmd);
   add_memory_limit(cmd);
+  auto threads = std::make_shared<int>(0);
+  cmd->add_option("--threads", *threads, "Threads this process uses (default: every core)")->check(positive_number());
   cmd->callback([=] {
     mesh_out->check(*input);
+    std::optional<tbb::global_control> limit;
+    if (*threads > 0) limit.emplace(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(*threads));
     // Given, a bound is used or refused: never ignored.
     const bool query = error_opt->count() > 0 || displacement_opt->count() > 0;
     if (error_opt->count() && !(*max_error >= 0))
@@ -271,38 +379,49 @@ void add_extract(CLI::App& app) {
       throw OptionError("max_displacement", fmt::format("must be a non-negative number, got {:.6g}", *max_displacement));
     if (distance->given() && query)
       throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
-    auto t0 = Clock::now();
-    // The hierarchy's queries walk the hierarchy alone: the tetrahedra stay on disk, no index is
-    // built; nor for a few iso-values, which a scan of the tetrahedra finds faster.
-    const bool hierarchy_only = distance->given() || query;
-    const bool scan = !hierarchy_only && mesh_out->isos.size() <= kMostScannedIsoValues;
-    std::shared_ptr<const PreparedGrid> p;
-    {
-      TerminalProgress tp(!out->quiet && !out->json);
-      const GridParts parts = hierarchy_only ? GridParts::hierarchy : scan ? GridParts::tetrahedra : GridParts::all;
-      p = std::make_shared<const PreparedGrid>(load_grid(*input, parts, tp.callback()));
+    Ranks& ranks = Ranks::world();
+    const IsoShare share = iso_share(mesh_out->isos.size(), ranks);
+    const Written written{share.mine, ranks.distributed() ? &share.staged : nullptr, ranks.distributed() ? &share.lines : nullptr};
+    nlohmann::json j;
+    if (!share.mine.empty()) {  // a rank with no iso-value of its own loads nothing
+      auto t0 = Clock::now();
+      // The hierarchy's queries walk the hierarchy alone: the tetrahedra stay on disk, no index is
+      // built; nor for a few iso-values, which a scan of the tetrahedra finds faster. Every route
+      // gives the same surfaces, so a rank chooses by its own share.
+      const bool hierarchy_only = distance->given() || query;
+      const bool scan = !hierarchy_only && share.mine.size() <= kMostScannedIsoValues;
+      std::shared_ptr<const PreparedGrid> p;
+      {
+        TerminalProgress tp(!out->quiet && !out->json && ranks.root());
+        const GridParts parts = hierarchy_only ? GridParts::hierarchy : scan ? GridParts::tetrahedra : GridParts::all;
+        p = std::make_shared<const PreparedGrid>(load_grid(*input, parts, tp.callback()));
+      }
+      const TetGrid& grid = p->grid;
+      const double t_load = seconds_since(t0);
+      if (*max_displacement > 0 && p->hierarchy->displacement_code.empty())
+        throw OptionError("max_displacement",
+                          fmt::format("{} was prepared without the displacement criterion (prepare it with --max-displacement)", *input));
+      const ValueRange range{grid.source.min, grid.source.max};
+      const auto all = mesh_out->values(*relative, range, *input);
+      std::vector<double> values;
+      for (std::size_t i : share.mine) values.push_back(all[i]);
+      j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", tetrahedron_count(*p)}, {"load_seconds", t_load}};
+      as_rank_failure(ranks, [&] {
+        if (distance->given()) {
+          j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out, written);
+        } else if (query) {
+          const double e =
+              *relative ? from_fraction(range, *max_error, FractionOf::width, *input + ": --max-error with --relative") : *max_error;
+          j["surfaces"] = query_all(p, *mesh_out, values, e, *max_displacement, *out, written);
+        } else if (scan) {
+          j["surfaces"] = scan_all(p, *mesh_out, values, *out, written);
+        } else {
+          j["surfaces"] = extract_all(p, *mesh_out, values, *out, written);
+        }
+      });
     }
-    const TetGrid& grid = p->grid;
-    const double t_load = seconds_since(t0);
-    if (*max_displacement > 0 && p->hierarchy->displacement_code.empty())
-      throw OptionError("max_displacement",
-                        fmt::format("{} was prepared without the displacement criterion (prepare it with --max-displacement)", *input));
-    const ValueRange range{grid.source.min, grid.source.max};
-    auto values = mesh_out->values(*relative, range, *input);
-    nlohmann::json j = {
-        {"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", tetrahedron_count(*p)}, {"load_seconds", t_load}};
-    if (distance->given()) {
-      j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out);
-    } else if (query) {
-      const double e =
-          *relative ? from_fraction(range, *max_error, FractionOf::width, *input + ": --max-error with --relative") : *max_error;
-      j["surfaces"] = query_all(p, *mesh_out, values, e, *max_displacement, *out);
-    } else if (scan) {
-      j["surfaces"] = scan_all(p, *mesh_out, values, *out);
-    } else {
-      j["surfaces"] = extract_all(p, *mesh_out, values, *out);
-    }
-    if (out->json) print_json(j);
+    if (ranks.distributed()) j = commit_shares(ranks, share, std::move(j), *out);
+    if (out->json && ranks.root()) print_json(j);
   });
 }
 

@@ -68,11 +68,12 @@ int run(int argc, char** argv) {
   adaptiso::cli::add_view(app);
   adaptiso::cli::add_compare(app);
   try {
-    // Under mpirun: MPI starts here (or a build without it refuses); only prepare is shared out.
+    // Under mpirun: MPI starts here (or a build without it refuses); prepare shares out its bricks
+    // and selection, extract its iso-values.
     const adaptiso::cli::Ranks& ranks = adaptiso::cli::Ranks::world();
-    if (ranks.distributed() && command_of(argc, argv) != "prepare")
+    if (const std::string command(command_of(argc, argv)); ranks.distributed() && command != "prepare" && command != "extract")
       throw adaptiso::InputError(
-          fmt::format("only 'adaptiso prepare' runs over MPI ranks; run '{}' without mpirun", command_of(argc, argv)));
+          fmt::format("only 'adaptiso prepare' and 'adaptiso extract' run over MPI ranks; run '{}' without mpirun", command));
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);
@@ -82,6 +83,9 @@ int run(int argc, char** argv) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
     tell(one_line(e.what()) + " (see adaptiso --help)", true);
+    return 2;
+  } catch (const adaptiso::cli::RankInputError& e) {
+    tell(one_line(e.what()), false);
     return 2;
   } catch (const adaptiso::OptionError& e) {
     tell(adaptiso::cli::flag_for(e.option()) + ": " + one_line(e.detail()), true);

@@ -12,6 +12,7 @@
 #include <span>
 #include <vector>
 
+#include "adaptiso/error.hpp"
 #include "adaptiso/select_shares.hpp"
 
 namespace adaptiso::cli {
@@ -19,6 +20,14 @@ namespace adaptiso::cli {
 // The size of the job mpirun (OpenMPI, MPICH, PMIx launchers) started this process in; 1 when it
 // was not started by one.
 int launched_processes();
+
+// An input error of one rank's own share of the work (its outputs, say), which the other ranks do
+// not meet: told with the rank's number, where an InputError every rank meets alike is told once,
+// by rank 0. Exit 2 as for any InputError.
+class RankInputError : public InputError {
+public:
+  using InputError::InputError;
+};
 
 // Also the transport of the shared selection (select_shares.hpp).
 class Ranks final : public ShareTransport {

@@ -7,6 +7,7 @@
 #pragma once
 #include <cstddef>
 #include <functional>
+#include <memory>
 #include <ostream>
 #include <string>
 
@@ -25,6 +26,26 @@ constexpr std::size_t kAtomicFileBufferBytes = std::size_t{32} << 20;
 // original exception propagates; SIGINT, SIGTERM and SIGHUP remove it too when they would
 // otherwise kill the process (their handlers are left alone when the host installed its own).
 void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write);
+
+// A file written in full as write_file_atomically writes it, put in place only by commit(): for
+// outputs that must appear together or not at all (`mpirun … adaptiso extract`: no mesh under its
+// final name unless every rank's are written). Until then nothing is visible under the target's
+// name or, where the file system allows it, under any (an unnamed file, freed with the process
+// even on SIGKILL); the destructor of one never committed removes it. A staged file holds a
+// descriptor open until commit. Throws as write_file_atomically, commit() InputError when the
+// rename fails (the file is then removed).
+class StagedFile {
+public:
+  StagedFile(const std::string& path, const std::function<void(std::ostream&)>& write);
+  StagedFile(StagedFile&&) noexcept;
+  StagedFile& operator=(StagedFile&&) noexcept;
+  ~StagedFile();
+  void commit();  // once; later calls do nothing
+  struct State;
+
+private:
+  std::unique_ptr<State> state_;
+};
 
 // Throws InputError now for what write_file_atomically(path, ...) would refuse before writing (a
 // missing folder, something at path that is not a regular file), so that long work is not done

@@ -202,6 +202,11 @@ void write_mesh(const Mesh& m, const std::string& path) {
   write_file_atomically(path, [&](std::ostream& o) { writer(m, o); });
 }
 
+StagedFile stage_mesh(const Mesh& m, const std::string& path) {
+  const Writer writer = writer_for(path);
+  return StagedFile(path, [&](std::ostream& o) { writer(m, o); });
+}
+
 std::string mesh_file_bytes(const Mesh& m, const std::string& name) {
   const Writer writer = writer_for(name);
   std::ostringstream o(std::ios::binary);

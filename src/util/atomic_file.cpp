@@ -322,61 +322,106 @@ void fill(DirectFileBuf& file, const std::string& path, const std::function<void
   if (!out) throw InputError(fmt::format("{}: write failed", path));
 }
 
-void write_and_rename(const std::string& path, const std::function<void(std::ostream&)>& write) {
-  const fs::path target = resolve_target(path);
-  const fs::path dir = target_folder(target, path);
-  std::error_code ec;
-  struct stat old {};
-  const bool replacing = ::stat(target.c_str(), &old) == 0;
+}  // namespace
 
-  std::random_device rd;
-  const fs::path tmp = dir / fmt::format("{}{}-{:x}", temporary_prefix(target), getpid(), rd());
-  install_cleanup_handlers();
+// A file written in full beside its target, not yet in place (StagedFile).
+struct StagedFile::State {
+  std::string path;  // as given, for the messages
+  fs::path target, dir, tmp;
+  bool replacing = false;
+  struct stat old {};
   // Where the file system has them (ext4, xfs, btrfs, tmpfs): an unnamed file in the target's
-  // folder (O_TMPFILE), given a name only once complete. Nothing is visible while it is written,
-  // and a process killed meanwhile, even by SIGKILL, leaves nothing behind: the kernel frees an
-  // unnamed file with its last descriptor. It is linked under a temporary name and renamed over the
-  // target (linkat cannot replace a file), a window of two system calls. ADAPTISO_NO_TMPFILE=1
-  // uses a named temporary file throughout, as on file systems without them.
-  std::optional<DirectFileBuf> unnamed;
+  // folder (O_TMPFILE), given a name only at commit. Nothing is visible while it is written or
+  // staged, and a process killed meanwhile, even by SIGKILL, leaves nothing behind: the kernel
+  // frees an unnamed file with its last descriptor. At commit it is linked under a temporary name
+  // and renamed over the target (linkat cannot replace a file), a window of two system calls.
+  // ADAPTISO_NO_TMPFILE=1 uses a named temporary file throughout, as on file systems without them.
+  std::unique_ptr<DirectFileBuf> unnamed;
+  std::unique_ptr<InFlight> guard;  // from naming: SIGINT, SIGTERM and SIGHUP remove the temporary name
+  bool named = false;
+
+  void remove_named() {
+    std::error_code ec;
+    if (named) fs::remove(tmp, ec);
+    named = false;
+  }
+};
+
+namespace {
+
+std::unique_ptr<StagedFile::State> stage_file(const std::string& path, const std::function<void(std::ostream&)>& write) {
+  auto st = std::make_unique<StagedFile::State>();
+  st->path = path;
+  st->target = resolve_target(path);
+  st->dir = target_folder(st->target, path);
+  st->replacing = ::stat(st->target.c_str(), &st->old) == 0;
+  std::random_device rd;
+  st->tmp = st->dir / fmt::format("{}{}-{:x}", temporary_prefix(st->target), getpid(), rd());
+  install_cleanup_handlers();
   if (!std::getenv("ADAPTISO_NO_TMPFILE")) {
-    unnamed.emplace(dir, O_TMPFILE | O_WRONLY);
+    st->unnamed = std::make_unique<DirectFileBuf>(st->dir, O_TMPFILE | O_WRONLY);
     // Linked through /proc (linkat's AT_EMPTY_PATH would need a capability): without /proc the
     // unnamed file could never be named, so it is not used.
-    if (!unnamed->is_open() || ::access(fmt::format("/proc/self/fd/{}", unnamed->fd()).c_str(), F_OK) != 0) unnamed.reset();
+    if (!st->unnamed->is_open() || ::access(fmt::format("/proc/self/fd/{}", st->unnamed->fd()).c_str(), F_OK) != 0) st->unnamed.reset();
   }
-  if (!unnamed) remove_stale_temporaries(dir, target);
-  InFlight guard(tmp.string());  // from here SIGINT, SIGTERM and SIGHUP remove the temporary name
-  bool named = false;
+  if (!st->unnamed) remove_stale_temporaries(st->dir, st->target);
+  st->guard = std::make_unique<InFlight>(st->tmp.string());
   try {
-    if (unnamed) {
-      fill(*unnamed, path, write);
+    if (st->unnamed) {
+      fill(*st->unnamed, path, write);
       // The replaced file keeps its permissions (a private 0600 result stays private); a new one
       // gets 0666 less the umask, as open gave it.
-      if (replacing) ::fchmod(unnamed->fd(), old.st_mode & 07777);
+      if (st->replacing) ::fchmod(st->unnamed->fd(), st->old.st_mode & 07777);
       // On disk before it gets a name, so a machine crash cannot leave an empty file under the final name.
-      if (::fsync(unnamed->fd()) != 0) throw InputError(fmt::format("{}: cannot flush the file to disk ({})", path, std::strerror(errno)));
-      const std::string from = fmt::format("/proc/self/fd/{}", unnamed->fd());
-      if (::linkat(AT_FDCWD, from.c_str(), AT_FDCWD, tmp.c_str(), AT_SYMLINK_FOLLOW) != 0)
-        throw InputError(fmt::format("{}: cannot name the finished file ({})", path, std::strerror(errno)));
-      named = true;
-      if (unnamed->close() != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(unnamed->error())));
+      if (::fsync(st->unnamed->fd()) != 0)
+        throw InputError(fmt::format("{}: cannot flush the file to disk ({})", path, std::strerror(errno)));
     } else {
-      named = true;
+      st->named = true;
       {
-        DirectFileBuf file(tmp, O_WRONLY | O_CREAT | O_TRUNC);
+        DirectFileBuf file(st->tmp, O_WRONLY | O_CREAT | O_TRUNC);
         fill(file, path, write);
         if (file.close() != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(file.error())));
       }
-      if (replacing) ::chmod(tmp.c_str(), old.st_mode & 07777);
-      sync_file(tmp, path);
+      if (st->replacing) ::chmod(st->tmp.c_str(), st->old.st_mode & 07777);
+      sync_file(st->tmp, path);
     }
-    fs::rename(tmp, target, ec);
-    if (ec) throw InputError(fmt::format("{}: cannot rename the finished file into place: {}", path, ec.message()));
-    sync_folder(dir);
   } catch (...) {
-    if (named) fs::remove(tmp, ec);
+    st->remove_named();
     throw;
+  }
+  return st;
+}
+
+void commit_file(StagedFile::State& st) {
+  const std::string& path = st.path;
+  try {
+    if (st.unnamed) {
+      const std::string from = fmt::format("/proc/self/fd/{}", st.unnamed->fd());
+      if (::linkat(AT_FDCWD, from.c_str(), AT_FDCWD, st.tmp.c_str(), AT_SYMLINK_FOLLOW) != 0)
+        throw InputError(fmt::format("{}: cannot name the finished file ({})", path, std::strerror(errno)));
+      st.named = true;
+      if (st.unnamed->close() != 0) throw InputError(fmt::format("{}: write failed ({})", path, std::strerror(st.unnamed->error())));
+    }
+    std::error_code ec;
+    fs::rename(st.tmp, st.target, ec);
+    if (ec) throw InputError(fmt::format("{}: cannot rename the finished file into place: {}", path, ec.message()));
+    st.named = false;  // in place: nothing to remove
+    sync_folder(st.dir);
+  } catch (...) {
+    st.remove_named();
+    throw;
+  }
+}
+
+void write_and_rename(const std::string& path, const std::function<void(std::ostream&)>& write) { commit_file(*stage_file(path, write)); }
+
+// Paths the system refuses (too long, not a folder on the way): the user's input, not our bug.
+template <class F>
+auto as_input_errors(const std::string& path, F&& f) {
+  try {
+    return f();
+  } catch (const fs::filesystem_error& e) {
+    throw InputError(fmt::format("{}: cannot write ({})", path, e.code().message()));
   }
 }
 
@@ -391,12 +436,24 @@ void check_output_path(const std::string& path) {
 }
 
 void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
-  try {
-    write_and_rename(path, write);
-  } catch (const fs::filesystem_error& e) {
-    // Paths the system refuses (too long, not a folder on the way): the user's input, not our bug.
-    throw InputError(fmt::format("{}: cannot write ({})", path, e.code().message()));
-  }
+  as_input_errors(path, [&] { write_and_rename(path, write); });
+}
+
+StagedFile::StagedFile(const std::string& path, const std::function<void(std::ostream&)>& write)
+    : state_(as_input_errors(path, [&] { return stage_file(path, write); })) {}
+StagedFile::StagedFile(StagedFile&&) noexcept = default;
+StagedFile& StagedFile::operator=(StagedFile&& other) noexcept {
+  if (state_) state_->remove_named();
+  state_ = std::move(other.state_);
+  return *this;
+}
+StagedFile::~StagedFile() {
+  if (state_) state_->remove_named();  // an unnamed file goes with its descriptor
+}
+void StagedFile::commit() {
+  if (!state_) return;
+  auto st = std::move(state_);
+  as_input_errors(st->path, [&] { commit_file(*st); });
 }
 
 }  // namespace adaptiso

@@ -4,7 +4,7 @@
 # walks shared out too (select_shares.hpp); --brick-side in
 # one process does too. Volumes of odd and anisotropic sizes, a noisy one and an analytic one, with
 # and without the displacement criterion. A rank killed mid-run leaves no grid file; a command
-# other than prepare under mpirun is refused (issue 38).
+# other than prepare and extract under mpirun is refused (issue 38).
 # Usage: prepare_over_ranks.sh ADAPTISO MPIEXEC
 set -euo pipefail
 CLI=$1
@@ -181,13 +181,13 @@ sides = [json.load(open(f'{sys.argv[1]}/default-np{n}.json'))['bricks']['brick_s
 assert sides == [16, 8], sides
 print('ok: the default brick side', sides, 'for 2 and 4 ranks')" "$W"
 
-# Only prepare is shared out; the others refuse with one line and exit 2.
+# Only prepare and extract are shared out; the others refuse with one line and exit 2.
 set +e
 ranks 2 "$CLI" info "$W/ml.nrrd" >"$W/info.out" 2>&1
 code=$?
 set -e
 [ $code -eq 2 ] || { echo "FAIL: info under mpirun exited $code"; cat "$W/info.out"; exit 1; }
-grep -q "only 'adaptiso prepare' runs over MPI ranks" "$W/info.out" || { echo "FAIL: no clear refusal"; cat "$W/info.out"; exit 1; }
+grep -q "only 'adaptiso prepare' and 'adaptiso extract' run over MPI ranks" "$W/info.out" || { echo "FAIL: no clear refusal"; cat "$W/info.out"; exit 1; }
 echo "ok: other commands refused under mpirun"
 
 # An input error every rank meets is told once, by rank 0 (the first rank to abort ends the others:

@@ -75,3 +75,28 @@ TEST(AtomicFile, AFailingWriteLeavesTheOldFileAndNoTemporary) {
   EXPECT_EQ(read_all(path), "old");
   for (const auto& e : std::filesystem::directory_iterator(dir.path)) EXPECT_EQ(e.path().filename().string(), "kept.bin");
 }
+
+// A staged file is nowhere under its name (nor under any, as an unnamed file) until commit(), and
+// one never committed leaves nothing behind; with or without unnamed files (ADAPTISO_NO_TMPFILE).
+TEST(AtomicFile, AStagedFileAppearsOnlyWhenCommitted) {
+  for (const bool named : {false, true}) {
+    SCOPED_TRACE(named ? "named temporary" : "unnamed temporary");
+    if (named) setenv("ADAPTISO_NO_TMPFILE", "1", 1);
+    testutil::TempDir dir("atomic-staged");
+    const std::string kept = dir / "kept.bin", dropped = dir / "dropped.bin";
+    write_file_atomically(kept, [](std::ostream& out) { out << "old"; });
+    {
+      StagedFile a(kept, [](std::ostream& out) { out << std::string(20 << 20, 'n'); });
+      StagedFile b(dropped, [](std::ostream& out) { out << "never"; });
+      EXPECT_EQ(read_all(kept), "old");
+      EXPECT_FALSE(std::filesystem::exists(dropped));
+      StagedFile moved = std::move(a);
+      moved.commit();
+      moved.commit();  // once only
+      EXPECT_EQ(read_all(kept), std::string(20 << 20, 'n'));
+    }  // b goes uncommitted
+    EXPECT_FALSE(std::filesystem::exists(dropped));
+    for (const auto& e : std::filesystem::directory_iterator(dir.path)) EXPECT_EQ(e.path().filename().string(), "kept.bin");
+    if (named) unsetenv("ADAPTISO_NO_TMPFILE");
+  }
+}

@@ -1,0 +1,106 @@
+#!/usr/bin/env bash
+# `mpirun -np N adaptiso extract` shares the iso-values out over the ranks (rank r takes r, r + N,
+# …) and writes the meshes one process writes, byte for byte, for N = 2, 3, 4 (oversubscribed) on
+# every route: a scan (a few values a rank), the sweeping index (more), a distance with and without
+# collapses, a coarser error, and --simplify; a rank without an iso-value of its own; --json in
+# the values' order with what each rank did. A rank that cannot write its mesh names itself, exit
+# 2, and no mesh of any rank reaches its name; nor when a rank is killed mid-run (issue 38).
+# Usage: extract_over_ranks.sh ADAPTISO MPIEXEC
+set -euo pipefail
+CLI=$1
+MPIEXEC=$2
+W=$(mktemp -d)
+trap 'rm -rf "$W"' EXIT
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
+# Shared memory only: no network interface is needed on a CI runner.
+export OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none
+ranks() { "$MPIEXEC" -np "$1" "${@:2}"; }
+
+"$CLI" generate marschner-lobb --size 33 --quiet -o "$W/ml.nrrd"
+"$CLI" prepare "$W/ml.nrrd" --quiet -o "$W/ml.adg"
+# 23×17×9 uint8 noise, anisotropic spacing (a fixed generator: the same bytes on every machine).
+/usr/bin/env python3 -c "
+import sys
+x = 2468
+out = bytearray()
+for _ in range(23 * 17 * 9):
+    x = (1103515245 * x + 12345) % 2**31
+    out.append(x >> 23)
+open(sys.argv[1], 'wb').write(out)" "$W/noise.raw"
+"$CLI" prepare "$W/noise.raw" --dims 23,17,9 --type uint8 --spacing 1,0.7,2.5 --quiet -o "$W/noise.adg"
+
+check() {  # NAME GRID [extract options...]
+  local name=$1 grid=$2
+  shift 2
+  mkdir -p "$W/$name-one"
+  "$CLI" extract "$grid" "$@" --quiet -o "$W/$name-one/s.ply"
+  local files
+  files=$(cd "$W/$name-one" && ls)
+  for np in 2 3 4; do
+    mkdir -p "$W/$name-np$np"
+    ranks $np "$CLI" extract "$grid" "$@" --threads 1 --quiet -o "$W/$name-np$np/s.ply"
+    [ "$(cd "$W/$name-np$np" && ls)" = "$files" ] || { echo "FAIL: $name over $np ranks wrote other files"; exit 1; }
+    for f in $files; do
+      cmp "$W/$name-one/$f" "$W/$name-np$np/$f" || { echo "FAIL: $name over $np ranks: $f differs"; exit 1; }
+    done
+  done
+  echo "ok: $name ($(echo $files | wc -w) meshes, the same bytes from 1, 2, 3 and 4 ranks)"
+}
+check scan "$W/ml.adg" --iso 0.2,0.45,0.7 --relative
+check sweep "$W/ml.adg" --iso 0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,0.35,0.65 --relative
+check one-value "$W/ml.adg" --iso 0.5 --relative
+check distance "$W/ml.adg" --iso 0.3,0.5,0.7 --relative --distance 1
+check distance-no-collapse "$W/noise.adg" --iso 60,128,200 --distance 0.5 --collapse 0
+check coarser "$W/noise.adg" --iso 60,90,128,160,200 --max-error 40
+check simplified "$W/noise.adg" --iso 90,128,160 --simplify 0.5
+
+# --json: one object on rank 0, the surfaces in the order of the iso-values, what each rank did.
+ranks 3 "$CLI" extract "$W/ml.adg" --iso 0.1,0.3,0.5,0.7 --relative --distance 1 --json -o "$W/j.ply" >"$W/j.json"
+/usr/bin/env python3 -c "
+import json, sys
+j = json.load(open(sys.argv[1]))
+isos = [s['iso'] for s in j['surfaces']]
+assert isos == sorted(isos) and len(isos) == 4, isos
+assert [s['output'].rsplit('-', 1)[1] for s in j['surfaces']] == ['0.1.ply', '0.3.ply', '0.5.ply', '0.7.ply'], j['surfaces']
+r = j['ranks']
+assert r['ranks'] == 3 and r['iso_values_per_rank'] == [2, 1, 1], r
+assert len(r['peak_bytes_per_rank']) == 3 and all(p > 0 for p in r['peak_bytes_per_rank']), r
+assert len(r['load_seconds_per_rank']) == 3 and r['bytes_exchanged'] > 0, r
+print('ok: --json', r['iso_values_per_rank'])" "$W/j.json"
+
+# A rank that cannot write its own mesh (rank 1's is a folder) names itself, exit 2; rank 0's
+# mesh, staged, never reaches its name.
+mkdir -p "$W/bad" "$W/bad/s-0.5.ply"
+set +e
+ranks 2 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --quiet -o "$W/bad/s.ply" >"$W/bad.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: an unwritable mesh under mpirun exited $code"; cat "$W/bad.out"; exit 1; }
+grep -q "adaptiso (rank 1): .*s-0.5.ply" "$W/bad.out" || { echo "FAIL: the failing rank did not name itself"; cat "$W/bad.out"; exit 1; }
+[ ! -e "$W/bad/s-0.3.ply" ] || { echo "FAIL: rank 0's mesh reached its name though rank 1 failed"; exit 1; }
+[ -z "$(ls -A "$W/bad" | grep -v '^s-0.5.ply$')" ] || { echo "FAIL: files left behind"; ls -la "$W/bad"; exit 1; }
+echo "ok: a rank's own failure is told by that rank, exit 2, and no mesh reaches its name"
+
+# A rank killed mid-run: mpirun fails and no mesh appears under its name.
+"$CLI" generate noise --size 64 --quiet -o "$W/n.nrrd"
+"$CLI" prepare "$W/n.nrrd" --quiet -o "$W/n.adg"
+mkdir -p "$W/killed"
+"$MPIEXEC" -np 2 "$CLI" extract "$W/n.adg" --iso 0.3,0.4,0.5,0.6 --relative --distance 0.5 --threads 1 --quiet -o "$W/killed/s.ply" \
+  >"$W/killed.out" 2>&1 &
+mpi=$!
+victim=""
+for _ in $(seq 1 200); do
+  victim=$(pgrep -P "$mpi" -x adaptiso | tail -1 || true)
+  [ -n "$victim" ] && break
+  sleep 0.05
+done
+[ -n "$victim" ] || { echo "FAIL: no rank process found"; exit 1; }
+sleep 1
+kill -9 "$victim" 2>/dev/null || true
+set +e
+wait $mpi
+code=$?
+set -e
+[ $code -ne 0 ] || { echo "FAIL: mpirun exited 0 after a rank was killed (was the extraction over in 1 s?)"; exit 1; }
+[ -z "$(ls -A "$W/killed")" ] || { echo "FAIL: a killed run left files"; ls -la "$W/killed"; exit 1; }
+echo "ok: a killed rank leaves no mesh (mpirun exit $code)"
