@@ -11,10 +11,8 @@ CLI=$1
 MPIEXEC=$2
 W=$(mktemp -d)
 trap 'rm -rf "$W"' EXIT
-export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
-# Shared memory only: no network interface is needed on a CI runner.
-export OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none
-ranks() { "$MPIEXEC" -np "$1" "${@:2}"; }
+# shellcheck source=ranks_common.sh
+source "$(dirname "$0")/ranks_common.sh"
 
 "$CLI" generate marschner-lobb --size 33 --quiet -o "$W/ml.nrrd"
 "$CLI" prepare "$W/ml.nrrd" --quiet -o "$W/ml.adg"
@@ -85,22 +83,6 @@ echo "ok: a rank's own failure is told by that rank, exit 2, and no mesh reaches
 "$CLI" generate noise --size 64 --quiet -o "$W/n.nrrd"
 "$CLI" prepare "$W/n.nrrd" --quiet -o "$W/n.adg"
 mkdir -p "$W/killed"
-"$MPIEXEC" -np 2 "$CLI" extract "$W/n.adg" --iso 0.3,0.4,0.5,0.6 --relative --distance 0.5 --threads 1 --quiet -o "$W/killed/s.ply" \
-  >"$W/killed.out" 2>&1 &
-mpi=$!
-victim=""
-for _ in $(seq 1 200); do
-  victim=$(pgrep -P "$mpi" -x adaptiso | tail -1 || true)
-  [ -n "$victim" ] && break
-  sleep 0.05
-done
-[ -n "$victim" ] || { echo "FAIL: no rank process found"; exit 1; }
-sleep 1
-kill -9 "$victim" 2>/dev/null || true
-set +e
-wait $mpi
-code=$?
-set -e
-[ $code -ne 0 ] || { echo "FAIL: mpirun exited 0 after a rank was killed (was the extraction over in 1 s?)"; exit 1; }
+kill_a_rank 1 "$CLI" extract "$W/n.adg" --iso 0.3,0.4,0.5,0.6 --relative --distance 0.5 --threads 1 --quiet -o "$W/killed/s.ply"
 [ -z "$(ls -A "$W/killed")" ] || { echo "FAIL: a killed run left files"; ls -la "$W/killed"; exit 1; }
-echo "ok: a killed rank leaves no mesh (mpirun exit $code)"
+echo "ok: a killed rank leaves no mesh (mpirun exit $killed_code)"

@@ -11,10 +11,8 @@ CLI=$1
 MPIEXEC=$2
 W=$(mktemp -d)
 trap 'rm -rf "$W"' EXIT
-export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
-# Shared memory only: no network interface is needed on a CI runner.
-export OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none
-ranks() { "$MPIEXEC" -np "$1" "${@:2}"; }
+# shellcheck source=ranks_common.sh
+source "$(dirname "$0")/ranks_common.sh"
 
 "$CLI" generate marschner-lobb --size 33 --quiet -o "$W/ml.nrrd"
 # 37×20×13 uint8 noise (a fixed generator: the same bytes on every machine).
@@ -217,21 +215,6 @@ echo "ok: --memory-limit under mpirun"
 
 # A rank killed mid-run: mpirun fails and no grid file appears under its name.
 "$CLI" generate sphere --size 160 --quiet -o "$W/big.nrrd"
-"$MPIEXEC" -np 2 "$CLI" prepare "$W/big.nrrd" --brick-side 16 --threads 1 --quiet -o "$W/killed.adg" >"$W/killed.out" 2>&1 &
-mpi=$!
-victim=""
-for _ in $(seq 1 200); do
-  victim=$(pgrep -P "$mpi" -x adaptiso | tail -1 || true)
-  [ -n "$victim" ] && break
-  sleep 0.05
-done
-[ -n "$victim" ] || { echo "FAIL: no rank process found"; exit 1; }
-sleep 0.3
-kill -9 "$victim" 2>/dev/null || true
-set +e
-wait $mpi
-code=$?
-set -e
-[ $code -ne 0 ] || { echo "FAIL: mpirun exited 0 after a rank was killed"; exit 1; }
+kill_a_rank 0.3 "$CLI" prepare "$W/big.nrrd" --brick-side 16 --threads 1 --quiet -o "$W/killed.adg"
 [ ! -e "$W/killed.adg" ] || { echo "FAIL: a grid file was left after a rank was killed"; exit 1; }
-echo "ok: a killed rank leaves no output (mpirun exit $code)"
+echo "ok: a killed rank leaves no output (mpirun exit $killed_code)"
