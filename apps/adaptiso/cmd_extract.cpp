@@ -279,8 +279,8 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
 struct IsoShare {
   std::vector<std::size_t> mine;    // this rank's iso-values' numbers among all, ascending
   std::vector<std::size_t> counts;  // every rank's count
-  mutable std::vector<StagedFile> staged;
-  mutable std::vector<std::string> lines;
+  std::vector<StagedFile> staged;   // this rank's meshes until every rank's are staged
+  std::vector<std::string> lines;   // their lines, for rank 0 to print
 };
 IsoShare iso_share(std::size_t n, const Ranks& ranks) {
   IsoShare s;
@@ -310,7 +310,7 @@ std::vector<std::byte> to_bytes(const std::string& s) {
 // Every rank's staged meshes put in place once all are staged; on rank 0 the statistics of all
 // (the one-process JSON, its surfaces in the order of the iso-values, and "ranks") after the
 // lines, printed in the same order.
-nlohmann::json commit_shares(Ranks& ranks, const IsoShare& share, nlohmann::json mine, const OutputFlags& out) {
+nlohmann::json commit_shares(Ranks& ranks, IsoShare& share, nlohmann::json mine, const OutputFlags& out) {
   mine["peak_bytes"] = peak_resident_bytes();
   mine["lines"] = share.lines;
   const auto all = ranks.gather(to_bytes(mine.dump()));  // every rank staged its meshes by now
@@ -380,7 +380,7 @@ void add_extract(CLI::App& app) {
     if (distance->given() && query)
       throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
     Ranks& ranks = Ranks::world();
-    const IsoShare share = iso_share(mesh_out->isos.size(), ranks);
+    IsoShare share = iso_share(mesh_out->isos.size(), ranks);
     const Written written{share.mine, ranks.distributed() ? &share.staged : nullptr, ranks.distributed() ? &share.lines : nullptr};
     nlohmann::json j;
     if (!share.mine.empty()) {  // a rank with no iso-value of its own loads nothing

@@ -197,15 +197,12 @@ Writer writer_for(const std::string& path) {
 
 }  // namespace
 
-void write_mesh(const Mesh& m, const std::string& path) {
-  const Writer writer = writer_for(path);
-  write_file_atomically(path, [&](std::ostream& o) { writer(m, o); });
-}
-
 StagedFile stage_mesh(const Mesh& m, const std::string& path) {
   const Writer writer = writer_for(path);
   return StagedFile(path, [&](std::ostream& o) { writer(m, o); });
 }
+
+void write_mesh(const Mesh& m, const std::string& path) { stage_mesh(m, path).commit(); }
 
 std::string mesh_file_bytes(const Mesh& m, const std::string& name) {
   const Writer writer = writer_for(name);

@@ -413,8 +413,6 @@ void commit_file(StagedFile::State& st) {
   }
 }
 
-void write_and_rename(const std::string& path, const std::function<void(std::ostream&)>& write) { commit_file(*stage_file(path, write)); }
-
 // Paths the system refuses (too long, not a folder on the way): the user's input, not our bug.
 template <class F>
 auto as_input_errors(const std::string& path, F&& f) {
@@ -435,9 +433,7 @@ void check_output_path(const std::string& path) {
   }
 }
 
-void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
-  as_input_errors(path, [&] { write_and_rename(path, write); });
-}
+void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write) { StagedFile(path, write).commit(); }
 
 StagedFile::StagedFile(const std::string& path, const std::function<void(std::ostream&)>& write)
     : state_(as_input_errors(path, [&] { return stage_file(path, write); })) {}

@@ -7,24 +7,13 @@
 # 2, and no mesh of any rank reaches its name; nor when a rank is killed mid-run (issue 38).
 # Usage: extract_over_ranks.sh ADAPTISO MPIEXEC
 set -euo pipefail
-CLI=$1
-MPIEXEC=$2
-W=$(mktemp -d)
-trap 'rm -rf "$W"' EXIT
 # shellcheck source=ranks_common.sh
-source "$(dirname "$0")/ranks_common.sh"
+source "$(dirname "$0")/ranks_common.sh" "$@"
 
 "$CLI" generate marschner-lobb --size 33 --quiet -o "$W/ml.nrrd"
 "$CLI" prepare "$W/ml.nrrd" --quiet -o "$W/ml.adg"
-# 23×17×9 uint8 noise, anisotropic spacing (a fixed generator: the same bytes on every machine).
-/usr/bin/env python3 -c "
-import sys
-x = 2468
-out = bytearray()
-for _ in range(23 * 17 * 9):
-    x = (1103515245 * x + 12345) % 2**31
-    out.append(x >> 23)
-open(sys.argv[1], 'wb').write(out)" "$W/noise.raw"
+# 23×17×9 uint8 noise, anisotropic spacing.
+noise_raw 2468 $((23 * 17 * 9)) "$W/noise.raw"
 "$CLI" prepare "$W/noise.raw" --dims 23,17,9 --type uint8 --spacing 1,0.7,2.5 --quiet -o "$W/noise.adg"
 
 check() {  # NAME GRID [extract options...]

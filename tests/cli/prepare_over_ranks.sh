@@ -7,23 +7,12 @@
 # other than prepare and extract under mpirun is refused (issue 38).
 # Usage: prepare_over_ranks.sh ADAPTISO MPIEXEC
 set -euo pipefail
-CLI=$1
-MPIEXEC=$2
-W=$(mktemp -d)
-trap 'rm -rf "$W"' EXIT
 # shellcheck source=ranks_common.sh
-source "$(dirname "$0")/ranks_common.sh"
+source "$(dirname "$0")/ranks_common.sh" "$@"
 
 "$CLI" generate marschner-lobb --size 33 --quiet -o "$W/ml.nrrd"
-# 37×20×13 uint8 noise (a fixed generator: the same bytes on every machine).
-/usr/bin/env python3 -c "
-import sys
-x = 12345
-out = bytearray()
-for _ in range(37 * 20 * 13):
-    x = (1103515245 * x + 12345) % 2**31
-    out.append(x >> 23)
-open(sys.argv[1], 'wb').write(out)" "$W/noise.raw"
+# 37×20×13 uint8 noise.
+noise_raw 12345 $((37 * 20 * 13)) "$W/noise.raw"
 RAW=(--dims 37,20,13 --type uint8 --spacing 1,0.7,2.5)
 
 check() {  # NAME INPUT [prepare options...]
