@@ -69,6 +69,7 @@
 #include "extract/march_detail.hpp"
 #include "extract/triangle_cover.hpp"
 #include "grid/traversal.hpp"
+#include "util/big_array.hpp"
 
 namespace adaptiso {
 namespace detail {
@@ -922,17 +923,17 @@ struct Stars {
 
   void build(const Mesh& mesh) {
     const std::size_t V = mesh.positions.size(), T = mesh.triangles.size();
-    start.assign(V + 1, 0);
+    assign_big(start, V + 1, std::uint32_t{0});
     for (const auto& t : mesh.triangles)
       for (std::uint32_t v : t) ++start[v + 1];
     for (std::size_t v = 0; v < V; ++v) start[v + 1] += start[v];
-    tris.resize(3 * T);
+    resize_big(tris, 3 * T);
     fill_.assign(start.begin(), start.end() - 1);
     for (std::uint32_t t = 0; t < T; ++t)
       for (std::uint32_t v : mesh.triangles[t]) tris[fill_[v]++] = t;
-    ring.resize(3 * T + V);
-    ring_count.resize(V);
-    border.resize(V);
+    resize_big(ring, 3 * T + V);
+    resize_big(ring_count, V);
+    resize_big(border, V);
     tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, static_cast<std::uint32_t>(V), 4096), [&](const auto& r) {
       for (std::uint32_t v = r.begin(); v < r.end(); ++v) build_ring(mesh, v);
     });
@@ -974,7 +975,7 @@ private:
 class Collapser {
 public:
   Collapser(const Query& q, Mesh& mesh, double smallest) : q_(q), mesh_(mesh), d2_(q.distance * q.distance) {
-    at_.resize(mesh.positions.size());
+    resize_big(at_, mesh.positions.size());
     for (std::size_t v = 0; v < at_.size(); ++v)
       for (int k = 0; k < 3; ++k) at_[v][k] = mesh.positions[v][k] / smallest;
   }
@@ -1051,35 +1052,68 @@ private:
     for (int i = 0; i < 3; ++i) out[i] = t[static_cast<std::size_t>(i)] == c.v ? at_[c.u] : at_[t[static_cast<std::size_t>(i)]];
   }
 
-  // The collapses of a round, without the probes: in vertex order, each vertex into the nearest
-  // neighbour that passes, disjoint stars.
+  // The collapses of a round, without the probes: each vertex into the nearest neighbour that
+  // passes, disjoint stars. In blocks of 2^18 vertex numbers, in parallel, each in vertex order,
+  // where a vertex's ring lies inside its block (its locks are then the block's alone); the others
+  // after, in vertex order. The blocks are fixed, so the choice is the same for any thread count,
+  // and a surface of one block is chosen as in one pass. Vertices are numbered by first use in the
+  // walk, so most rings lie inside one block: on the 512×512×120 MR head at 0.5 voxels (3.6 M
+  // vertices) 2.2 % did not, the choice took 0.31-0.33 s a round instead of 0.54-0.64 in one pass,
+  // for 0.01 % more triangles. Blocks of 8192 cost the CT bunny's 79 k vertices 1.4 % more
+  // triangles (14 % of its rings across blocks) for 5 ms less.
   std::vector<Collapse> choose(const Stars& s) const {
-    const std::size_t V = at_.size();
+    const auto V = static_cast<std::uint32_t>(at_.size());
     std::vector<std::uint8_t> locked(V, 0);
-    std::vector<Collapse> chosen;
+    constexpr std::uint32_t kBlock = 1u << 18;
+    const std::uint32_t blocks = (V + kBlock - 1) / kBlock;
+    std::vector<std::vector<Collapse>> chosen(blocks + 1);  // the last: the rings across blocks
+    std::vector<std::vector<std::uint32_t>> across(blocks);
+    tbb::parallel_for(std::uint32_t{0}, blocks, [&](std::uint32_t b) {
+      if (q_.cancelled()) return;
+      const std::uint32_t lo = b * kBlock, hi = std::min(V, lo + kBlock);
+      for (std::uint32_t v = lo; v < hi; ++v) {
+        if (locked[v] || !collapsible(s, v)) continue;
+        const std::uint32_t* rv = s.ring_of(v);
+        if (rv[0] < lo || rv[s.ring_count[v] - 1] >= hi)  // sorted
+          across[b].push_back(v);
+        else
+          choose_at(s, v, locked, chosen[b]);
+      }
+    });
+    q_.throw_if_cancelled();
+    for (const auto& vs : across)
+      for (std::uint32_t v : vs)
+        if (!locked[v]) choose_at(s, v, locked, chosen[blocks]);
+    std::vector<Collapse> all;
+    for (const auto& part : chosen) all.insert(all.end(), part.begin(), part.end());
+    return all;
+  }
+
+  bool collapsible(const Stars& s, std::uint32_t v) const {
+    const auto nv = s.ring_count[v];
+    return !s.border[v] && nv >= 4 && nv <= 64;  // valence 3: the link condition would also need its edges
+  }
+
+  // v into its nearest neighbour that is not locked and passes (links, keeps_shape), locking v's ring.
+  void choose_at(const Stars& s, std::uint32_t v, std::vector<std::uint8_t>& locked, std::vector<Collapse>& out) const {
     struct Near {
       double d2;
       std::uint32_t u;
       bool operator<(const Near& o) const { return d2 < o.d2 || (d2 == o.d2 && u < o.u); }
     } order[64];
-    for (std::uint32_t v = 0; v < V; ++v) {
-      if ((v & 0xffff) == 0) q_.throw_if_cancelled();  // sequential: 0.1-0.3 s on millions of vertices
-      const int nv = static_cast<int>(s.ring_count[v]);
-      if (locked[v] || s.border[v] || nv < 4 || nv > 64) continue;  // valence 3: the link condition would also need its edges
-      const std::uint32_t* rv = s.ring_of(v);
-      const Point& pv = at_[v];
-      for (int i = 0; i < nv; ++i) order[i] = {distance2(at_[rv[i]], pv), rv[i]};
-      std::sort(order, order + nv);
-      for (int i = 0; i < nv; ++i) {
-        const Collapse c{v, order[i].u};
-        if (locked[c.u] || !links(s, c) || !keeps_shape(s, c)) continue;
-        chosen.push_back(c);
-        locked[v] = locked[c.u] = 1;
-        for (int k = 0; k < nv; ++k) locked[rv[k]] = 1;
-        break;
-      }
+    const int nv = static_cast<int>(s.ring_count[v]);
+    const std::uint32_t* rv = s.ring_of(v);
+    const Point& pv = at_[v];
+    for (int i = 0; i < nv; ++i) order[i] = {distance2(at_[rv[i]], pv), rv[i]};
+    std::sort(order, order + nv);
+    for (int i = 0; i < nv; ++i) {
+      const Collapse c{v, order[i].u};
+      if (locked[c.u] || !links(s, c) || !keeps_shape(s, c)) continue;
+      out.push_back(c);
+      locked[v] = locked[c.u] = 1;
+      for (int k = 0; k < nv; ++k) locked[rv[k]] = 1;
+      return;
     }
-    return chosen;
   }
 
   // The link condition: the rings of v and u share exactly the two vertices opposite the edge.
