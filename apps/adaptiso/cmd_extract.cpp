@@ -269,9 +269,10 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
 // ---- extract over MPI ranks (issue 38) ----
 //
 // Under mpirun rank r extracts the iso-values r, r + N, r + 2N, … of the N ranks (neighbouring
-// values cost alike, so the ranks balance), loading what its route needs as one process would,
-// and stages its meshes
-// (atomic_file.hpp: written in full, nothing under their names). Once every rank has staged its
+// values cost alike, so the ranks balance), loading what its route needs as one process would
+// (each reads the whole file; when every rank has a value, the load's checks are shared out,
+// load_grid_shared), and stages its meshes (atomic_file.hpp: written in full, nothing under their
+// names). Once every rank has staged its
 // own, rank 0 tells them to put theirs in place, then prints every rank's lines and statistics in
 // the order of the iso-values. Each mesh is the one a single process writes, byte for byte (every
 // route gives the same surface; ctest extract_over_mpi_ranks). A rank that fails before then
@@ -394,7 +395,11 @@ void add_extract(CLI::App& app) {
       {
         TerminalProgress tp(!out->quiet && !out->json && ranks.root());
         const GridParts parts = hierarchy_only ? GridParts::hierarchy : scan ? GridParts::tetrahedra : GridParts::all;
-        p = std::make_shared<const PreparedGrid>(load_grid(*input, parts, tp.callback()));
+        // When every rank loads (an iso-value each at least), the load's checks are shared out:
+        // each walks a share of the hierarchy (grid_file.hpp, load_grid_shared).
+        const bool together = ranks.distributed() && mesh_out->isos.size() >= static_cast<std::size_t>(ranks.size());
+        p = std::make_shared<const PreparedGrid>(together ? load_grid_shared(*input, parts, ranks, tp.callback())
+                                                          : load_grid(*input, parts, tp.callback()));
       }
       const TetGrid& grid = p->grid;
       const double t_load = seconds_since(t0);

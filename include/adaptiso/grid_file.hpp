@@ -78,6 +78,17 @@ enum class GridParts {
 // "build index" (0 and 1), or "check index" (its entries) for a file that holds one.
 PreparedGrid load_grid(const std::string& path, GridParts parts = GridParts::all, const Progress& progress = {});
 
+class ShareTransport;  // select_shares.hpp
+// load_grid on every process of a shared step at once (the command line's MPI ranks under mpirun
+// extract), each loading the same file as one process would: each reads and checksums it, and the
+// checks of a bisection hierarchy, most of a load, are shared out (process p of P checks the p-th
+// P-th of the vertices and walks every P-th subtree of the hierarchy), their findings combined on
+// every process. Every process returns the same grid or throws the same InputError, also when one
+// read other bytes than process 0 (sizes and checksums are compared before anything else is
+// combined). Collective; a process that fails before its check (an unreadable file) leaves the
+// others waiting, for the caller to stop (the command line: MPI_Abort).
+PreparedGrid load_grid_shared(const std::string& path, GridParts parts, ShareTransport& transport, const Progress& progress = {});
+
 namespace detail {
 struct HierarchyWalk;
 }

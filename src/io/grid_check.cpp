@@ -20,6 +20,7 @@
 #include "adaptiso/error.hpp"
 #include "adaptiso/volume.hpp"
 #include "grid/diamond.hpp"
+#include "grid/share_agree.hpp"
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"
 #include "util/memory.hpp"
@@ -41,9 +42,9 @@ struct Fault {
   const char* why = nullptr;
 };
 template <class Check>
-Fault first_fault(std::size_t n, const Check& check) {
+Fault first_fault_in(std::size_t begin, std::size_t end, const Check& check) {
   return tbb::parallel_reduce(
-      tbb::blocked_range<std::size_t>(0, n, 1 << 14), Fault{},
+      tbb::blocked_range<std::size_t>(begin, end, 1 << 14), Fault{},
       [&](const tbb::blocked_range<std::size_t>& r, Fault f) {
         for (std::size_t i = r.begin(); i < r.end() && i < f.at; ++i)
           if (const char* why = check(i)) return Fault{i, why};
@@ -51,6 +52,48 @@ Fault first_fault(std::size_t n, const Check& check) {
       },
       [](const Fault& a, const Fault& b) { return a.at <= b.at ? a : b; });
 }
+template <class Check>
+Fault first_fault(std::size_t n, const Check& check) {
+  return first_fault_in(0, n, check);
+}
+
+// The hierarchy's checks shared out over processes that each loaded the same file (check_grid's
+// `share`): process p of P checks the p-th P-th of the vertices one by one and walks the subtrees
+// f ≡ p (mod P), and what each found is combined on every process (share_agree.hpp), so that all
+// reach the same verdict and throw the same message. Without a transport, one process does all.
+struct CheckShare {
+  ShareTransport* transport = nullptr;
+  bool shared() const { return transport && transport->processes() > 1; }
+  bool mine(std::size_t subtree) const {
+    return !shared() || subtree % static_cast<std::size_t>(transport->processes()) == static_cast<std::size_t>(transport->process());
+  }
+  // This process's part [first, second) of n items in order.
+  std::pair<std::size_t, std::size_t> part(std::size_t n) const {
+    if (!shared()) return {0, n};
+    const auto p = static_cast<std::size_t>(transport->process()), P = static_cast<std::size_t>(transport->processes());
+    return {n / P * p + std::min(p, n % P), n / P * (p + 1) + std::min(p + 1, n % P)};
+  }
+  template <class T, class Combine>
+  void combine(std::span<T> values, Combine c) const {
+    if (shared()) share::combine_at_zero(*transport, values, c);
+  }
+  // The smallest of every process's x.
+  std::size_t least(std::size_t x) const {
+    if (!shared()) return x;
+    std::uint64_t v = x;
+    combine(std::span(&v, 1), [](std::uint64_t& own, std::uint64_t theirs) { own = std::min(own, theirs); });
+    return static_cast<std::size_t>(v);
+  }
+  // The fault of the smallest index any process found, its reason asked again of `check` where it
+  // was found elsewhere (a reason's address is the process's own).
+  template <class Check>
+  Fault first(Fault f, const Check& check) const {
+    if (!shared()) return f;
+    const std::size_t at = least(f.at);
+    if (at == f.at) return f;
+    return Fault{at, check(at)};
+  }
+};
 
 using Wide = __int128;
 // Six times the volume of a tetrahedron of lattice points, exact: in 64 bits while coordinates stay
@@ -202,6 +245,11 @@ public:
     if ((r.load(std::memory_order_relaxed) & bits) != bits)
       r.fetch_or(bits, std::memory_order_relaxed);  // a locked write only the first time
   }
+  // Every process's findings (the ends reached, the smallest vertex exceeded) in every process's.
+  void combine(const CheckShare& share) {
+    share.combine(std::span(reached_), [](std::uint8_t& own, std::uint8_t theirs) { own |= theirs; });
+    share.combine(std::span(&worst_, 1), [](std::uint32_t& own, std::uint32_t theirs) { own = std::min(own, theirs); });
+  }
   // The first vertex whose span is not the union of its tetrahedra's (an empty span, +∞ … −∞, for
   // a vertex no split reached), or none.
   std::optional<std::uint32_t> first_wrong() const {
@@ -227,24 +275,26 @@ private:
 // they were not kept) and, when kept, the leaves themselves in the walk's order (per subtree, a
 // keyed hash of its leaves, TetHash).
 void check_leaves(const TetGrid& g, const std::string& path, const std::vector<std::uint64_t>& leaves,
-                  const std::vector<std::uint64_t>& hashes, std::optional<std::uint64_t> file_leaves) {
+                  const std::vector<std::uint64_t>& hashes, std::optional<std::uint64_t> file_leaves, const CheckShare& share = {}) {
   const std::uint64_t in_file = file_leaves ? *file_leaves : g.tet_count();
   if (leaves.back() != in_file)
     corrupt_hierarchy(path, fmt::format("the hierarchy has {} leaves, the file {} tetrahedra", leaves.back(), in_file));
   if (file_leaves) return;
   const TetHash hash = TetHash::draw();
-  const Fault tets = first_fault(hashes.size(), [&](std::size_t f) -> const char* {
+  // The subtrees this process walked: their hashes are its own (the key is drawn per process).
+  auto wrong = [&](std::size_t f) -> const char* {
+    if (!share.mine(f)) return nullptr;
     std::uint64_t sum = 0;
     for (std::uint64_t t = leaves[f]; t < leaves[f + 1]; ++t) sum += hash(t - leaves[f], g.tets[t]);
     return sum == hashes[f] ? nullptr : "x";
-  });
-  if (tets.why)
-    corrupt_hierarchy(path,
-                      fmt::format("the tetrahedra {} to {} are not the hierarchy's leaves", leaves[tets.at], leaves[tets.at + 1] - 1));
+  };
+  const std::size_t at = share.least(first_fault(hashes.size(), wrong).at);
+  if (at < hashes.size())
+    corrupt_hierarchy(path, fmt::format("the tetrahedra {} to {} are not the hierarchy's leaves", leaves[at], leaves[at + 1] - 1));
 }
 
 void check_hierarchy(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> file_leaves, HierarchyWalk* walked,
-                     const Progress& progress) {
+                     const Progress& progress, const CheckShare& share) {
   const TetGrid& g = p.grid;
   const BisectionHierarchy& h = *p.hierarchy;
   auto fail = [&](const std::string& why) { corrupt_hierarchy(path, why); };
@@ -281,7 +331,7 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
     if (lat.in_box(c) && !numbers.used(lat.index(c)))
       fail(fmt::format("the root cube's corner {},{},{} inside the volume is no vertex", c[0], c[1], c[2]));
   }
-  const Fault local = first_fault(n, [&](std::size_t v) -> const char* {
+  auto local_fault = [&](std::size_t v) -> const char* {
     const Coord c{static_cast<std::int32_t>(g.ijk[v][0]), static_cast<std::int32_t>(g.ijk[v][1]), static_cast<std::int32_t>(g.ijk[v][2])};
     const Diamond d = classify(c, lat.k);
     if (!d.valid) return nullptr;  // a root cube's corner
@@ -308,7 +358,9 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
       if (h.error_code[ip] < code || (moves && h.displacement_code[ip] < moved)) return "has a code above a parent's (codes grow upwards)";
     }
     return nullptr;
-  });
+  };
+  const auto [first_vertex, end_vertex] = share.part(n);
+  const Fault local = share.first(first_fault_in(first_vertex, end_vertex, local_fault), local_fault);
   if (local.why)
     fail(fmt::format("vertex {} at {},{},{} {}", local.at, g.ijk[local.at][0], g.ijk[local.at][1], g.ijk[local.at][2], local.why));
 
@@ -329,8 +381,12 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
   const bool hashing = !file_leaves || walked;
   // The walk is most of the check: told by the subtrees done, at most a hundred times.
   report(progress, "check grid", 0.1);
+  std::vector<std::size_t> own;  // the subtrees this process walks
+  for (std::size_t f = 0; f < roots; ++f)
+    if (share.mine(f)) own.push_back(f);
   std::atomic<std::size_t> walked_roots{0};
-  tbb::parallel_for(std::size_t{0}, roots, [&](std::size_t f) {
+  tbb::parallel_for(std::size_t{0}, own.size(), [&](std::size_t i) {
+    const std::size_t f = own[i];
     std::uint64_t count = 0, sum = 0;
     Wide volume = 0;
     root_spans[f] = walk.visit(
@@ -348,8 +404,16 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
     hashes[f] = sum;
     volumes[f] = volume;
     const std::size_t done = walked_roots.fetch_add(1, std::memory_order_relaxed) + 1;
-    if (done * 100 / roots != (done - 1) * 100 / roots) report(progress, "check grid", 0.1 + 0.9 * static_cast<double>(done) / roots);
+    if (done * 100 / own.size() != (done - 1) * 100 / own.size())
+      report(progress, "check grid", 0.1 + 0.9 * static_cast<double>(done) / static_cast<double>(own.size()));
   });
+  // Every process's subtrees in every process's findings: the others' counts, volumes and spans
+  // are zero and empty here, so sums and unions combine them.
+  share.combine(std::span(leaves), [](std::uint64_t& a, std::uint64_t b) { a += b; });
+  share.combine(std::span(volumes), [](Wide& a, Wide b) { a += b; });
+  share.combine(std::span(root_spans), [](ValueSpan& a, const ValueSpan& b) { a.add(b); });
+  share.combine(std::span(used), [](std::uint8_t& a, std::uint8_t b) { a |= b; });
+  spans.combine(share);
   for (const auto& split : top.splits) {  // above the subtrees
     ValueSpan s;
     for (std::size_t r = split.first; r < split.last; ++r) s.add(root_spans[r]);
@@ -363,7 +427,7 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
   // Holes: a diamond across the box's boundary left whole leaves tetrahedra reaching outside it,
   // which the walk drops.
   if (volume != six_box_volume(g.source.dims)) fail("its leaves do not tile the volume's box");
-  check_leaves(g, path, leaves, hashes, file_leaves);
+  check_leaves(g, path, leaves, hashes, file_leaves, share);
   if (const auto v = spans.first_wrong()) fail(fmt::format("the value span of vertex {} is not that of the values beneath it", *v));
   check_used(used, path);
   if (walked) {
@@ -457,7 +521,8 @@ GridSource grid_source_from_json(const nlohmann::json& s, const std::string& pat
 }
 
 void check_grid(const PreparedGrid& p, const std::string& path, std::optional<std::uint64_t> leaves, HierarchyWalk* walked,
-                const Progress& progress) {
+                const Progress& progress, ShareTransport* share) {
+  if (share && share->processes() > 1 && walked) throw std::logic_error("check_grid: a shared check walks only part of the hierarchy");
   const TetGrid& g = p.grid;
   if ((leaves ? *leaves : g.tet_count()) == 0)
     throw InputError(fmt::format("{}: the grid has no tetrahedra (a grid tiles its volume's box)", path));
@@ -465,7 +530,7 @@ void check_grid(const PreparedGrid& p, const std::string& path, std::optional<st
   check_vertices(g, path);
   check_indices(g, path);
   if (p.hierarchy)
-    check_hierarchy(p, path, leaves, walked, progress);
+    check_hierarchy(p, path, leaves, walked, progress, CheckShare{share});
   else
     check_tiling(g, path);
   report(progress, "check grid", 1);

@@ -13,6 +13,10 @@
 #include "adaptiso/prepared_grid.hpp"
 #include "adaptiso/progress.hpp"
 
+namespace adaptiso {
+class ShareTransport;
+}
+
 namespace adaptiso::detail {
 
 // The metadata's "source" object: every field present with its type and count (dims: 3 whole
@@ -48,10 +52,13 @@ struct HierarchyWalk {
 // The index is checked apart (validate_interval_tree). With `leaves` (a bisection grid loaded
 // without its tetrahedra, GridParts::hierarchy), the hierarchy's walk must have that many leaves,
 // and nothing is checked of the tetrahedra themselves. With `walked`, a bisection grid's walk is
-// kept there.
+// kept there. With `share` (every process of a shared step checking the same file, collectively),
+// the vertex-by-vertex check and the walk of a bisection hierarchy are shared out: each process
+// checks a part and walks every P-th subtree, and the findings are combined on every process, so
+// all pass or throw the same InputError (no `walked` then: no process walks all).
 // Reports "check grid" progress.
 void check_grid(const PreparedGrid& grid, const std::string& path, std::optional<std::uint64_t> leaves = std::nullopt,
-                HierarchyWalk* walked = nullptr, const Progress& progress = {});
+                HierarchyWalk* walked = nullptr, const Progress& progress = {}, ShareTransport* share = nullptr);
 // The tetrahedra of a grid whose vertices and hierarchy check_grid passed in an earlier load of the
 // same bytes (`walked`): every index a vertex, and the walk's leaves in its order. The rest of
 // check_grid's findings hold for the same bytes.

@@ -7,13 +7,17 @@
 #include <fmt/format.h>
 #include <unistd.h>
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <cstring>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <span>
 
 #include "adaptiso/atomic_file.hpp"
+#include "adaptiso/select_shares.hpp"
+#include "grid/share_agree.hpp"
 #include "io/grid_check.hpp"
 #include "io/grid_file_stream.hpp"
 #include "util/big_array.hpp"
@@ -221,8 +225,23 @@ namespace {
 
 // load_grid, remembering what the hierarchy's walk checked (`remember`), or taking a walk of the
 // same bytes as checked (`walked`: the same size and checksum) instead of walking again.
+// The processes of a shared load (load_grid_shared) read the same bytes, or all refuse alike: what
+// they combine next has sizes that follow the file.
+void agree_same_file(ShareTransport& t, const std::string& path, std::uint64_t size, std::uint32_t checksum) {
+  std::array<std::uint64_t, 2> zero{size, checksum};
+  t.broadcast(std::as_writable_bytes(std::span(zero)));
+  std::int64_t other = zero[0] == size && zero[1] == checksum ? -1 : t.process();
+  detail::share::combine_at_zero(t, std::span(&other, 1), [](std::int64_t& own, std::int64_t theirs) {
+    if (own < 0) own = theirs;
+  });
+  if (other >= 0)
+    throw InputError(
+        fmt::format("{}: process {} read other bytes than process 0 (another size or checksum): every process must load the same grid file",
+                    path, other));
+}
+
 PreparedGrid load_checked(const std::string& path, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked,
-                          const Progress& progress) {
+                          const Progress& progress, ShareTransport* share = nullptr) {
   detail::file_size_or_throw(path);  // a FIFO or device would block or never end
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
@@ -382,7 +401,8 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   if (walked && keep_tets && p.hierarchy && walked->file_bytes == size && walked->checksum == stored) {
     detail::check_tets_walked(p, path, *walked);
   } else {
-    detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T), remember, progress);
+    if (share && share->processes() > 1) agree_same_file(*share, path, size, stored);
+    detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T), remember, progress, share);
     if (remember) {
       remember->file_bytes = size;
       remember->checksum = stored;
@@ -420,6 +440,10 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
 
 PreparedGrid load_grid(const std::string& path, GridParts parts, const Progress& progress) {
   return load_checked(path, parts, nullptr, nullptr, progress);
+}
+
+PreparedGrid load_grid_shared(const std::string& path, GridParts parts, ShareTransport& transport, const Progress& progress) {
+  return load_checked(path, parts, nullptr, nullptr, progress, &transport);
 }
 
 void write_vtu(const TetGrid& grid, const std::string& path) {

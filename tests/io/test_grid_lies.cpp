@@ -18,6 +18,7 @@
 #include <numeric>
 #include <random>
 #include <set>
+#include <thread>
 
 #include "adaptiso/bisection.hpp"
 #include "adaptiso/error.hpp"
@@ -26,6 +27,7 @@
 #include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/synthetic.hpp"
 #include "grid/diamond.hpp"
+#include "grid/thread_transport.hpp"
 #include "grid/traversal.hpp"
 #include "io/grid_file_sections.hpp"
 #include "test_util.hpp"
@@ -75,13 +77,47 @@ std::string refusal(const std::string& path) {
   return "";
 }
 
-// Expects the file refused with a message naming it and holding `fragment`, on one line.
+// load_grid_shared by threads playing processes, process p loading paths[p]: each one's grid, or
+// the message of what it threw ("" when it loaded).
+struct SharedLoad {
+  std::vector<std::optional<PreparedGrid>> grids;
+  std::vector<std::string> refusals;
+};
+SharedLoad load_shared(const std::vector<std::string>& paths, GridParts parts = GridParts::all) {
+  const int processes = static_cast<int>(paths.size());
+  testutil::Hub hub;
+  SharedLoad out{std::vector<std::optional<PreparedGrid>>(paths.size()), std::vector<std::string>(paths.size())};
+  std::vector<std::thread> threads;
+  for (int p = 0; p < processes; ++p)
+    threads.emplace_back([&, p] {
+      testutil::ThreadTransport t(hub, p, processes);
+      try {
+        out.grids[static_cast<std::size_t>(p)] = load_grid_shared(paths[static_cast<std::size_t>(p)], parts, t);
+      } catch (const InputError& e) {
+        out.refusals[static_cast<std::size_t>(p)] = e.what();
+      } catch (const std::exception& e) {  // a process left waiting: not the refusal every process must give
+        out.refusals[static_cast<std::size_t>(p)] = std::string("not an InputError: ") + e.what();
+      }
+    });
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(hub.left(), 0u) << "messages sent that nobody received";
+  return out;
+}
+
+// Expects the file refused with a message naming it and holding `fragment`, on one line; and
+// refused alike, word for word, by every process of a load shared over 2 and 3 (load_grid_shared:
+// the lie may fall in any process's share of the checks).
 void expect_refused(const std::string& path, const std::string& fragment, const std::string& what = "") {
   const std::string m = refusal(path);
   ASSERT_FALSE(m.empty()) << what << ": loaded";
   EXPECT_NE(m.find(path), std::string::npos) << m;
   EXPECT_NE(m.find(fragment), std::string::npos) << what << ": " << m;
   EXPECT_EQ(m.find('\n'), std::string::npos) << m;
+  for (int processes : {2, 3}) {
+    const SharedLoad shared = load_shared(std::vector<std::string>(static_cast<std::size_t>(processes), path));
+    for (int p = 0; p < processes; ++p)
+      EXPECT_EQ(shared.refusals[static_cast<std::size_t>(p)], m) << what << ": process " << p << " of " << processes;
+  }
 }
 
 void save_sections(const GridSections& s, const std::string& path) { testutil::write_bytes(path, s.assemble()); }
@@ -544,6 +580,42 @@ TEST(GridFileHierarchyParts, AreTheWholeLoadsVerticesAndHierarchyAndGiveItsSurfa
       EXPECT_EQ(ma.triangles, mb.triangles) << iso << " " << d;
       EXPECT_EQ(ma.positions, mb.positions) << iso << " " << d;
     }
+}
+
+// Issue 38: a load shared over processes (load_grid_shared, the hierarchy's checks cut among them)
+// gives every process the grid one process loads, whole or in part, bisection grid or Delaunay;
+// processes that read different files all refuse, naming the first that differs.
+TEST(GridFileSharedLoad, GivesEveryProcessTheGridOneProcessLoads) {
+  testutil::TempDir t("shared_load");
+  save_grid(bisection(bumpy({19, 12, 9}, 4), 0.02, 0.5), t / "b.adg");
+  save_grid(delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05), t / "d.adg");
+  for (const std::string name : {"b.adg", "d.adg"})
+    for (GridParts parts : {GridParts::all, GridParts::hierarchy_or_all})
+      for (int processes : {1, 2, 3, 4}) {
+        const std::string path = t / name;
+        const PreparedGrid one = load_grid(path, parts);
+        const SharedLoad shared = load_shared(std::vector<std::string>(static_cast<std::size_t>(processes), path), parts);
+        for (int p = 0; p < processes; ++p) {
+          SCOPED_TRACE(fmt::format("{}, parts {}, process {} of {}", name, static_cast<int>(parts), p, processes));
+          ASSERT_EQ(shared.refusals[static_cast<std::size_t>(p)], "");
+          const PreparedGrid& g = *shared.grids[static_cast<std::size_t>(p)];
+          EXPECT_EQ(g.grid.ijk, one.grid.ijk);
+          EXPECT_EQ(g.grid.values, one.grid.values);
+          EXPECT_EQ(g.grid.tets, one.grid.tets);
+          EXPECT_EQ(g.stats.tetrahedra, one.stats.tetrahedra);
+          ASSERT_EQ(g.hierarchy.has_value(), one.hierarchy.has_value());
+          if (one.hierarchy) {
+            EXPECT_EQ(g.hierarchy->error_code, one.hierarchy->error_code);
+            EXPECT_EQ(g.hierarchy->displacement_code, one.hierarchy->displacement_code);
+            EXPECT_EQ(g.hierarchy->value_span, one.hierarchy->value_span);
+          }
+        }
+      }
+  // Another file on process 1 of 3: every process refuses it with the same words.
+  const SharedLoad mixed = load_shared({t / "b.adg", t / "d.adg", t / "b.adg"});
+  for (std::size_t p = 0; p < 3; ++p)
+    EXPECT_NE(mixed.refusals[p].find("process 1 read other bytes than process 0"), std::string::npos) << p;
+  EXPECT_NE(mixed.refusals[0].find(t / "b.adg"), std::string::npos);
 }
 
 TEST(GridFileHierarchyParts, OfAGridWithoutAHierarchyAreRefused) {
