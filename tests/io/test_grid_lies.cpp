@@ -587,9 +587,11 @@ TEST(GridFileHierarchyParts, AreTheWholeLoadsVerticesAndHierarchyAndGiveItsSurfa
 // processes that read different files all refuse, naming the first that differs.
 TEST(GridFileSharedLoad, GivesEveryProcessTheGridOneProcessLoads) {
   testutil::TempDir t("shared_load");
-  save_grid(bisection(bumpy({19, 12, 9}, 4), 0.02, 0.5), t / "b.adg");
+  const PreparedGrid b = bisection(bumpy({19, 12, 9}, 4), 0.02, 0.5);
+  save_grid(b, t / "b.adg");
+  save_grid(b, t / "bi.adg", true);  // with its index: more sections read for the checksum alone
   save_grid(delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05), t / "d.adg");
-  for (const std::string name : {"b.adg", "d.adg"})
+  for (const std::string name : {"b.adg", "bi.adg", "d.adg"})
     for (GridParts parts : {GridParts::all, GridParts::hierarchy_or_all})
       for (int processes : {1, 2, 3, 4}) {
         const std::string path = t / name;
@@ -611,11 +613,28 @@ TEST(GridFileSharedLoad, GivesEveryProcessTheGridOneProcessLoads) {
           }
         }
       }
-  // Another file on process 1 of 3: every process refuses it with the same words.
-  const SharedLoad mixed = load_shared({t / "b.adg", t / "d.adg", t / "b.adg"});
-  for (std::size_t p = 0; p < 3; ++p)
-    EXPECT_NE(mixed.refusals[p].find("process 1 read other bytes than process 0"), std::string::npos) << p;
-  EXPECT_NE(mixed.refusals[0].find(t / "b.adg"), std::string::npos);
+  // Another file on process 1 of 3 (another header, or only other contents): every process
+  // refuses it with the same words, whatever it would read of it.
+  for (const std::string other : {"d.adg", "bi.adg"})
+    for (GridParts parts : {GridParts::all, GridParts::hierarchy_or_all}) {
+      const SharedLoad mixed = load_shared({t / "b.adg", t / other, t / "b.adg"}, parts);
+      for (std::size_t p = 0; p < 3; ++p)
+        EXPECT_NE(mixed.refusals[p].find("process 1 read other bytes than process 0"), std::string::npos) << other << " " << p;
+      EXPECT_NE(mixed.refusals[0].find(t / "b.adg"), std::string::npos);
+    }
+  // The same header, other contents: a value changed on process 2 (its file's checksum matches
+  // its bytes). Every process refuses, in the same words but for the path.
+  PreparedGrid changed = b;
+  changed.grid.values[7] = std::nextafter(changed.grid.values[7], 1e30);
+  save_grid(changed, t / "c.adg");
+  for (GridParts parts : {GridParts::all, GridParts::hierarchy_or_all}) {
+    const SharedLoad mixed = load_shared({t / "b.adg", t / "b.adg", t / "c.adg"}, parts);
+    auto words = [&](std::size_t p) {
+      return mixed.refusals[p].substr(std::min(mixed.refusals[p].find(".adg"), mixed.refusals[p].size()));
+    };
+    for (std::size_t p = 0; p < 3; ++p) EXPECT_FALSE(mixed.refusals[p].empty()) << p;
+    for (std::size_t p = 1; p < 3; ++p) EXPECT_EQ(words(p), words(0)) << p;
+  }
 }
 
 TEST(GridFileHierarchyParts, OfAGridWithoutAHierarchyAreRefused) {
