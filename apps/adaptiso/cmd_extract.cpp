@@ -395,9 +395,12 @@ void add_extract(CLI::App& app) {
       {
         TerminalProgress tp(!out->quiet && !out->json && ranks.root());
         const GridParts parts = hierarchy_only ? GridParts::hierarchy : scan ? GridParts::tetrahedra : GridParts::all;
-        // When every rank loads (an iso-value each at least), the load's checks are shared out:
-        // each walks a share of the hierarchy (grid_file.hpp, load_grid_shared).
-        const bool together = ranks.distributed() && mesh_out->isos.size() >= static_cast<std::size_t>(ranks.size());
+        // When every rank loads (an iso-value each at least) the same parts (a rank's route follows
+        // its own count of values, and the counts differ by one at most), the load's checks are
+        // shared out: each walks a share of the hierarchy (grid_file.hpp, load_grid_shared).
+        const std::size_t n = mesh_out->isos.size(), size = static_cast<std::size_t>(ranks.size());
+        const bool same_parts = hierarchy_only || ((n + size - 1) / size <= kMostScannedIsoValues) == (n / size <= kMostScannedIsoValues);
+        const bool together = ranks.distributed() && n >= size && same_parts;
         p = std::make_shared<const PreparedGrid>(together ? load_grid_shared(*input, parts, ranks, tp.callback())
                                                           : load_grid(*input, parts, tp.callback()));
       }

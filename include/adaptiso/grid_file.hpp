@@ -84,9 +84,10 @@ class ShareTransport;  // select_shares.hpp
 // checks of a bisection hierarchy, most of a load, are shared out (process p of P checks the p-th
 // P-th of the vertices and walks every P-th subtree of the hierarchy), their findings combined on
 // every process. Every process returns the same grid or throws the same InputError, also when one
-// read other bytes than process 0 (sizes and checksums are compared before anything else is
-// combined). Collective; a process that fails before its check (an unreadable file) leaves the
-// others waiting, for the caller to stop (the command line: MPI_Abort).
+// read other bytes than process 0 or asked for other parts (sizes, headers, parts and checksums
+// are compared before anything else is combined). Collective, with the same parts on every
+// process; one that fails before its check (an unreadable file) leaves the others waiting, for
+// the caller to stop (the command line: MPI_Abort).
 PreparedGrid load_grid_shared(const std::string& path, GridParts parts, ShareTransport& transport, const Progress& progress = {});
 
 namespace detail {

@@ -224,11 +224,10 @@ void GridFileStream::finish(const BisectionHierarchy& hierarchy) {
 
 namespace {
 
-// load_grid, remembering what the hierarchy's walk checked (`remember`), or taking a walk of the
-// same bytes as checked (`walked`: the same size and checksum) instead of walking again.
-// The processes of a shared load (load_grid_shared) read the same bytes, or all refuse alike: what
-// they combine next has sizes that follow the file.
-// Called with the file's size and header before anything is combined, and again with its checksum.
+// The processes of a shared load (load_grid_shared) read the same bytes, and the same parts of
+// them, or all refuse alike: what they combine next, and how often, follows from both. Called with
+// the file's size, the parts and the header before anything is combined, and again with the
+// checksum.
 template <std::size_t N>
 void agree_same_file(ShareTransport& t, const std::string& path, const std::array<std::uint64_t, N>& mine) {
   std::array<std::uint64_t, N> zero = mine;
@@ -239,10 +238,13 @@ void agree_same_file(ShareTransport& t, const std::string& path, const std::arra
   });
   if (other >= 0)
     throw InputError(
-        fmt::format("{}: process {} read other bytes than process 0 (another size or checksum): every process must load the same grid file",
+        fmt::format("{}: process {} read other bytes than process 0 (another size, header or checksum) or asked for other parts of "
+                    "them: every process must load the same parts of the same grid file",
                     path, other));
 }
 
+// load_grid, remembering what the hierarchy's walk checked (`remember`), or taking a walk of the
+// same bytes as checked (`walked`: the same size and checksum) instead of walking again.
 PreparedGrid load_checked(const std::string& path, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked,
                           const Progress& progress, ShareTransport* share = nullptr) {
   detail::file_size_or_throw(path);  // a FIFO or device would block or never end
@@ -303,8 +305,8 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   // The sections every process reads alike (a shared load combines its pieces of them), before
   // anything is combined.
   if (share && share->processes() > 1) {
-    std::array<std::uint64_t, 1 + kHeader / 8> id{size};
-    std::memcpy(&id[1], h, kHeader);
+    std::array<std::uint64_t, 2 + kHeader / 8> id{size, static_cast<std::uint64_t>(parts)};
+    std::memcpy(&id[2], h, kHeader);
     agree_same_file(*share, path, id);
   }
   std::uint32_t crc = libdeflate_crc32(0, h, header);

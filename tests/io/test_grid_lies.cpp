@@ -622,6 +622,24 @@ TEST(GridFileSharedLoad, GivesEveryProcessTheGridOneProcessLoads) {
         EXPECT_NE(mixed.refusals[p].find("process 1 read other bytes than process 0"), std::string::npos) << other << " " << p;
       EXPECT_NE(mixed.refusals[0].find(t / "b.adg"), std::string::npos);
     }
+  // The same file, other parts on process 1 (with its index, so that the parts read differ):
+  // every process refuses, none waits for a message the others do not send.
+  {
+    testutil::Hub hub;
+    std::vector<std::string> said(2);
+    std::vector<std::thread> threads;
+    for (int p = 0; p < 2; ++p)
+      threads.emplace_back([&, p] {
+        testutil::ThreadTransport tr(hub, p, 2);
+        try {
+          load_grid_shared(t / "bi.adg", p == 0 ? GridParts::all : GridParts::tetrahedra, tr);
+        } catch (const std::exception& e) {
+          said[static_cast<std::size_t>(p)] = e.what();
+        }
+      });
+    for (auto& th : threads) th.join();
+    for (const auto& m : said) EXPECT_NE(m.find("process 1 read other bytes than process 0"), std::string::npos) << m;
+  }
   // The same header, other contents: a value changed on process 2 (its file's checksum matches
   // its bytes). Every process refuses, in the same words but for the path.
   PreparedGrid changed = b;
