@@ -86,8 +86,9 @@ class ShareTransport;  // select_shares.hpp
 // every process. Every process returns the same grid or throws the same InputError, also when one
 // read other bytes than process 0 or asked for other parts (sizes, headers, parts and checksums
 // are compared before anything else is combined). Collective, with the same parts on every
-// process; one that fails before its check (an unreadable file) leaves the others waiting, for
-// the caller to stop (the command line: MPI_Abort).
+// process. A process that fails alone leaves the others waiting, for the caller to stop (the
+// command line: MPI_Abort): one that cannot read its file, or not as a grid file at all (its
+// magic, version), or whose memory or memory limit refuses the load.
 PreparedGrid load_grid_shared(const std::string& path, GridParts parts, ShareTransport& transport, const Progress& progress = {});
 
 namespace detail {

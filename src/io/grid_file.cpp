@@ -272,6 +272,15 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     in.read(reinterpret_cast<char*>(h + kHeaderV1), kHeader - kHeaderV1);
     std::memcpy(&E, h + 48, 8);
     std::memcpy(&depth, h + 56, 4);
+  }
+  // The header every process of a shared load read, and the parts each asks for, before any of
+  // them refuses what differs between them (the sections read, and so what is combined, follow).
+  if (share && share->processes() > 1) {
+    std::array<std::uint64_t, 2 + kHeader / 8> id{size, static_cast<std::uint64_t>(parts)};
+    std::memcpy(&id[2], h, kHeader);
+    agree_same_file(*share, path, id);
+  }
+  if (version >= 2) {
     std::uint32_t reserved;
     std::memcpy(&reserved, h + 60, 4);
     if (reserved != 0) throw InputError(fmt::format("{}: grid file is corrupt (reserved header bytes are not zero)", path));
@@ -302,13 +311,6 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   detail::check_memory(load_bytes(N, T, E, nodes, build_depth, has_hierarchy, has_moves, keep_tets, keep_index),
                        fmt::format("{}: loading a grid of {} vertices and {} tetrahedra", path, N, T), "",
                        "free memory or raise the memory limit");
-  // The sections every process reads alike (a shared load combines its pieces of them), before
-  // anything is combined.
-  if (share && share->processes() > 1) {
-    std::array<std::uint64_t, 2 + kHeader / 8> id{size, static_cast<std::uint64_t>(parts)};
-    std::memcpy(&id[2], h, kHeader);
-    agree_same_file(*share, path, id);
-  }
   std::uint32_t crc = libdeflate_crc32(0, h, header);
   const bool restarting = version <= kLastRestartingChecksum;
   std::uint64_t read_bytes = header;
@@ -338,7 +340,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     }
   };
   // In a shared load each process reads its P-th of such an array, and the pieces' checksums are
-  // combined in order (zlib's crc32_combine): the CT bunny's tetrahedra, 0.87 GB of its 1.3 GB
+  // combined in order (zlib's crc32_combine64): the CT bunny's tetrahedra, 0.87 GB of its 1.3 GB
   // grid file, are read only for the checksum when loading what the distance queries need.
   // (Files of version 4 and older restart their checksum at empty arrays: read whole.)
   const bool shared_reads = share && share->processes() > 1 && !restarting;
@@ -397,6 +399,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     read(tree.by_min.data(), E * 4);
     read(tree.by_max.data(), E * 4);
   }
+  std::uint16_t hierarchy_reserved = 0;  // refused once the processes agree on the bytes read
   if (has_hierarchy) {
     BisectionHierarchy& hh = p.hierarchy.emplace();
     std::uint16_t reserved = 0;
@@ -404,7 +407,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
     read(&hh.error_threshold, 1);
     read(&hh.displacement_threshold, 1);
     read(&reserved, 2);
-    if (reserved != 0) throw InputError(fmt::format("{}: grid file is corrupt (reserved hierarchy bytes are not zero)", path));
+    hierarchy_reserved = reserved;
     read(&hh.codes.scale, 8);
     read(&hh.codes.zero, 8);
     read(&hh.displacement_codes.scale, 8);
@@ -421,6 +424,10 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   std::uint32_t stored;
   in.read(reinterpret_cast<char*>(&stored), 4);
   report(progress, "read grid", 1);
+  // Processes of a shared load that read other bytes would each find another fault here (their
+  // checksums combine pieces of each other's files): they agree on the file's checksum first.
+  if (share && share->processes() > 1) agree_same_file(*share, path, std::array<std::uint64_t, 2>{size, stored});
+  if (hierarchy_reserved != 0) throw InputError(fmt::format("{}: grid file is corrupt (reserved hierarchy bytes are not zero)", path));
   if (static_cast<std::uint32_t>(crc) != stored) throw InputError(fmt::format("{}: grid file is corrupt (checksum mismatch)", path));
   auto j = nlohmann::json::parse(meta, nullptr, false);
   if (j.is_discarded() || !j.is_object() || !j.contains("source"))
@@ -438,7 +445,6 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   if (walked && keep_tets && p.hierarchy && walked->file_bytes == size && walked->checksum == stored) {
     detail::check_tets_walked(p, path, *walked);
   } else {
-    if (share && share->processes() > 1) agree_same_file(*share, path, std::array<std::uint64_t, 2>{size, stored});
     detail::check_grid(p, path, keep_tets ? std::nullopt : std::optional<std::uint64_t>(T), remember, progress, share);
     if (remember) {
       remember->file_bytes = size;
