@@ -38,18 +38,23 @@ std::string_view command_of(int argc, char** argv) {
   return {};
 }
 
-// This rank left the message of its failure to rank 0 (see tell).
-bool told_by_rank_0 = false;
+// The message of this rank's failure, left to rank 0 (see tell); empty when told.
+std::string left_to_rank_0;
+
+void tell_as_this_rank(const adaptiso::cli::Ranks& ranks, const std::string& message) {
+  std::cerr << "adaptiso (rank " << ranks.rank() << "): " << message << "\n";
+}
 
 // Prints a failure. Under mpirun a failure every rank meets alike (a usage or input error: every
 // rank reads the same options and volume) is told once, by rank 0; others name their rank.
 void tell(const std::string& message, bool same_on_every_rank) {
   const adaptiso::cli::Ranks* ranks = adaptiso::cli::Ranks::started();
-  told_by_rank_0 = ranks && !ranks->root() && same_on_every_rank;
   if (!ranks || ranks->root())
     std::cerr << "adaptiso: " << message << "\n";
-  else if (!same_on_every_rank)
-    std::cerr << "adaptiso (rank " << ranks->rank() << "): " << message << "\n";
+  else if (same_on_every_rank)
+    left_to_rank_0 = message;
+  else
+    tell_as_this_rank(*ranks, message);
 }
 }  // namespace
 
@@ -110,8 +115,12 @@ int run(int argc, char** argv) {
 int main(int argc, char** argv) {
   const int code = run(argc, argv);
   // A failure on one rank stops the others (they may wait for it in a collective). One that rank
-  // 0 meets too gives it time to say so first: the first rank to abort ends every other one.
-  if (code != 0 && told_by_rank_0) std::this_thread::sleep_for(std::chrono::seconds(3));
+  // 0 meets too gives it time to say so first: the first rank to abort ends every other one. A
+  // rank still running after that met it alone (a file only it cannot read, say): it tells it.
+  if (code != 0 && !left_to_rank_0.empty()) {
+    std::this_thread::sleep_for(std::chrono::seconds(3));
+    tell_as_this_rank(*adaptiso::cli::Ranks::started(), left_to_rank_0);
+  }
   if (code != 0) adaptiso::cli::Ranks::abort_if_distributed(code);
   return code;
 }

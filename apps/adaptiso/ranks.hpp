@@ -4,6 +4,8 @@
 //
 // A failure on any rank stops every rank (MPI_Abort after the message), so no rank waits forever in
 // a collective and no output reaches its final name (outputs are renamed into place at the end).
+// A failure every rank meets alike is told by rank 0 alone; a rank still running 3 s after meeting
+// one (it met it alone) tells it with its number before stopping the others (main.cpp).
 // A build without MPI started by mpirun with several processes refuses to run (exit 2): each process
 // would do the whole job alone and write the same files.
 #pragma once

@@ -4,7 +4,8 @@
 # every route: a scan (a few values a rank), the sweeping index (more), a distance with and without
 # collapses, a coarser error, and --simplify; a rank without an iso-value of its own; --json in
 # the values' order with what each rank did. A rank that cannot write its mesh names itself, exit
-# 2, and no mesh of any rank reaches its name; nor when a rank is killed mid-run (issue 38).
+# 2, and no mesh of any rank reaches its name; nor when a rank is killed mid-run (issue 38); a
+# rank that alone cannot read its grid says so.
 # Usage: extract_over_ranks.sh ADAPTISO MPIEXEC
 set -euo pipefail
 # shellcheck source=ranks_common.sh
@@ -67,6 +68,20 @@ grep -q "adaptiso (rank 1): .*s-0.5.ply" "$W/bad.out" || { echo "FAIL: the faili
 [ ! -e "$W/bad/s-0.3.ply" ] || { echo "FAIL: rank 0's mesh reached its name though rank 1 failed"; exit 1; }
 [ -z "$(ls -A "$W/bad" | grep -v '^s-0.5.ply$')" ] || { echo "FAIL: files left behind"; ls -la "$W/bad"; exit 1; }
 echo "ok: a rank's own failure is told by that rank, exit 2, and no mesh reaches its name"
+
+# A rank that alone cannot read its grid (mpirun's colon gives rank 1 another file) while rank 0
+# waits for it in the shared load: that rank tells why, named, before the job stops (regression:
+# its message was left to rank 0, which never met it, and the job stopped silently).
+mkdir -p "$W/lone"
+set +e
+"$MPIEXEC" -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" : \
+  -np 1 "$CLI" extract "$W/absent.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" >"$W/lone.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: a rank alone unable to read its grid exited $code"; cat "$W/lone.out"; exit 1; }
+grep -q "adaptiso (rank 1): .*absent.adg" "$W/lone.out" || { echo "FAIL: the lone failing rank's message was lost"; cat "$W/lone.out"; exit 1; }
+[ -z "$(ls -A "$W/lone")" ] || { echo "FAIL: files left behind"; ls -la "$W/lone"; exit 1; }
+echo "ok: a rank that alone cannot read its grid tells why, exit 2"
 
 # A rank killed mid-run: mpirun fails and no mesh appears under its name.
 "$CLI" generate noise --size 64 --quiet -o "$W/n.nrrd"
