@@ -2,6 +2,7 @@
 #include <fmt/format.h>
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <iostream>
 #include <numeric>
@@ -398,9 +399,9 @@ void add_extract(CLI::App& app) {
         // When every rank loads (an iso-value each at least) the same parts (a rank's route follows
         // its own count of values, and the counts differ by one at most), the load's checks are
         // shared out: each walks a share of the hierarchy (grid_file.hpp, load_grid_shared).
-        const std::size_t n = mesh_out->isos.size(), size = static_cast<std::size_t>(ranks.size());
-        const bool same_parts = hierarchy_only || ((n + size - 1) / size <= kMostScannedIsoValues) == (n / size <= kMostScannedIsoValues);
-        const bool together = ranks.distributed() && n >= size && same_parts;
+        const auto [fewest, most] = std::minmax_element(share.counts.begin(), share.counts.end());
+        const bool same_parts = hierarchy_only || (*most <= kMostScannedIsoValues) == (*fewest <= kMostScannedIsoValues);
+        const bool together = ranks.distributed() && *fewest > 0 && same_parts;
         p = std::make_shared<const PreparedGrid>(together ? load_grid_shared(*input, parts, ranks, tp.callback())
                                                           : load_grid(*input, parts, tp.callback()));
       }

@@ -4,6 +4,7 @@
 #pragma once
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <exception>
 #include <span>
@@ -13,6 +14,10 @@
 #include "adaptiso/select_shares.hpp"
 
 namespace adaptiso::detail::share {
+
+// Where process q's part begins when n items are split among P processes in order, as evenly as
+// can be (the first n % P parts one longer): q's part is [part_begin(n, P, q), part_begin(n, P, q + 1)).
+constexpr std::uint64_t part_begin(std::uint64_t n, std::uint64_t P, std::uint64_t q) { return n / P * q + std::min(q, n % P); }
 
 template <class T>
 std::span<std::byte> bytes(std::vector<T>& v) {

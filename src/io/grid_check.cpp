@@ -71,7 +71,7 @@ struct CheckShare {
   std::pair<std::size_t, std::size_t> part(std::size_t n) const {
     if (!shared()) return {0, n};
     const auto p = static_cast<std::size_t>(transport->process()), P = static_cast<std::size_t>(transport->processes());
-    return {n / P * p + std::min(p, n % P), n / P * (p + 1) + std::min(p + 1, n % P)};
+    return {share::part_begin(n, P, p), share::part_begin(n, P, p + 1)};
   }
   template <class T, class Combine>
   void combine(std::span<T> values, Combine c) const {

@@ -347,7 +347,7 @@ PreparedGrid load_checked(const std::string& path, GridParts parts, detail::Hier
   auto pass_over = [&](std::uint64_t n) {
     if (n == 0 || !shared_reads) return pass_whole(n);
     const auto P = static_cast<std::uint64_t>(share->processes()), me = static_cast<std::uint64_t>(share->process());
-    auto begin = [&](std::uint64_t q) { return n / P * q + std::min(q, n % P); };
+    auto begin = [&](std::uint64_t q) { return detail::share::part_begin(n, P, q); };
     const auto start = static_cast<std::uint64_t>(in.tellg());
     std::vector<std::uint32_t> pieces(P, 0);  // each piece's checksum from 0; the others' are 0 here
     if (begin(me + 1) > begin(me)) {
