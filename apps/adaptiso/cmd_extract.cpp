@@ -135,18 +135,6 @@ struct Written {
   std::vector<std::size_t> numbers;           // each given iso-value's number among all (empty: 0, 1, 2, …)
   std::vector<StagedFile>* staged = nullptr;  // staged here, not put in place
   std::vector<std::string>* lines = nullptr;  // the lines kept here, not printed
-  // Or the iso-values given are all of them, this rank takes the numbers of its own from
-  // `handout` as it goes, and appends them to `taken`.
-  Handout* handout = nullptr;
-  std::vector<std::size_t>* taken = nullptr;
-  // The next iso-value's number among those given, after k of them (nullopt: none left).
-  std::optional<std::size_t> next(std::size_t k, std::size_t given) const {
-    if (!handout) return k < given ? std::optional(k) : std::nullopt;
-    const auto i = handout->next();
-    if (i) taken->push_back(*i);
-    return i;
-  }
-  std::size_t number(std::size_t i) const { return numbers.empty() ? i : numbers[i]; }
 };
 
 // Writes one surface per iso-value, whichever way `extract` makes it, and returns the per-value
@@ -157,10 +145,9 @@ nlohmann::json write_all(const PreparedGrid& prepared, const MeshOutputFlags& me
                          const OutputFlags& out, const Written& written, Extract extract) {
   const GridSource& source = prepared.grid.source;
   nlohmann::json results = nlohmann::json::array();
-  std::size_t k = 0;
-  for (std::optional<std::size_t> i; (i = written.next(k, isos.size())); ++k) {
-    extract(isos[*i], [&](const Mesh& mesh, nlohmann::json stats, const std::string& how, double seconds) {
-      const std::string path = mesh_out.path(written.number(*i));
+  for (std::size_t i = 0; i < isos.size(); ++i) {
+    extract(isos[i], [&](const Mesh& mesh, nlohmann::json stats, const std::string& how, double seconds) {
+      const std::string path = mesh_out.path(written.numbers.empty() ? i : written.numbers[i]);
       const auto t0 = Clock::now();
       const auto [simplified, simplified_how] = mesh_out.write(mesh, path, source.spacing, written.staged);
       stats["write_seconds"] = seconds_since(t0);
@@ -282,31 +269,32 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
 
 // ---- extract over MPI ranks (issue 38) ----
 //
-// Under mpirun the ranks share the iso-values out. Surfaces at a distance or at a coarser error,
-// whose costs differ widely and follow no cheap estimate, are handed out one at a time as each rank
-// asks (Handout; when there are more values than ranks and MPI lets rank 0 serve from a thread).
-// Otherwise rank r extracts the iso-values r, r + N, r + 2N, … of the N ranks: a scan or the
-// sweeping index chooses its route by the count of values, so each rank's count must be known
-// first. Each rank loads what its route needs as one process would
-// (each reads the whole file; when every rank has a value, the load's checks are shared out,
-// load_grid_shared), and stages its meshes (atomic_file.hpp: written in full, nothing under their
-// names). Once every rank has staged its
-// own, rank 0 tells them to put theirs in place, then prints every rank's lines and statistics in
-// the order of the iso-values. Each mesh is the one a single process writes, byte for byte (every
-// route gives the same surface; ctest extract_over_mpi_ranks). A rank that fails before then
-// stops the others (main: MPI_Abort) and no mesh reaches its name.
+// Under mpirun rank r extracts the iso-values r, r + N, r + 2N, … of the N ranks, loading what
+// its route needs as one process would (each reads the whole file; when every rank has a value,
+// the load's checks are shared out, load_grid_shared), and stages its meshes (atomic_file.hpp:
+// written in full, nothing under their names). Once every rank has staged its own, rank 0 tells
+// them to put theirs in place, then prints every rank's lines and statistics in the order of the
+// iso-values. Each mesh is the one a single process writes, byte for byte (every route gives the
+// same surface; ctest extract_over_mpi_ranks). A rank that fails before then stops the others
+// (main: MPI_Abort) and no mesh reaches its name.
+//
+// Tried and not kept (2026-12-02): surfaces at a distance handed out one at a time, in order, as
+// ranks asked (rank 0 serving the others from a thread polling every millisecond, under
+// MPI_THREAD_SERIALIZED). The same bytes, but no faster: on the CT bunny at 0.5 voxels, one
+// thread a rank, 2 ranks against this in-turn share, 3 alternated pairs each, 8 values 1.02x,
+// 15 values 0.97x, 4 values 1.09x (slower). The values cost 0.56-3.2 s each, and greedy in order
+// left an expensive one last as often as the turn did. Ordering them by cost would pay, but
+// nothing cheap predicts it: the query at 8 voxels ranks them roughly right (its tests) for 5-10 %
+// of the time they take at 0.5.
 struct IsoShare {
-  bool as_asked = false;            // handed out as ranks ask (Handout), not in turn
-  std::vector<std::size_t> mine;    // this rank's iso-values' numbers among all, ascending (as asked: as taken)
-  std::vector<std::size_t> counts;  // every rank's count in turn (as asked: known at the end)
+  std::vector<std::size_t> mine;    // this rank's iso-values' numbers among all, ascending
+  std::vector<std::size_t> counts;  // every rank's count
   std::vector<StagedFile> staged;   // this rank's meshes until every rank's are staged
   std::vector<std::string> lines;   // their lines, for rank 0 to print
 };
-IsoShare iso_share(std::size_t n, const Ranks& ranks, bool costs_vary) {
+IsoShare iso_share(std::size_t n, const Ranks& ranks) {
   IsoShare s;
   const auto size = static_cast<std::size_t>(ranks.size()), rank = static_cast<std::size_t>(ranks.rank());
-  s.as_asked = costs_vary && ranks.distributed() && ranks.serves_from_a_thread() && n > size;
-  if (s.as_asked) return s;
   for (std::size_t r = 0; r < size; ++r) s.counts.push_back(n / size + (r < n % size));
   for (std::size_t i = rank; i < n; i += size) s.mine.push_back(i);
   return s;
@@ -335,38 +323,28 @@ std::vector<std::byte> to_bytes(const std::string& s) {
 nlohmann::json commit_shares(Ranks& ranks, IsoShare& share, nlohmann::json mine, const OutputFlags& out) {
   mine["peak_bytes"] = peak_resident_bytes();
   mine["lines"] = share.lines;
-  mine["numbers"] = share.mine;
   const auto all = ranks.gather(to_bytes(mine.dump()));  // every rank staged its meshes by now
   ranks.broadcast(std::uint64_t{1});                     // then: in place, every rank
   for (auto& f : share.staged) f.commit();
   ranks.gather({});  // every rank's are in place before rank 0 says so
   if (!ranks.root()) return nullptr;
   std::vector<nlohmann::json> got;
-  nlohmann::json j, per = {{"ranks", ranks.size()}, {"handout", share.as_asked ? "as ranks ask" : "in turn"}};
-  struct Place {
-    std::size_t rank, k;  // the rank's k-th surface
-  };
-  std::vector<Place> places;  // by iso-value number
+  nlohmann::json j, per = {{"ranks", ranks.size()}, {"iso_values_per_rank", share.counts}};
   for (const auto& bytes : all) {
     got.push_back(nlohmann::json::parse(std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size())));
     const auto& r = got.back();
-    const auto numbers = r["numbers"].get<std::vector<std::size_t>>();
-    for (std::size_t k = 0; k < numbers.size(); ++k) {
-      if (numbers[k] >= places.size()) places.resize(numbers[k] + 1, Place{all.size(), 0});
-      places[numbers[k]] = {got.size() - 1, k};
-    }
-    per["iso_values_per_rank"].push_back(numbers.size());
     per["peak_bytes_per_rank"].push_back(r["peak_bytes"]);
     per["load_seconds_per_rank"].push_back(r.value("load_seconds", 0.0));
     for (const char* key : {"grid", "vertices", "tetrahedra", "load_seconds"})
       if (!j.contains(key) && r.contains(key)) j[key] = r[key];
   }
+  // Iso-value i is rank i mod N's (i / N)-th.
   j["surfaces"] = nlohmann::json::array();
-  for (const Place& at : places) {
-    if (at.rank == all.size()) throw std::logic_error("an iso-value no rank extracted");  // Handout hands out each
-    const auto& r = got[at.rank];
-    j["surfaces"].push_back(r["surfaces"][at.k]);
-    if (!out.json && !out.quiet) std::cout << r["lines"][at.k].get<std::string>();
+  const std::size_t n = got.size(), total = std::accumulate(share.counts.begin(), share.counts.end(), std::size_t{0});
+  for (std::size_t i = 0; i < total; ++i) {
+    const auto& r = got[i % n];
+    j["surfaces"].push_back(r["surfaces"][i / n]);
+    if (!out.json && !out.quiet) std::cout << r["lines"][i / n].get<std::string>();
   }
   per["bytes_exchanged"] = ranks.bytes_exchanged();
   j["ranks"] = per;
@@ -412,16 +390,15 @@ void add_extract(CLI::App& app) {
     if (distance->given() && query)
       throw OptionError("distance", "cannot be combined with --max-error or --max-displacement: give one of them");
     Ranks& ranks = Ranks::world();
-    // The hierarchy's queries walk the hierarchy alone: the tetrahedra stay on disk, no index is
-    // built; nor for a few iso-values, which a scan of the tetrahedra finds faster. Every route
-    // gives the same surfaces, so a rank chooses by its own share.
-    const bool hierarchy_only = distance->given() || query;
-    IsoShare share = iso_share(mesh_out->isos.size(), ranks, hierarchy_only);
-    std::optional<Handout> handout;
-    Written written{share.mine, ranks.distributed() ? &share.staged : nullptr, ranks.distributed() ? &share.lines : nullptr};
+    IsoShare share = iso_share(mesh_out->isos.size(), ranks);
+    const Written written{share.mine, ranks.distributed() ? &share.staged : nullptr, ranks.distributed() ? &share.lines : nullptr};
     nlohmann::json j;
-    if (share.as_asked || !share.mine.empty()) {  // a rank with no iso-value of its own loads nothing
+    if (!share.mine.empty()) {  // a rank with no iso-value of its own loads nothing
       auto t0 = Clock::now();
+      // The hierarchy's queries walk the hierarchy alone: the tetrahedra stay on disk, no index is
+      // built; nor for a few iso-values, which a scan of the tetrahedra finds faster. Every route
+      // gives the same surfaces, so a rank chooses by its own share.
+      const bool hierarchy_only = distance->given() || query;
       const bool scan = !hierarchy_only && share.mine.size() <= kMostScannedIsoValues;
       std::shared_ptr<const PreparedGrid> p;
       {
@@ -430,11 +407,9 @@ void add_extract(CLI::App& app) {
         // When every rank loads (an iso-value each at least) the same parts (a rank's route follows
         // its own count of values, and the counts differ by one at most), the load's checks are
         // shared out: each walks a share of the hierarchy (grid_file.hpp, load_grid_shared).
-        // (As ranks ask, every rank has a value to load for: there are more values than ranks.)
         const auto [fewest, most] = std::minmax_element(share.counts.begin(), share.counts.end());
-        const bool together =
-            share.as_asked || (ranks.distributed() && *fewest > 0 &&
-                               (hierarchy_only || (*most <= kMostScannedIsoValues) == (*fewest <= kMostScannedIsoValues)));
+        const bool same_parts = hierarchy_only || (*most <= kMostScannedIsoValues) == (*fewest <= kMostScannedIsoValues);
+        const bool together = ranks.distributed() && *fewest > 0 && same_parts;
         p = std::make_shared<const PreparedGrid>(together ? load_grid_shared(*input, parts, ranks, tp.callback())
                                                           : load_grid(*input, parts, tp.callback()));
       }
@@ -446,14 +421,7 @@ void add_extract(CLI::App& app) {
       const ValueRange range{grid.source.min, grid.source.max};
       const auto all = mesh_out->values(*relative, range, *input);
       std::vector<double> values;
-      if (share.as_asked) {
-        values = all;
-        written.numbers.clear();
-        handout.emplace(ranks, all.size());  // after the load: its checks are collective
-        written.handout = &*handout, written.taken = &share.mine;
-      } else {
-        for (std::size_t i : share.mine) values.push_back(all[i]);
-      }
+      for (std::size_t i : share.mine) values.push_back(all[i]);
       j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", tetrahedron_count(*p)}, {"load_seconds", t_load}};
       as_rank_failure(ranks, [&] {
         if (distance->given()) {

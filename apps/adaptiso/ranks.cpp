@@ -5,7 +5,6 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cstdlib>
 #include <limits>
 #include <string>
@@ -39,8 +38,7 @@ Ranks::Ranks() {
 #ifdef ADAPTISO_HAVE_MPI
   if (launched > 1) {
     int provided = 0;
-    MPI_Init_thread(nullptr, nullptr, MPI_THREAD_SERIALIZED, &provided);
-    serialized_ = provided >= MPI_THREAD_SERIALIZED;
+    MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
     MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
     MPI_Comm_size(MPI_COMM_WORLD, &size_);
     mpi_ = true;
@@ -148,79 +146,6 @@ std::uint64_t Ranks::broadcast(std::uint64_t x) {
   }
 #endif
   return x;
-}
-
-// ---- Handout ----
-//
-// A rank asks rank 0 with its number (tag 3) and receives the next number, or n for none (tag 4).
-// Rank 0's thread polls for asks every millisecond rather than waiting in MPI_Recv: OpenMPI's
-// blocking receive spins, taking the core rank 0's own work runs on.
-
-namespace {
-constexpr int kAskTag = 3, kGiveTag = 4;
-}
-
-Handout::Handout(Ranks& ranks, std::size_t n, bool as_asked)
-    : ranks_(ranks),
-      n_(n),
-      as_asked_(as_asked && ranks.distributed() && ranks.serves_from_a_thread()),
-      in_turn_(static_cast<std::size_t>(ranks.rank())) {
-#ifdef ADAPTISO_HAVE_MPI
-  if (as_asked_ && ranks_.root()) server_ = std::thread([this] { serve(); });
-#endif
-}
-
-Handout::~Handout() { stop_serving(); }
-
-void Handout::stop_serving() {
-  stop_ = true;
-  if (server_.joinable()) server_.join();
-}
-
-std::optional<std::size_t> Handout::next() {
-  std::size_t got = n_;
-  if (!as_asked_) {
-    got = std::min(in_turn_, n_);
-    in_turn_ += static_cast<std::size_t>(ranks_.size());
-  } else if (ranks_.root()) {
-    got = std::min(counter_.fetch_add(1), n_);
-    if (got == n_ && server_.joinable()) server_.join();  // every other rank told there is none
-  } else {
-#ifdef ADAPTISO_HAVE_MPI
-    std::uint64_t ask = static_cast<std::uint64_t>(ranks_.rank()), give = 0;
-    MPI_Send(&ask, 1, MPI_UINT64_T, 0, kAskTag, MPI_COMM_WORLD);
-    MPI_Recv(&give, 1, MPI_UINT64_T, 0, kGiveTag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-    ranks_.exchanged_ += 2 * sizeof give;
-    got = static_cast<std::size_t>(std::min<std::uint64_t>(give, n_));
-#endif
-  }
-  if (got == n_) return std::nullopt;
-  return got;
-}
-
-void Handout::serve() {
-#ifdef ADAPTISO_HAVE_MPI
-  for (int told_none = 0; told_none < ranks_.size() - 1;) {
-    std::uint64_t ask = 0;
-    MPI_Request request;
-    MPI_Irecv(&ask, 1, MPI_UINT64_T, MPI_ANY_SOURCE, kAskTag, MPI_COMM_WORLD, &request);
-    MPI_Status status;
-    for (int done = 0;;) {
-      MPI_Test(&request, &done, &status);
-      if (done) break;
-      if (stop_) {  // rank 0 failed: the job is being stopped
-        MPI_Cancel(&request);
-        MPI_Wait(&request, MPI_STATUS_IGNORE);
-        return;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    }
-    const std::uint64_t give = std::min(counter_.fetch_add(1), n_);
-    told_none += give == n_;
-    MPI_Send(&give, 1, MPI_UINT64_T, status.MPI_SOURCE, kGiveTag, MPI_COMM_WORLD);
-    ranks_.exchanged_ += 2 * sizeof give;
-  }
-#endif
 }
 
 }  // namespace adaptiso::cli

@@ -9,12 +9,9 @@
 // A build without MPI started by mpirun with several processes refuses to run (exit 2): each process
 // would do the whole job alone and write the same files.
 #pragma once
-#include <atomic>
 #include <cstddef>
 #include <cstdint>
-#include <optional>
 #include <span>
-#include <thread>
 #include <vector>
 
 #include "adaptiso/error.hpp"
@@ -63,48 +60,14 @@ public:
   static void abort_if_distributed(int code);
   // The ranks once started (nullptr before, or when starting them failed).
   static const Ranks* started() { return started_; }
-  // MPI lets a thread of rank 0 serve the others while its main thread computes (Handout).
-  bool serves_from_a_thread() const { return serialized_; }
   ~Ranks() override;
 
 private:
-  friend class Handout;
   Ranks();
   static inline Ranks* started_ = nullptr;
   int rank_ = 0, size_ = 1;
-  bool mpi_ = false, serialized_ = false;
+  bool mpi_ = false;
   std::uint64_t exchanged_ = 0;
-};
-
-// The numbers 0, 1, …, n − 1 handed out to the ranks one at a time, in order, as each asks for
-// its next, so that a rank whose work went faster takes more (the costs of a distance query's
-// iso-values differ 7-fold on the CT bunny and follow no cheap estimate). Rank 0 serves the
-// others from a thread while its main thread takes its own from the same counter; that thread is
-// the only one of rank 0 to call MPI until next() has returned nothing there (MPI_THREAD_SERIALIZED),
-// so rank 0 must call no other MPI until then. Without such threads, or on one process, rank r
-// takes r, r + N, r + 2N, … (in turn), as it does when `as_asked` is false. Every rank builds one
-// alike and calls next() until it returns nothing; a failing rank stops the job (main.cpp: MPI_Abort), and rank 0's destructor stops its
-// thread first.
-class Handout {
-public:
-  Handout(Ranks& ranks, std::size_t n, bool as_asked = true);
-  ~Handout();
-  Handout(const Handout&) = delete;
-  Handout& operator=(const Handout&) = delete;
-  std::optional<std::size_t> next();
-  // Handed out as ranks ask (false: in turn).
-  bool as_ranks_ask() const { return as_asked_; }
-
-private:
-  void serve();
-  void stop_serving();
-  Ranks& ranks_;
-  std::size_t n_;
-  bool as_asked_;
-  std::size_t in_turn_;  // the next in turn (not as asked)
-  std::atomic<std::size_t> counter_{0};
-  std::atomic<bool> stop_{false};
-  std::thread server_;
 };
 
 }  // namespace adaptiso::cli
