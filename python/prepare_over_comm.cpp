@@ -91,6 +91,19 @@ RegionReader open_file(const std::string& path) {
 
 }  // namespace
 
+std::unique_ptr<ShareTransport> comm_transport(const py::object& comm) {
+  if (comm.is_none()) return nullptr;
+  auto need = [&](std::initializer_list<const char*> methods) {
+    for (const char* method : methods)
+      if (!py::hasattr(comm, method)) throw py::type_error(fmt::format("comm: must be an mpi4py communicator (it has no {}())", method));
+  };
+  need({"Get_rank", "Get_size"});
+  const int rank = comm.attr("Get_rank")().cast<int>(), size = comm.attr("Get_size")().cast<int>();
+  if (size <= 1) return nullptr;
+  need({"Bcast", "Send", "Recv"});
+  return std::make_unique<CommTransport>(comm, rank, size);
+}
+
 Volume CommShare::read_file(const std::string& path) {
   return file_errors([&] { return read_volume(path); });
 }

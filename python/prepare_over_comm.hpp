@@ -64,6 +64,12 @@ struct BrickStats {
   pybind11::dict to_dict() const;
 };
 
+// The shared steps' transport (select_shares.hpp) over an mpi4py communicator's buffer methods
+// (Bcast, Send and Recv, in pieces of at most 1 GiB; the GIL taken for each call, so the step runs
+// without it): nullptr for None or a communicator of one process. TypeError for an object without
+// Get_rank and Get_size, or of several processes without Bcast, Send and Recv (adaptiso.load(comm=...)).
+std::unique_ptr<ShareTransport> comm_transport(const pybind11::object& comm);
+
 class CommShare {
 public:
   // comm: None or an mpi4py communicator (TypeError for another object); brick_side: None for the

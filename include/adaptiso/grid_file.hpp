@@ -110,8 +110,10 @@ public:
 
   // load_grid of the open file. A whole load after a load in part skips the hierarchy's walk when
   // the file's bytes are the same (size and checksum): the tetrahedra are checked against what
-  // the first walk saw. Not for two threads at once.
-  PreparedGrid load(GridParts parts, const Progress& progress = {}) const;
+  // the first walk saw. Not for two threads at once. With `share` (several processes, each with
+  // the same file open): load_grid_shared instead, collective; each process then walked only its
+  // share of the hierarchy, so none is remembered and a later whole load walks it all again.
+  PreparedGrid load(GridParts parts, const Progress& progress = {}, ShareTransport* share = nullptr) const;
   const std::string& path() const { return path_; }
 
 private:

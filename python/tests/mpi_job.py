@@ -2,7 +2,9 @@
 
 Every rank prepares from a memmap of the same .npy file, or from the same volume file's path (a
 rank given "other_shape" a different volume, one given "bad_option" a bad gradients name, to check
-that errors reach every rank) and rank 0 saves the grid. Each rank writes one line to OUTPUT.rank-R ("rank R: ok" or "rank R:
+that errors reach every rank) and rank 0 saves the grid; or (route "load") every rank loads the same
+grid file with comm (one rank given another file or other lazy=, to check that all refuse alike)
+and extracts a surface at a distance into OUTPUT.rank-R.npz. Each rank writes one line to OUTPUT.rank-R ("rank R: ok" or "rank R:
 ErrorType: message"): mpiexec may interleave the ranks' standard outputs within a line.
 """
 import json
@@ -16,6 +18,28 @@ import adaptiso
 comm = MPI.COMM_WORLD
 rank = comm.Get_rank()
 job = json.load(open(sys.argv[1], encoding="utf-8"))
+
+
+def report(outcome):
+    with open(f"{job['output']}.rank-{rank}", "w", encoding="utf-8") as f:
+        f.write(f"rank {rank}: {outcome}\n")
+
+
+if job["route"] == "load":  # every rank loads a grid (rank "other_grid_rank" another) and extracts
+    try:
+        path = job["other_grid"] if rank == job.get("other_grid_rank", -1) else job["grid"]
+        lazy = job["lazy"] != (rank == job.get("other_lazy_rank", -1))
+        grid = adaptiso.load(path, lazy=lazy, comm=comm)
+        mesh = grid.extract(job["iso"], distance=job["distance"])
+        np.savez(f"{job['output']}.rank-{rank}.npz", vertices=mesh.vertices, faces=mesh.faces)
+        if job.get("full"):  # the tetrahedra too (read later by a lazy load, each rank alone)
+            full = grid.extract(job["iso"])
+            np.savez(f"{job['output']}.rank-{rank}.full.npz", vertices=full.vertices, faces=full.faces)
+        report("ok")
+    except Exception as e:  # reported for the test to read; the job itself ends normally
+        report(f"{type(e).__name__}: {e}")
+    sys.exit(0)
+
 options = dict(job["options"])
 if rank == job.get("bad_option_rank", -1):
     options["gradients"] = "no such method"
@@ -44,5 +68,4 @@ try:
     outcome = "ok"
 except Exception as e:  # reported for the test to read; the job itself ends normally
     outcome = f"{type(e).__name__}: {e}"
-with open(f"{job['output']}.rank-{rank}", "w", encoding="utf-8") as f:
-    f.write(f"rank {rank}: {outcome}\n")
+report(outcome)

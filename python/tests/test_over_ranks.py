@@ -1,6 +1,8 @@
 """adaptiso.prepare and prepare_file over an mpi4py communicator (issue 38): under mpiexec with 2 and
 3 processes, each reading a memmap, the grid file is byte for byte the one a single process writes;
-an error on any rank raises on every rank instead of leaving the others waiting. The in-process
+an error on any rank raises on every rank instead of leaving the others waiting. adaptiso.load over
+one: every rank's surfaces are one process's, and another file or other parts on one rank are
+refused by all alike. The in-process
 tests need neither MPI nor mpi4py."""
 import gzip
 import json
@@ -167,6 +169,44 @@ def test_a_bad_option_on_rank_0_raises_on_every_rank(tmp_path):
     assert not out.exists()
 
 
+def distance_grids(tmp_path):
+    """Two bisection grid files of the same size but other values (the second's field shifted)."""
+    paths = []
+    for i, shift in enumerate([0.0, 0.125]):
+        path = tmp_path / f"g{i}.adg"
+        adaptiso.prepare(adaptiso.Volume(field() + np.float32(shift), spacing=(1.0, 0.8, 1.5)), max_error=0.05).save(path)
+        paths.append(path)
+    return paths
+
+
+@needs_mpi
+@pytest.mark.parametrize("ranks, lazy", [(2, True), (3, True), (2, False), (3, False)])
+def test_load_over_mpi_ranks_gives_every_rank_the_one_process_grid(tmp_path, ranks, lazy):
+    grid, _ = distance_grids(tmp_path)
+    one = adaptiso.load(grid)
+    expected, expected_full = one.extract(0.6, distance=0.5), one.extract(0.6)
+    out = tmp_path / "load"
+    lines = mpi_run(tmp_path, ranks, {"route": "load", "grid": str(grid), "lazy": lazy, "iso": 0.6, "distance": 0.5, "full": True,
+                                      "output": str(out)})
+    assert lines == [f"rank {r}: ok" for r in range(ranks)]
+    for r in range(ranks):
+        for got, want in [(np.load(f"{out}.rank-{r}.npz"), expected), (np.load(f"{out}.rank-{r}.full.npz"), expected_full)]:
+            assert np.array_equal(got["vertices"], want.vertices) and np.array_equal(got["faces"], want.faces), r
+
+
+@needs_mpi
+@pytest.mark.parametrize("key, value", [("other_grid_rank", 1), ("other_grid_rank", 0), ("other_lazy_rank", 2)])
+def test_load_over_mpi_ranks_of_another_file_or_other_parts_on_one_rank_raises_alike_on_every_rank(tmp_path, key, value):
+    grid, other = distance_grids(tmp_path)
+    out = tmp_path / "load"
+    lines = mpi_run(tmp_path, 3, {"route": "load", "grid": str(grid), "other_grid": str(other), "lazy": True, "iso": 0.6,
+                                  "distance": 0.5, "output": str(out), key: value})
+    messages = {line.split(": ", 1)[1].replace(str(other), str(grid)) for line in lines}
+    assert len(messages) == 1, lines  # the same words on every rank (the file's name aside)
+    message = messages.pop()
+    assert message.startswith("OSError: ") and "every process must load the same parts of the same grid file" in message, lines
+
+
 class OneProcess:
     """What mpi4py's COMM_SELF answers, for the tests that need no MPI."""
 
@@ -228,3 +268,20 @@ def test_bad_bricks_and_communicators_are_refused():
         adaptiso.prepare(v, grid="delaunay", brick_side=8)
     with pytest.raises(TypeError, match="comm: must be an mpi4py communicator"):
         adaptiso.prepare(v, comm=object())
+
+
+def test_load_with_a_communicator_of_one_is_a_plain_load_and_another_object_is_refused(tmp_path):
+    grid, _ = distance_grids(tmp_path)
+    expected = adaptiso.load(grid).extract(0.6, distance=0.5)
+    for lazy in [True, False]:
+        got = adaptiso.load(grid, lazy=lazy, comm=OneProcess()).extract(0.6, distance=0.5)
+        assert np.array_equal(got.vertices, expected.vertices) and np.array_equal(got.faces, expected.faces)
+    with pytest.raises(TypeError, match="comm: must be an mpi4py communicator"):
+        adaptiso.load(grid, comm=object())
+
+    class Several(OneProcess):  # two processes, but none of the buffer methods a shared load sends by
+        def Get_size(self):
+            return 2
+
+    with pytest.raises(TypeError, match=r"it has no Bcast\(\)"):
+        adaptiso.load(grid, comm=Several())

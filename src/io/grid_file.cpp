@@ -559,9 +559,10 @@ OpenGridFile::OpenGridFile(std::string path) : path_(std::move(path)) {
 
 OpenGridFile::~OpenGridFile() { ::close(fd_); }
 
-PreparedGrid OpenGridFile::load(GridParts parts, const Progress& progress) const {
+PreparedGrid OpenGridFile::load(GridParts parts, const Progress& progress, ShareTransport* share) const {
   const std::string fd_path = "/proc/self/fd/" + std::to_string(fd_);
   try {
+    if (share && share->processes() > 1) return load_checked(fd_path, parts, nullptr, nullptr, progress, share);
     if (parts == GridParts::all || parts == GridParts::tetrahedra) return load_checked(fd_path, parts, nullptr, walk_.get(), progress);
     auto walk = std::make_unique<detail::HierarchyWalk>();
     PreparedGrid p = load_checked(fd_path, parts, walk.get(), nullptr, progress);
