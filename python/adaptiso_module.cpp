@@ -449,7 +449,7 @@ T& initialised(py::handle obj, const char* type, const char* how) {
 // adaptiso.load: a bisection grid without its tetrahedra, the file kept open for them (see Grid).
 // `share`: loaded by every process of a communicator at once, the checks shared out.
 std::unique_ptr<Grid> load_in_part(const std::string& path, ShareTransport* share = nullptr) {
-  auto file = std::make_unique<OpenGridFile>(path);  // opened first: the rest comes from the same file
+  auto file = std::make_unique<OpenGridFile>(path, share);  // opened first: the rest comes from the same file
   auto g = std::make_shared<const PreparedGrid>(file->load(GridParts::hierarchy_or_all, {}, share));
   if (!loaded_in_part(*g)) return std::make_unique<Grid>(std::move(g));  // no hierarchy: loaded whole, the file closed
   return std::make_unique<Grid>(std::move(g), std::move(file));
@@ -979,8 +979,9 @@ will be used at its prepared error (the bunny: load and extract(iso) 7.7-8.3 s, 
 comm: an mpi4py communicator (e.g. MPI.COMM_WORLD under `mpiexec -n N python -m mpi4py ...`)
 whose every process loads the same file at once: each gets the grid one process loads, and the
 checks, most of a load, are shared out (the bunny over 2 processes: 2.0 s of checks each instead of
-4.2). Collective. A file that differs between the processes, or other lazy= on one, raises the same
-OSError on every process; a process that cannot open its file raises alone and leaves the others
+4.2). Collective. A file that differs between the processes, or other lazy= on one, or a process
+that cannot open its file or read it as a grid file, raises the same OSError on every process
+(naming that process). One whose memory limit refuses the load raises alone and leaves the others
 waiting (python -m mpi4py then stops the job). A lazy load's tetrahedra, read later, are read by
 each process alone, checked in full.)");
 

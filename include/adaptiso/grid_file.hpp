@@ -86,9 +86,10 @@ class ShareTransport;  // select_shares.hpp
 // every process. Every process returns the same grid or throws the same InputError, also when one
 // read other bytes than process 0 or asked for other parts (sizes, headers, parts and checksums
 // are compared before anything else is combined). Collective, with the same parts on every
-// process. A process that fails alone leaves the others waiting, for the caller to stop (the
-// command line: MPI_Abort): one that cannot read its file, or not as a grid file at all (its
-// magic, version), or whose memory or memory limit refuses the load.
+// process. A process that cannot open its file, or not as a grid file (too short, its magic, its
+// version), makes every process throw its message, naming it ("… (process 2)"). One whose memory
+// or memory limit refuses the load fails alone and leaves the others waiting, for the caller to
+// stop (the command line: MPI_Abort).
 PreparedGrid load_grid_shared(const std::string& path, GridParts parts, ShareTransport& transport, const Progress& progress = {});
 
 namespace detail {
@@ -103,7 +104,9 @@ struct HierarchyWalk;
 // load_grid does (no such file, a folder, a FIFO or device: opened without blocking, then refused).
 class OpenGridFile {
 public:
-  explicit OpenGridFile(std::string path);
+  // With `share` (several processes opening the same file at once, then loading it with the same
+  // transport): collective; a process that cannot open its file makes every process throw its message.
+  explicit OpenGridFile(std::string path, ShareTransport* share = nullptr);
   ~OpenGridFile();
   OpenGridFile(const OpenGridFile&) = delete;
   OpenGridFile& operator=(const OpenGridFile&) = delete;

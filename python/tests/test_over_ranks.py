@@ -195,16 +195,28 @@ def test_load_over_mpi_ranks_gives_every_rank_the_one_process_grid(tmp_path, ran
 
 
 @needs_mpi
-@pytest.mark.parametrize("key, value", [("other_grid_rank", 1), ("other_grid_rank", 0), ("other_lazy_rank", 2)])
-def test_load_over_mpi_ranks_of_another_file_or_other_parts_on_one_rank_raises_alike_on_every_rank(tmp_path, key, value):
-    grid, other = distance_grids(tmp_path)
+@pytest.mark.parametrize("other, key, value, lazy", [
+    ("grid", "other_grid_rank", 1, True), ("grid", "other_grid_rank", 0, False), (None, "other_lazy_rank", 2, True),
+    ("absent", "other_grid_rank", 2, True), ("absent", "other_grid_rank", 1, False), ("noise", "other_grid_rank", 1, True),
+])
+def test_load_over_mpi_ranks_of_another_or_unreadable_file_on_one_rank_raises_alike_on_every_rank(tmp_path, other, key, value, lazy):
+    # Regression: a rank that could not open its file, or read it as a grid file, raised alone and
+    # left the others waiting.
+    grid, other_grid = distance_grids(tmp_path)
+    paths = {"grid": other_grid, "absent": tmp_path / "absent.adg", "noise": tmp_path / "noise.adg", None: other_grid}
+    (tmp_path / "noise.adg").write_bytes(bytes(range(256)) * 16)
     out = tmp_path / "load"
-    lines = mpi_run(tmp_path, 3, {"route": "load", "grid": str(grid), "other_grid": str(other), "lazy": True, "iso": 0.6,
+    lines = mpi_run(tmp_path, 3, {"route": "load", "grid": str(grid), "other_grid": str(paths[other]), "lazy": lazy, "iso": 0.6,
                                   "distance": 0.5, "output": str(out), key: value})
-    messages = {line.split(": ", 1)[1].replace(str(other), str(grid)) for line in lines}
-    assert len(messages) == 1, lines  # the same words on every rank (the file's name aside)
+    messages = {line.split(": ", 1)[1].replace(str(other_grid), str(grid)) for line in lines}
+    assert len(messages) == 1, lines  # the same words on every rank (each names its own file when they differ)
     message = messages.pop()
-    assert message.startswith("OSError: ") and "every process must load the same parts of the same grid file" in message, lines
+    assert message.startswith("OSError: "), lines
+    if other in ("grid", None):
+        assert "every process must load the same parts of the same grid file" in message, lines
+    else:
+        assert str(paths[other]) in message and f"(process {value})" in message, lines
+        assert ("no such file" if other == "absent" else "bad magic") in message, lines
 
 
 class OneProcess:

@@ -243,35 +243,88 @@ void agree_same_file(ShareTransport& t, const std::string& path, const std::arra
                     path, other));
 }
 
+// The processes of a shared load agree whether any failed before they can compare what they read
+// (a file one cannot open, or not as a grid file: too short, its magic, its version): if one did,
+// every process throws the first such process's message, naming it, so that none waits for a
+// process that will not come. `failed`: this process's InputError, or nullptr.
+void agree_failure(ShareTransport& t, const std::exception_ptr& failed) {
+  std::int64_t first = failed ? t.process() : -1;
+  detail::share::combine_at_zero(t, std::span(&first, 1), [](std::int64_t& own, std::int64_t theirs) {
+    if (own < 0) own = theirs;  // folded in process order: the first that failed
+  });
+  if (first < 0) return;
+  std::string message;
+  if (t.process() == first) try {
+      std::rethrow_exception(failed);
+    } catch (const std::exception& e) {
+      message = e.what();
+    }
+  std::uint64_t length = message.size();
+  if (first != 0 && t.process() == first) {
+    t.send(std::as_bytes(std::span(&length, 1)));
+    t.send(std::as_bytes(std::span(message.data(), message.size())));
+  } else if (first != 0 && t.process() == 0) {
+    t.receive(static_cast<int>(first), std::as_writable_bytes(std::span(&length, 1)));
+    message.resize(length);
+    t.receive(static_cast<int>(first), std::as_writable_bytes(std::span(message.data(), message.size())));
+  }
+  t.broadcast(std::as_writable_bytes(std::span(&length, 1)));
+  message.resize(length);
+  t.broadcast(std::as_writable_bytes(std::span(message.data(), message.size())));
+  throw InputError(first == 0 ? message : fmt::format("{} (process {})", message, first));
+}
+
 // load_grid, remembering what the hierarchy's walk checked (`remember`), or taking a walk of the
 // same bytes as checked (`walked`: the same size and checksum) instead of walking again.
-PreparedGrid load_checked(const std::string& path, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked,
-                          const Progress& progress, ShareTransport* share = nullptr) {
-  detail::file_size_or_throw(path);  // a FIFO or device would block or never end
-  std::ifstream in(path, std::ios::binary | std::ios::ate);
-  if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
-  const std::uint64_t size = static_cast<std::uint64_t>(in.tellg());
-  in.seekg(0);
-  if (size < kHeaderV1 + 4) throw InputError(fmt::format("{}: not an adaptiso grid file (too short)", path));
+// `file` is opened, `named` (when given) named in messages: the messages of a shared load's
+// processes go to every process, so they carry the user's name, not a process's own descriptor.
+PreparedGrid load_checked(const std::string& file, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked,
+                          const Progress& progress, ShareTransport* share = nullptr, const std::string& named = {}) {
+  const std::string& path = named.empty() ? file : named;
+  std::ifstream in;
+  std::uint64_t size = 0, M = 0, N = 0, T = 0, E = 0, header = kHeaderV1;
   unsigned char h[kHeader] = {};
-  in.read(reinterpret_cast<char*>(h), kHeaderV1);
-  if (std::memcmp(h, kMagic, 16) != 0) throw InputError(fmt::format("{}: not an adaptiso grid file (bad magic)", path));
-  std::uint32_t version, flags, depth = 0;
-  std::uint64_t M, N, T, E = 0;
-  std::memcpy(&version, h + 16, 4);
-  std::memcpy(&flags, h + 20, 4);
-  std::memcpy(&M, h + 24, 8);
-  std::memcpy(&N, h + 32, 8);
-  std::memcpy(&T, h + 40, 8);
-  if (version < 1 || version > kVersion)
-    throw InputError(fmt::format("{}: grid file version {} is not supported (this build reads 1 to {})", path, version, kVersion));
-  std::uint64_t header = kHeaderV1;
-  if (version >= 2) {
-    header = kHeader;
-    if (size < kHeader + 4) throw InputError(fmt::format("{}: grid file is truncated", path));
-    in.read(reinterpret_cast<char*>(h + kHeaderV1), kHeader - kHeaderV1);
-    std::memcpy(&E, h + 48, 8);
-    std::memcpy(&depth, h + 56, 4);
+  std::uint32_t version = 0, flags = 0, depth = 0;
+  auto read_header = [&] {
+    try {
+      detail::file_size_or_throw(file);  // a FIFO or device would block or never end
+    } catch (const InputError& e) {
+      std::string what = e.what();
+      if (what.starts_with(file)) what.replace(0, file.size(), path);
+      throw InputError(what);
+    }
+    in.open(file, std::ios::binary | std::ios::ate);
+    if (!in) throw InputError(fmt::format("{}: cannot open grid file", path));
+    size = static_cast<std::uint64_t>(in.tellg());
+    in.seekg(0);
+    if (size < kHeaderV1 + 4) throw InputError(fmt::format("{}: not an adaptiso grid file (too short)", path));
+    in.read(reinterpret_cast<char*>(h), kHeaderV1);
+    if (std::memcmp(h, kMagic, 16) != 0) throw InputError(fmt::format("{}: not an adaptiso grid file (bad magic)", path));
+    std::memcpy(&version, h + 16, 4);
+    std::memcpy(&flags, h + 20, 4);
+    std::memcpy(&M, h + 24, 8);
+    std::memcpy(&N, h + 32, 8);
+    std::memcpy(&T, h + 40, 8);
+    if (version < 1 || version > kVersion)
+      throw InputError(fmt::format("{}: grid file version {} is not supported (this build reads 1 to {})", path, version, kVersion));
+    if (version >= 2) {
+      header = kHeader;
+      if (size < kHeader + 4) throw InputError(fmt::format("{}: grid file is truncated", path));
+      in.read(reinterpret_cast<char*>(h + kHeaderV1), kHeader - kHeaderV1);
+      std::memcpy(&E, h + 48, 8);
+      std::memcpy(&depth, h + 56, 4);
+    }
+  };
+  if (share && share->processes() > 1) {
+    std::exception_ptr failed;
+    try {
+      read_header();
+    } catch (const InputError&) {
+      failed = std::current_exception();
+    }
+    agree_failure(*share, failed);
+  } else {
+    read_header();
   }
   // The header every process of a shared load read, and the parts each asks for, before any of
   // them refuses what differs between them (the sections read, and so what is combined, follow).
@@ -485,8 +538,10 @@ PreparedGrid load_grid(const std::string& path, GridParts parts, const Progress&
   return load_checked(path, parts, nullptr, nullptr, progress);
 }
 
+// Through OpenGridFile whatever the caller: every process then takes the same steps together
+// (opening agreed, then the load's), whether it asked for the file held open or not.
 PreparedGrid load_grid_shared(const std::string& path, GridParts parts, ShareTransport& transport, const Progress& progress) {
-  return load_checked(path, parts, nullptr, nullptr, progress, &transport);
+  return OpenGridFile(path, &transport).load(parts, progress, &transport);
 }
 
 void write_vtu(const TetGrid& grid, const std::string& path) {
@@ -549,11 +604,25 @@ void write_vtu(const TetGrid& grid, const std::string& path) {
   });
 }
 
-OpenGridFile::OpenGridFile(std::string path) : path_(std::move(path)) {
-  fd_ = ::open(path_.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);  // a FIFO would wait for a writer
-  if (fd_ < 0) {
-    detail::file_size_or_throw(path_);  // its message for a missing file or a folder
-    throw InputError(fmt::format("{}: cannot open grid file", path_));
+OpenGridFile::OpenGridFile(std::string path, ShareTransport* share) : path_(std::move(path)) {
+  std::exception_ptr failed;
+  try {
+    fd_ = ::open(path_.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);  // a FIFO would wait for a writer
+    if (fd_ < 0) {
+      detail::file_size_or_throw(path_);  // its message for a missing file or a folder
+      throw InputError(fmt::format("{}: cannot open grid file", path_));
+    }
+  } catch (const InputError&) {
+    if (!share || share->processes() <= 1) throw;
+    failed = std::current_exception();
+  }
+  if (share && share->processes() > 1) {
+    try {
+      agree_failure(*share, failed);
+    } catch (...) {
+      if (fd_ >= 0) ::close(fd_);  // no destructor runs for a constructor that throws
+      throw;
+    }
   }
 }
 
@@ -562,7 +631,7 @@ OpenGridFile::~OpenGridFile() { ::close(fd_); }
 PreparedGrid OpenGridFile::load(GridParts parts, const Progress& progress, ShareTransport* share) const {
   const std::string fd_path = "/proc/self/fd/" + std::to_string(fd_);
   try {
-    if (share && share->processes() > 1) return load_checked(fd_path, parts, nullptr, nullptr, progress, share);
+    if (share && share->processes() > 1) return load_checked(fd_path, parts, nullptr, nullptr, progress, share, path_);
     if (parts == GridParts::all || parts == GridParts::tetrahedra) return load_checked(fd_path, parts, nullptr, walk_.get(), progress);
     auto walk = std::make_unique<detail::HierarchyWalk>();
     PreparedGrid p = load_checked(fd_path, parts, walk.get(), nullptr, progress);

@@ -5,7 +5,7 @@
 # collapses, a coarser error, and --simplify; a rank without an iso-value of its own; --json in
 # the values' order with what each rank did. A rank that cannot write its mesh names itself, exit
 # 2, and no mesh of any rank reaches its name; nor when a rank is killed mid-run (issue 38); a
-# rank that alone cannot read its grid says so.
+# rank that alone cannot open its grid, or whose memory limit alone refuses it, is heard.
 # Usage: extract_over_ranks.sh ADAPTISO MPIEXEC
 set -euo pipefail
 # shellcheck source=ranks_common.sh
@@ -69,9 +69,9 @@ grep -q "adaptiso (rank 1): .*s-0.5.ply" "$W/bad.out" || { echo "FAIL: the faili
 [ -z "$(ls -A "$W/bad" | grep -v '^s-0.5.ply$')" ] || { echo "FAIL: files left behind"; ls -la "$W/bad"; exit 1; }
 echo "ok: a rank's own failure is told by that rank, exit 2, and no mesh reaches its name"
 
-# A rank that alone cannot read its grid (mpirun's colon gives rank 1 another file) while rank 0
-# waits for it in the shared load: that rank tells why, named, before the job stops (regression:
-# its message was left to rank 0, which never met it, and the job stopped silently).
+# A rank that alone cannot open its grid (mpirun's colon gives rank 1 another file): the shared
+# load's first step makes every rank refuse with its message, naming it; exit 2 (regression: rank
+# 0 waited for it, and its message was lost when the job stopped).
 mkdir -p "$W/lone"
 set +e
 "$MPIEXEC" -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" : \
@@ -79,9 +79,20 @@ set +e
 code=$?
 set -e
 [ $code -eq 2 ] || { echo "FAIL: a rank alone unable to read its grid exited $code"; cat "$W/lone.out"; exit 1; }
-grep -q "adaptiso (rank 1): .*absent.adg" "$W/lone.out" || { echo "FAIL: the lone failing rank's message was lost"; cat "$W/lone.out"; exit 1; }
+grep -q "adaptiso: .*absent.adg: no such file (process 1)" "$W/lone.out" || { echo "FAIL: the lone failing rank's message was lost"; cat "$W/lone.out"; exit 1; }
 [ -z "$(ls -A "$W/lone")" ] || { echo "FAIL: files left behind"; ls -la "$W/lone"; exit 1; }
-echo "ok: a rank that alone cannot read its grid tells why, exit 2"
+echo "ok: a rank that alone cannot open its grid: every rank refuses with its message, exit 2"
+# A failure no other rank meets or hears of (rank 1's memory limit refuses the load): that rank
+# tells it, with its number, before the job stops (regression: it left the message to rank 0).
+set +e
+"$MPIEXEC" -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" : \
+  -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --memory-limit 1M --quiet -o "$W/lone/s.ply" >"$W/lone.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: a rank alone refused memory exited $code"; cat "$W/lone.out"; exit 1; }
+grep -q "adaptiso (rank 1): .*ml.adg: loading a grid of" "$W/lone.out" || { echo "FAIL: the lone failing rank's message was lost"; cat "$W/lone.out"; exit 1; }
+[ -z "$(ls -A "$W/lone")" ] || { echo "FAIL: files left behind"; ls -la "$W/lone"; exit 1; }
+echo "ok: a rank whose own memory limit refuses the load tells it, exit 2"
 
 # A rank killed mid-run: mpirun fails and no mesh appears under its name.
 "$CLI" generate noise --size 64 --quiet -o "$W/n.nrrd"

@@ -661,6 +661,51 @@ TEST(GridFileSharedLoad, GivesEveryProcessTheGridOneProcessLoads) {
   }
 }
 
+// A process of a shared load that cannot open its file, or not as a grid file, made the others
+// wait for it (regression: Python's adaptiso.load(comm=) hung on every other rank). Now every
+// process refuses with its message, word for word, naming it; through load_grid_shared and through
+// an OpenGridFile opened and loaded with the transport (Python's lazy route).
+TEST(GridFileSharedLoad, AProcessThatCannotReadItsFileMakesEveryProcessRefuseNamingIt) {
+  testutil::TempDir t("shared_unreadable");
+  save_grid(bisection(bumpy({13, 9, 7}, 4), 0.02, 0.5), t / "b.adg");
+  testutil::write_bytes(t / "short.adg", std::string(10, 'x'));
+  std::string noise(4096, '\0');
+  for (std::size_t i = 0; i < noise.size(); ++i) noise[i] = static_cast<char>(i * 37 + 11);
+  testutil::write_bytes(t / "noise.adg", noise);
+  std::filesystem::create_directory(t / "folder.adg");
+  const std::pair<std::string, std::string> bad[] = {
+      {"absent.adg", "no such file"}, {"short.adg", "too short"}, {"noise.adg", "bad magic"}, {"folder.adg", "folder"}};
+  for (const auto& [name, fragment] : bad)
+    for (int q = 0; q < 3; ++q)
+      for (bool open_first : {false, true}) {
+        SCOPED_TRACE(fmt::format("{} on process {}, {}", name, q, open_first ? "OpenGridFile" : "load_grid_shared"));
+        testutil::Hub hub;
+        std::vector<std::string> said(3);
+        std::vector<std::thread> threads;
+        for (int p = 0; p < 3; ++p)
+          threads.emplace_back([&, p] {
+            testutil::ThreadTransport tr(hub, p, 3);
+            const std::string path = p == q ? t / name : t / "b.adg";
+            try {
+              if (open_first)
+                OpenGridFile(path, &tr).load(GridParts::hierarchy_or_all, {}, &tr);
+              else
+                load_grid_shared(path, GridParts::hierarchy_or_all, tr);
+              said[static_cast<std::size_t>(p)] = "loaded";
+            } catch (const InputError& e) {
+              said[static_cast<std::size_t>(p)] = e.what();
+            }
+          });
+        for (auto& th : threads) th.join();
+        EXPECT_EQ(hub.left(), 0u);
+        for (int p = 0; p < 3; ++p) EXPECT_EQ(said[static_cast<std::size_t>(p)], said[0]) << p;
+        const std::string& m = said[0];
+        EXPECT_NE(m.find(t / name), std::string::npos) << m;
+        EXPECT_NE(m.find(fragment), std::string::npos) << m;
+        if (q > 0) EXPECT_NE(m.find(fmt::format("(process {})", q)), std::string::npos) << m;
+      }
+}
+
 TEST(GridFileHierarchyParts, OfAGridWithoutAHierarchyAreRefused) {
   testutil::TempDir t("parts_delaunay");
   save_grid(delaunay(make_synthetic("sphere", 11, ScalarType::f32), 0.05), t / "d.adg", true);
