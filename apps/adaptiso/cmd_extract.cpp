@@ -278,9 +278,9 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
 // same surface; ctest extract_over_mpi_ranks). A rank that fails before then stops the others
 // (main: MPI_Abort) and no mesh reaches its name.
 //
-// Tried and not kept (2026-12-02): surfaces at a distance handed out one at a time, in order, as
-// ranks asked (rank 0 serving the others from a thread polling every millisecond, under
-// MPI_THREAD_SERIALIZED). The same bytes, but no faster: on the CT bunny at 0.5 voxels, one
+// Tried and not kept (2026-12-02): surfaces at a distance or a coarser error handed out one at a
+// time, in order, as ranks asked (rank 0 serving the others from a thread polling every
+// millisecond, under MPI_THREAD_SERIALIZED). The same bytes, but no faster: on the CT bunny at 0.5 voxels, one
 // thread a rank, 2 ranks against this in-turn share, 3 alternated pairs each, 8 values 1.02x,
 // 15 values 0.97x, 4 values 1.09x (slower). The values cost 0.56-3.2 s each, and greedy in order
 // left an expensive one last as often as the turn did. Ordering them by cost would pay, but
