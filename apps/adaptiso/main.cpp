@@ -116,7 +116,7 @@ int main(int argc, char** argv) {
   const int code = run(argc, argv);
   // A failure on one rank stops the others (they may wait for it in a collective). One that rank
   // 0 meets too gives it time to say so first: the first rank to abort ends every other one. A
-  // rank still running after that met it alone (a file only it cannot read, say): it tells it.
+  // rank still running after that met it alone (its own memory limit, say): it tells it.
   if (code != 0 && !left_to_rank_0.empty()) {
     std::this_thread::sleep_for(std::chrono::seconds(3));
     tell_as_this_rank(*adaptiso::cli::Ranks::started(), left_to_rank_0);
