@@ -675,9 +675,11 @@ TEST(GridFileSharedLoad, AProcessThatCannotReadItsFileMakesEveryProcessRefuseNam
   std::filesystem::create_directory(t / "folder.adg");
   const std::pair<std::string, std::string> bad[] = {
       {"absent.adg", "no such file"}, {"short.adg", "too short"}, {"noise.adg", "bad magic"}, {"folder.adg", "folder"}};
-  for (const auto& [name, fragment] : bad)
+  for (const auto& named : bad)  // (clang 14 lambdas capture no structured binding)
     for (int q = 0; q < 3; ++q)
       for (bool open_first : {false, true}) {
+        const std::string& name = named.first;
+        const std::string& fragment = named.second;
         SCOPED_TRACE(fmt::format("{} on process {}, {}", name, q, open_first ? "OpenGridFile" : "load_grid_shared"));
         testutil::Hub hub;
         std::vector<std::string> said(3);
