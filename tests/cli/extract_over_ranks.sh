@@ -69,30 +69,29 @@ grep -q "adaptiso (rank 1): .*s-0.5.ply" "$W/bad.out" || { echo "FAIL: the faili
 [ -z "$(ls -A "$W/bad" | grep -v '^s-0.5.ply$')" ] || { echo "FAIL: files left behind"; ls -la "$W/bad"; exit 1; }
 echo "ok: a rank's own failure is told by that rank, exit 2, and no mesh reaches its name"
 
-# A rank that alone cannot open its grid (mpirun's colon gives rank 1 another file): the shared
-# load's first step makes every rank refuse with its message, naming it; exit 2 (regression: rank
-# 0 waited for it, and its message was lost when the job stopped).
+# lone_failure PATTERN WHAT GRID [OPTIONS...]: rank 0 extracts ml.adg, rank 1 (mpirun's colon)
+# GRID with OPTIONS; fails unless the job exits 2 with PATTERN in its output and leaves no file.
 mkdir -p "$W/lone"
-set +e
-"$MPIEXEC" -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" : \
-  -np 1 "$CLI" extract "$W/absent.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" >"$W/lone.out" 2>&1
-code=$?
-set -e
-[ $code -eq 2 ] || { echo "FAIL: a rank alone unable to read its grid exited $code"; cat "$W/lone.out"; exit 1; }
-grep -q "adaptiso: .*absent.adg: no such file (process 1)" "$W/lone.out" || { echo "FAIL: the lone failing rank's message was lost"; cat "$W/lone.out"; exit 1; }
-[ -z "$(ls -A "$W/lone")" ] || { echo "FAIL: files left behind"; ls -la "$W/lone"; exit 1; }
-echo "ok: a rank that alone cannot open its grid: every rank refuses with its message, exit 2"
+lone_failure() {
+  local pattern=$1 what=$2 code
+  shift 2
+  set +e
+  "$MPIEXEC" -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" : \
+    -np 1 "$CLI" extract "$@" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" >"$W/lone.out" 2>&1
+  code=$?
+  set -e
+  [ $code -eq 2 ] || { echo "FAIL: $what exited $code"; cat "$W/lone.out"; exit 1; }
+  grep -q "$pattern" "$W/lone.out" || { echo "FAIL: $what: the lone failing rank's message was lost"; cat "$W/lone.out"; exit 1; }
+  [ -z "$(ls -A "$W/lone")" ] || { echo "FAIL: $what: files left behind"; ls -la "$W/lone"; exit 1; }
+  echo "ok: $what: told, exit 2"
+}
+# A rank that alone cannot open its grid: the shared load's first step makes every rank refuse
+# with its message, naming it (regression: rank 0 waited for it, and its message was lost when
+# the job stopped).
+lone_failure "adaptiso: .*absent.adg: no such file (process 1)" "a rank alone unable to open its grid" "$W/absent.adg"
 # A failure no other rank meets or hears of (rank 1's memory limit refuses the load): that rank
 # tells it, with its number, before the job stops (regression: it left the message to rank 0).
-set +e
-"$MPIEXEC" -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --quiet -o "$W/lone/s.ply" : \
-  -np 1 "$CLI" extract "$W/ml.adg" --iso 0.3,0.5 --relative --memory-limit 1M --quiet -o "$W/lone/s.ply" >"$W/lone.out" 2>&1
-code=$?
-set -e
-[ $code -eq 2 ] || { echo "FAIL: a rank alone refused memory exited $code"; cat "$W/lone.out"; exit 1; }
-grep -q "adaptiso (rank 1): .*ml.adg: loading a grid of" "$W/lone.out" || { echo "FAIL: the lone failing rank's message was lost"; cat "$W/lone.out"; exit 1; }
-[ -z "$(ls -A "$W/lone")" ] || { echo "FAIL: files left behind"; ls -la "$W/lone"; exit 1; }
-echo "ok: a rank whose own memory limit refuses the load tells it, exit 2"
+lone_failure "adaptiso (rank 1): .*ml.adg: loading a grid of" "a rank whose own memory limit refuses the load" "$W/ml.adg" --memory-limit 1M
 
 # A rank killed mid-run: mpirun fails and no mesh appears under its name.
 "$CLI" generate noise --size 64 --quiet -o "$W/n.nrrd"

@@ -78,12 +78,13 @@ std::string refusal(const std::string& path) {
 }
 
 // load_grid_shared by threads playing processes, process p loading paths[p]: each one's grid, or
-// the message of what it threw ("" when it loaded).
+// the message of what it threw ("" when it loaded). `held_open`: through an OpenGridFile opened
+// and loaded with the transport instead (Python's lazy route).
 struct SharedLoad {
   std::vector<std::optional<PreparedGrid>> grids;
   std::vector<std::string> refusals;
 };
-SharedLoad load_shared(const std::vector<std::string>& paths, GridParts parts = GridParts::all) {
+SharedLoad load_shared(const std::vector<std::string>& paths, GridParts parts = GridParts::all, bool held_open = false) {
   const int processes = static_cast<int>(paths.size());
   testutil::Hub hub;
   SharedLoad out{std::vector<std::optional<PreparedGrid>>(paths.size()), std::vector<std::string>(paths.size())};
@@ -92,7 +93,8 @@ SharedLoad load_shared(const std::vector<std::string>& paths, GridParts parts = 
     threads.emplace_back([&, p] {
       testutil::ThreadTransport t(hub, p, processes);
       try {
-        out.grids[static_cast<std::size_t>(p)] = load_grid_shared(paths[static_cast<std::size_t>(p)], parts, t);
+        const std::string& path = paths[static_cast<std::size_t>(p)];
+        out.grids[static_cast<std::size_t>(p)] = held_open ? OpenGridFile(path, &t).load(parts, {}, &t) : load_grid_shared(path, parts, t);
       } catch (const InputError& e) {
         out.refusals[static_cast<std::size_t>(p)] = e.what();
       } catch (const std::exception& e) {  // a process left waiting: not the refusal every process must give
@@ -675,33 +677,15 @@ TEST(GridFileSharedLoad, AProcessThatCannotReadItsFileMakesEveryProcessRefuseNam
   std::filesystem::create_directory(t / "folder.adg");
   const std::pair<std::string, std::string> bad[] = {
       {"absent.adg", "no such file"}, {"short.adg", "too short"}, {"noise.adg", "bad magic"}, {"folder.adg", "folder"}};
-  for (const auto& named : bad)  // (clang 14 lambdas capture no structured binding)
+  for (const auto& [name, fragment] : bad)
     for (int q = 0; q < 3; ++q)
-      for (bool open_first : {false, true}) {
-        const std::string& name = named.first;
-        const std::string& fragment = named.second;
-        SCOPED_TRACE(fmt::format("{} on process {}, {}", name, q, open_first ? "OpenGridFile" : "load_grid_shared"));
-        testutil::Hub hub;
-        std::vector<std::string> said(3);
-        std::vector<std::thread> threads;
-        for (int p = 0; p < 3; ++p)
-          threads.emplace_back([&, p] {
-            testutil::ThreadTransport tr(hub, p, 3);
-            const std::string path = p == q ? t / name : t / "b.adg";
-            try {
-              if (open_first)
-                OpenGridFile(path, &tr).load(GridParts::hierarchy_or_all, {}, &tr);
-              else
-                load_grid_shared(path, GridParts::hierarchy_or_all, tr);
-              said[static_cast<std::size_t>(p)] = "loaded";
-            } catch (const InputError& e) {
-              said[static_cast<std::size_t>(p)] = e.what();
-            }
-          });
-        for (auto& th : threads) th.join();
-        EXPECT_EQ(hub.left(), 0u);
-        for (int p = 0; p < 3; ++p) EXPECT_EQ(said[static_cast<std::size_t>(p)], said[0]) << p;
-        const std::string& m = said[0];
+      for (bool held_open : {false, true}) {
+        SCOPED_TRACE(fmt::format("{} on process {}, {}", name, q, held_open ? "OpenGridFile" : "load_grid_shared"));
+        std::vector<std::string> paths(3, t / "b.adg");
+        paths[static_cast<std::size_t>(q)] = t / name;
+        const SharedLoad shared = load_shared(paths, GridParts::hierarchy_or_all, held_open);
+        for (int p = 0; p < 3; ++p) EXPECT_EQ(shared.refusals[static_cast<std::size_t>(p)], shared.refusals[0]) << p;
+        const std::string& m = shared.refusals[0];
         EXPECT_NE(m.find(t / name), std::string::npos) << m;
         EXPECT_NE(m.find(fragment), std::string::npos) << m;
         if (q > 0) EXPECT_NE(m.find(fmt::format("(process {})", q)), std::string::npos) << m;
