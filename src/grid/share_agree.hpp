@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <exception>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "adaptiso/error.hpp"
@@ -50,6 +51,38 @@ inline void agree(ShareTransport& t, const std::exception_ptr& failed, const cha
   });
   if (failed) std::rethrow_exception(failed);
   if (first >= 0) throw InputError(fmt::format("process {} cannot take its share of {} (its own message says why)", first, step));
+}
+
+// Each process's failure of a step every process takes (a shared load's opening and header, before
+// the processes can compare what they read): if any failed, every process throws an InputError
+// with the first such process's message, naming it ("… (process 2)"), so that none waits for a
+// process that will not come; unlike agree, the message itself reaches them all. `failed`: this
+// process's InputError, or nullptr.
+inline void agree_first_failure(ShareTransport& t, const std::exception_ptr& failed) {
+  std::int64_t first = failed ? t.process() : -1;
+  combine_at_zero(t, std::span(&first, 1), [](std::int64_t& own, std::int64_t theirs) {
+    if (own < 0) own = theirs;  // folded in process order: the first that failed
+  });
+  if (first < 0) return;
+  std::string message;
+  if (t.process() == first) try {
+      std::rethrow_exception(failed);
+    } catch (const std::exception& e) {
+      message = e.what();
+    }
+  std::uint64_t length = message.size();
+  if (first != 0 && t.process() == first) {
+    t.send(std::as_bytes(std::span(&length, 1)));
+    t.send(std::as_bytes(std::span(message.data(), message.size())));
+  } else if (first != 0 && t.process() == 0) {
+    t.receive(static_cast<int>(first), std::as_writable_bytes(std::span(&length, 1)));
+    message.resize(length);
+    t.receive(static_cast<int>(first), std::as_writable_bytes(std::span(message.data(), message.size())));
+  }
+  t.broadcast(std::as_writable_bytes(std::span(&length, 1)));
+  message.resize(length);
+  t.broadcast(std::as_writable_bytes(std::span(message.data(), message.size())));
+  throw InputError(first == 0 ? message : fmt::format("{} (process {})", message, first));
 }
 
 }  // namespace adaptiso::detail::share

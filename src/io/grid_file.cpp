@@ -243,37 +243,6 @@ void agree_same_file(ShareTransport& t, const std::string& path, const std::arra
                     path, other));
 }
 
-// The processes of a shared load agree whether any failed before they can compare what they read
-// (a file one cannot open, or not as a grid file: too short, its magic, its version): if one did,
-// every process throws the first such process's message, naming it, so that none waits for a
-// process that will not come. `failed`: this process's InputError, or nullptr.
-void agree_failure(ShareTransport& t, const std::exception_ptr& failed) {
-  std::int64_t first = failed ? t.process() : -1;
-  detail::share::combine_at_zero(t, std::span(&first, 1), [](std::int64_t& own, std::int64_t theirs) {
-    if (own < 0) own = theirs;  // folded in process order: the first that failed
-  });
-  if (first < 0) return;
-  std::string message;
-  if (t.process() == first) try {
-      std::rethrow_exception(failed);
-    } catch (const std::exception& e) {
-      message = e.what();
-    }
-  std::uint64_t length = message.size();
-  if (first != 0 && t.process() == first) {
-    t.send(std::as_bytes(std::span(&length, 1)));
-    t.send(std::as_bytes(std::span(message.data(), message.size())));
-  } else if (first != 0 && t.process() == 0) {
-    t.receive(static_cast<int>(first), std::as_writable_bytes(std::span(&length, 1)));
-    message.resize(length);
-    t.receive(static_cast<int>(first), std::as_writable_bytes(std::span(message.data(), message.size())));
-  }
-  t.broadcast(std::as_writable_bytes(std::span(&length, 1)));
-  message.resize(length);
-  t.broadcast(std::as_writable_bytes(std::span(message.data(), message.size())));
-  throw InputError(first == 0 ? message : fmt::format("{} (process {})", message, first));
-}
-
 // load_grid, remembering what the hierarchy's walk checked (`remember`), or taking a walk of the
 // same bytes as checked (`walked`: the same size and checksum) instead of walking again.
 // `file` is opened, `named` (when given) named in messages: the messages of a shared load's
@@ -281,6 +250,7 @@ void agree_failure(ShareTransport& t, const std::exception_ptr& failed) {
 PreparedGrid load_checked(const std::string& file, GridParts parts, detail::HierarchyWalk* remember, const detail::HierarchyWalk* walked,
                           const Progress& progress, ShareTransport* share = nullptr, const std::string& named = {}) {
   const std::string& path = named.empty() ? file : named;
+  if (share && share->processes() <= 1) share = nullptr;  // one process: nothing to share
   std::ifstream in;
   std::uint64_t size = 0, M = 0, N = 0, T = 0, E = 0, header = kHeaderV1;
   unsigned char h[kHeader] = {};
@@ -315,20 +285,20 @@ PreparedGrid load_checked(const std::string& file, GridParts parts, detail::Hier
       std::memcpy(&depth, h + 56, 4);
     }
   };
-  if (share && share->processes() > 1) {
+  if (share) {
     std::exception_ptr failed;
     try {
       read_header();
     } catch (const InputError&) {
       failed = std::current_exception();
     }
-    agree_failure(*share, failed);
+    detail::share::agree_first_failure(*share, failed);
   } else {
     read_header();
   }
   // The header every process of a shared load read, and the parts each asks for, before any of
   // them refuses what differs between them (the sections read, and so what is combined, follow).
-  if (share && share->processes() > 1) {
+  if (share) {
     std::array<std::uint64_t, 2 + kHeader / 8> id{size, static_cast<std::uint64_t>(parts)};
     std::memcpy(&id[2], h, kHeader);
     agree_same_file(*share, path, id);
@@ -396,7 +366,7 @@ PreparedGrid load_checked(const std::string& file, GridParts parts, detail::Hier
   // combined in order (zlib's crc32_combine64): the CT bunny's tetrahedra, 0.87 GB of its 1.3 GB
   // grid file, are read only for the checksum when loading what the distance queries need.
   // (Files of version 4 and older restart their checksum at empty arrays: read whole.)
-  const bool shared_reads = share && share->processes() > 1 && !restarting;
+  const bool shared_reads = share && !restarting;
   auto pass_over = [&](std::uint64_t n) {
     if (n == 0 || !shared_reads) return pass_whole(n);
     const auto P = static_cast<std::uint64_t>(share->processes()), me = static_cast<std::uint64_t>(share->process());
@@ -479,7 +449,7 @@ PreparedGrid load_checked(const std::string& file, GridParts parts, detail::Hier
   report(progress, "read grid", 1);
   // Processes of a shared load that read other bytes would each find another fault here (their
   // checksums combine pieces of each other's files): they agree on the file's checksum first.
-  if (share && share->processes() > 1) agree_same_file(*share, path, std::array<std::uint64_t, 2>{size, stored});
+  if (share) agree_same_file(*share, path, std::array<std::uint64_t, 2>{size, stored});
   if (hierarchy_reserved != 0) throw InputError(fmt::format("{}: grid file is corrupt (reserved hierarchy bytes are not zero)", path));
   if (static_cast<std::uint32_t>(crc) != stored) throw InputError(fmt::format("{}: grid file is corrupt (checksum mismatch)", path));
   auto j = nlohmann::json::parse(meta, nullptr, false);
@@ -605,6 +575,7 @@ void write_vtu(const TetGrid& grid, const std::string& path) {
 }
 
 OpenGridFile::OpenGridFile(std::string path, ShareTransport* share) : path_(std::move(path)) {
+  if (share && share->processes() <= 1) share = nullptr;  // one process: nothing to agree
   std::exception_ptr failed;
   try {
     fd_ = ::open(path_.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);  // a FIFO would wait for a writer
@@ -613,12 +584,12 @@ OpenGridFile::OpenGridFile(std::string path, ShareTransport* share) : path_(std:
       throw InputError(fmt::format("{}: cannot open grid file", path_));
     }
   } catch (const InputError&) {
-    if (!share || share->processes() <= 1) throw;
+    if (!share) throw;
     failed = std::current_exception();
   }
-  if (share && share->processes() > 1) {
+  if (share) {
     try {
-      agree_failure(*share, failed);
+      detail::share::agree_first_failure(*share, failed);
     } catch (...) {
       if (fd_ >= 0) ::close(fd_);  // no destructor runs for a constructor that throws
       throw;
