@@ -11,10 +11,13 @@
 #include <thread>
 
 #include "adaptiso/grid_file.hpp"
+#include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/view_server.hpp"
 #include "cli_common.hpp"
 #include "options.hpp"
+#include "ranks.hpp"
+#include "view_ranks.hpp"
 
 namespace adaptiso::cli {
 namespace {
@@ -64,14 +67,30 @@ void add_view(CLI::App& app) {
     std::shared_ptr<const PreparedGrid> grid;
     std::shared_ptr<const OpenGridFile> file;  // a bisection grid's tetrahedra are read when a route needs them
     std::optional<PrepareOptions> options;     // refused at once too, not in the background
+    // Under mpirun every rank loads the grid (its checks shared out); rank 0 serves, the others
+    // make the surfaces within a distance it hands them (view_ranks.hpp).
+    Ranks& ranks = Ranks::world();
+    if (ranks.distributed() && !is_grid)
+      throw InputError(
+          "'adaptiso view' over MPI ranks serves a grid file (.adg): prepare it first (mpirun -np N adaptiso prepare VOLUME -o "
+          "GRID.adg), then view GRID.adg");
     if (is_grid) {
-      file = std::make_shared<const OpenGridFile>(in->path);
-      TerminalProgress tp(!out->quiet && !out->json);
-      grid = std::make_shared<const PreparedGrid>(file->load(GridParts::hierarchy_or_all, tp.callback()));
+      ShareTransport* share = ranks.distributed() ? &ranks : nullptr;
+      file = std::make_shared<const OpenGridFile>(in->path, share);
+      TerminalProgress tp(ranks.root() && !out->quiet && !out->json);
+      grid = std::make_shared<const PreparedGrid>(file->load(GridParts::hierarchy_or_all, tp.callback(), share));
     } else {
       options = pf->options(in->path);
       volume = std::make_shared<const Volume>(in->load());
     }
+    if (!ranks.root()) {
+      file.reset();
+      const auto query = grid->hierarchy ? std::make_unique<const HierarchyQuery>(grid) : nullptr;
+      answer_distance_queries(ranks, query.get());
+      return;
+    }
+    std::optional<RankSurfaces> rank_surfaces;  // outlives the server, which calls its hook
+    if (ranks.distributed() && grid->hierarchy) o.distance_surfaces = rank_surfaces.emplace(ranks).hook();
     ViewServer server(o);
     if (volume) server.set_volume(volume);
     // Handed over: the server frees the part once it has read the whole, and closes the file.
@@ -84,6 +103,10 @@ void add_view(CLI::App& app) {
     const std::string host = o.host == "0.0.0.0" ? "localhost" : o.host;
     std::cout << fmt::format("adaptiso view: serving http://{}:{}/  (Ctrl-C to stop; memory budget {:.2f} GB)\n", host, port,
                              static_cast<double>(server.memory_budget()) / 1e9);
+    if (rank_surfaces)
+      std::cout << fmt::format("surfaces within a distance are made by {} (rank 0 when {} busy)\n",
+                               ranks.size() == 2 ? "rank 1" : fmt::format("ranks 1 to {}", ranks.size() - 1),
+                               ranks.size() == 2 ? "it is" : "all are");
     if (o.host == "127.0.0.1" || o.host == "localhost")
       std::cout << fmt::format("from another machine: ssh -L {0}:localhost:{0} <this host>, then open http://localhost:{0}/\n", port);
     std::cout.flush();

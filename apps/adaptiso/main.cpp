@@ -74,11 +74,12 @@ int run(int argc, char** argv) {
   adaptiso::cli::add_compare(app);
   try {
     // Under mpirun: MPI starts here (or a build without it refuses); prepare shares out its bricks
-    // and selection, extract its iso-values.
+    // and selection, extract its iso-values, view its surfaces within a distance.
     const adaptiso::cli::Ranks& ranks = adaptiso::cli::Ranks::world();
-    if (const std::string command(command_of(argc, argv)); ranks.distributed() && command != "prepare" && command != "extract")
-      throw adaptiso::InputError(
-          fmt::format("only 'adaptiso prepare' and 'adaptiso extract' run over MPI ranks; run '{}' without mpirun", command));
+    if (const std::string command(command_of(argc, argv));
+        ranks.distributed() && command != "prepare" && command != "extract" && command != "view")
+      throw adaptiso::InputError(fmt::format(
+          "only 'adaptiso prepare', 'adaptiso extract' and 'adaptiso view' run over MPI ranks; run '{}' without mpirun", command));
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);

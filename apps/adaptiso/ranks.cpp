@@ -38,7 +38,13 @@ Ranks::Ranks() {
 #ifdef ADAPTISO_HAVE_MPI
   if (launched > 1) {
     int provided = 0;
-    MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
+    // Serialized: the viewer's connection threads on rank 0 hand surfaces to the other ranks
+    // (view_ranks.cpp), one MPI call at a time.
+    MPI_Init_thread(nullptr, nullptr, MPI_THREAD_SERIALIZED, &provided);
+    if (provided < MPI_THREAD_SERIALIZED) {
+      MPI_Finalize();
+      throw InputError("this MPI library does not let several threads of a rank call it one at a time (MPI_THREAD_SERIALIZED)");
+    }
     MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
     MPI_Comm_size(MPI_COMM_WORLD, &size_);
     mpi_ = true;
@@ -135,6 +141,36 @@ void Ranks::receive(int from, std::span<std::byte> into) {
   exchanged_ += into.size();
 #else
   (void)from, (void)into;
+#endif
+}
+
+void Ranks::send_message(int to, int tag, std::span<const std::byte> bytes) {
+#ifdef ADAPTISO_HAVE_MPI
+  if (bytes.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))
+    throw InputError(fmt::format("rank {} would send {} bytes at once (at most 2 GiB)", rank_, bytes.size()));
+  MPI_Send(bytes.data(), static_cast<int>(bytes.size()), MPI_BYTE, to, tag, MPI_COMM_WORLD);
+  exchanged_ += bytes.size();
+#else
+  (void)to, (void)tag, (void)bytes;
+#endif
+}
+
+int Ranks::poll_message(int from, int tag, std::vector<std::byte>& into) {
+#ifdef ADAPTISO_HAVE_MPI
+  if (!distributed()) return -1;
+  int arrived = 0;
+  MPI_Status status;
+  MPI_Iprobe(from, tag < 0 ? MPI_ANY_TAG : tag, MPI_COMM_WORLD, &arrived, &status);
+  if (!arrived) return -1;
+  int count = 0;
+  MPI_Get_count(&status, MPI_BYTE, &count);
+  into.resize(static_cast<std::size_t>(count));
+  MPI_Recv(into.data(), count, MPI_BYTE, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  exchanged_ += into.size();
+  return status.MPI_TAG;
+#else
+  (void)from, (void)tag, (void)into;
+  return -1;
 #endif
 }
 

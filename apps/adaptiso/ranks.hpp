@@ -53,6 +53,14 @@ public:
   void receive(int from, std::span<std::byte> into) override;
   // Bytes from rank 0 to rank `to` (which receives them with receive(0, …)), in pieces likewise.
   void send_to(int to, std::span<const std::byte> bytes) override;
+  // Tagged point-to-point messages, for work handed out while rank 0 serves (view_ranks.hpp). MPI
+  // is started with MPI_THREAD_SERIALIZED: any thread may call these, one at a time (the caller
+  // serialises). At most 2 GiB a message (InputError beyond).
+  void send_message(int to, int tag, std::span<const std::byte> bytes);
+  // The first message from `from` with `tag` (any tag: -1) if one has arrived, its tag returned;
+  // -1 when none has. Never blocks: OpenMPI's blocking receive spins, and an idle viewer's ranks
+  // would each keep a core busy.
+  int poll_message(int from, int tag, std::vector<std::byte>& into);
   // Bytes this rank sent to or received from others so far.
   std::uint64_t bytes_exchanged() const { return exchanged_; }
   // Stops every rank with this exit code (after this rank's message) when the ranks were started

@@ -10,17 +10,28 @@
 // Throws OptionError("web_dir") when the page's folder lacks index.html, InputError when it
 // cannot bind.
 #pragma once
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "adaptiso/hierarchy_query.hpp"
 #include "adaptiso/mesh.hpp"
 #include "adaptiso/prepare.hpp"
 #include "adaptiso/volume.hpp"
 
 namespace adaptiso {
+
+// Makes a surface within a distance (HierarchyQuery::extract_within's arguments, `local` the
+// server's own query) and returns it with the number of the process that made it (0: this one).
+// The default asks `local`; `mpirun … adaptiso view` hands the query to another rank holding the
+// same grid (apps/adaptiso/view_ranks.cpp), so the library stays free of MPI. Called from the
+// connection threads, several at once; honours `cancel` as extract_within does and throws what it
+// throws (ExtractCancelled, OptionError, std::bad_alloc).
+using DistanceSurfaces = std::function<Mesh(const HierarchyQuery& local, double iso, double distance, int collapse_rounds,
+                                            DistanceQueryStats* stats, const std::atomic<bool>* cancel, int* process)>;
 
 struct ViewOptions {
   std::string host = "127.0.0.1";
@@ -37,6 +48,9 @@ struct ViewOptions {
   // server serves itself.
   std::vector<std::string> allowed_origins;
   double thread_idle_seconds = 10;  // connection threads idle this long exit (a few are kept)
+  // Where surfaces within a distance are made (empty: in this process). Only for a grid that
+  // stays the one set first (set_grid, or its whole read later), since the makers hold their own.
+  DistanceSurfaces distance_surfaces;
 };
 
 class ViewServer {

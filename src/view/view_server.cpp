@@ -193,7 +193,7 @@ struct ViewServer::Impl {
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
   Mesh surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats,
-                      const std::atomic<bool>* cancel = nullptr);
+                      const std::atomic<bool>* cancel = nullptr, int* process = nullptr);
   void reference(const httplib::Request& req, httplib::Response& res);
   void download(const httplib::Request& req, httplib::Response& res);
   void points(const httplib::Request& req, httplib::Response& res);
@@ -288,7 +288,7 @@ httplib::Server::HandlerResponse ViewServer::Impl::admit(const httplib::Request&
           // The answers' headers a page of that origin may read (fetch hides the others).
           res.set_header("Access-Control-Expose-Headers",
                          "X-Extract-Seconds, X-Encode-Seconds, X-Wait-Seconds, X-Triangles, X-Vertices, X-Active-Tetrahedra, "
-                         "X-Incremental, X-In-Range, X-Level, X-Distance, X-Error-Bound, X-Error-Guaranteed, X-Encoding, "
+                         "X-Incremental, X-In-Range, X-Level, X-Distance, X-Rank, X-Error-Bound, X-Error-Guaranteed, X-Encoding, "
                          "X-Triangles-Before, X-Simplify-Seconds, X-Tetrahedra, Content-Disposition, Retry-After");
         }
         break;
@@ -446,7 +446,8 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
     // name "default" (scripts, several at once): they cancel nothing.
     std::optional<detail::RunningQueries::Ticket> ticket;
     if (req.params.count("client")) ticket.emplace(running, id);
-    const Mesh mesh = surface_within(s, iso, *distance, collapse, &st, ticket ? ticket->cancel() : nullptr);
+    int process = 0;
+    const Mesh mesh = surface_within(s, iso, *distance, collapse, &st, ticket ? ticket->cancel() : nullptr, &process);
     const auto t0 = std::chrono::steady_clock::now();
     std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
     const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -460,6 +461,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
     res.set_header("X-In-Range", st.in_range ? "1" : "0");
     res.set_header("X-Level", "0");
     res.set_header("X-Distance", fmt::format("{:.17g}", *distance));
+    res.set_header("X-Rank", std::to_string(process));
     // The vertices lie on the grid's own surface, whose error bound this is.
     res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(s.grid->stats)));
     res.set_header("X-Error-Guaranteed", s.grid->stats.error_bound >= 0 ? "1" : "0");
@@ -503,14 +505,17 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
 // The surface within distance= voxels of the grid's (a bisection grid's hierarchy query): one
 // stateless query, no page state; its memory reserved for the time of the query.
 Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats,
-                                      const std::atomic<bool>* cancel) {
+                                      const std::atomic<bool>* cancel, int* process) {
   if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
   if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
   const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, tetrahedron_count(*s.grid) / 8);
   const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
   DistanceQueryStats own;
   if (!stats) stats = &own;
-  Mesh mesh = s.query->extract_within(iso, distance, stats, collapse, cancel);
+  int made_by = 0;
+  Mesh mesh = opt.distance_surfaces ? opt.distance_surfaces(*s.query, iso, distance, collapse, stats, cancel, &made_by)
+                                    : s.query->extract_within(iso, distance, stats, collapse, cancel);
+  if (process) *process = made_by;
   // The peak follows the marched triangles, collapses or not: those are what the next estimate counts.
   sessions.record_triangles(Sessions::Transient::distance, iso, stats->triangles + 2 * stats->collapsed);
   return mesh;

@@ -174,7 +174,7 @@ ranks 2 "$CLI" info "$W/ml.nrrd" >"$W/info.out" 2>&1
 code=$?
 set -e
 [ $code -eq 2 ] || { echo "FAIL: info under mpirun exited $code"; cat "$W/info.out"; exit 1; }
-grep -q "only 'adaptiso prepare' and 'adaptiso extract' run over MPI ranks" "$W/info.out" || { echo "FAIL: no clear refusal"; cat "$W/info.out"; exit 1; }
+grep -q "only 'adaptiso prepare', 'adaptiso extract' and 'adaptiso view' run over MPI ranks" "$W/info.out" || { echo "FAIL: no clear refusal"; cat "$W/info.out"; exit 1; }
 echo "ok: other commands refused under mpirun"
 
 # An input error every rank meets is told once, by rank 0 (the first rank to abort ends the others:
