@@ -7,8 +7,8 @@
 //   stop   0 → r  {}
 // Every side polls (MPI_Iprobe, then a short sleep) instead of waiting in a blocking receive:
 // OpenMPI's blocking calls spin, so an idle viewer's ranks would each keep a core busy, the core a
-// workstation's browser draws with. The sleeps add at most a millisecond to a surface while the
-// page asks for them one after another, 8 ms to the first after a pause.
+// workstation's browser draws with. The sleeps add a fraction of a millisecond to a surface while
+// the page asks for them one after another, up to 8 ms to the first after a pause.
 #include "view_ranks.hpp"
 
 #include <fmt/format.h>
@@ -32,11 +32,15 @@ namespace adaptiso::cli {
 namespace {
 
 constexpr int kAsk = 20, kCancel = 21, kAnswer = 22, kStop = 23;
-constexpr auto kWaitPoll = std::chrono::microseconds(200);  // rank 0, waiting for an answer
-constexpr auto kBusyPoll = std::chrono::milliseconds(1);    // the others, listening for a cancel
-// The others waiting for work: from 0.25 ms, doubled while none comes, up to 8 ms. An idle rank
-// polling every millisecond took 3.8 % of a core (OpenMPI's progress in each probe).
+// Rank 0, waiting for an answer: polling every 0.2 ms took 8-11 % of a core during a 2.6 s query.
+constexpr auto kWaitPoll = std::chrono::milliseconds(1);
+constexpr auto kBusyPoll = std::chrono::milliseconds(1);  // the others, listening for a cancel
+// The others waiting for work: every 0.25 ms for a second after their last answer (a drag asks
+// again within 50-150 ms: a longer sleep is latency on every surface), then doubled while none
+// comes, up to 8 ms (an idle rank polling every millisecond took 3.8 % of a core: OpenMPI's
+// progress in each probe).
 constexpr auto kFirstIdlePoll = std::chrono::microseconds(250), kLongestIdlePoll = std::chrono::microseconds(8000);
+constexpr auto kStayAwake = std::chrono::seconds(1);
 
 enum class Status : std::uint8_t { made, cancelled, input_error, out_of_memory, failed };
 
@@ -230,11 +234,12 @@ DistanceSurfaces RankSurfaces::hook() {
 
 void answer_distance_queries(Ranks& ranks, const HierarchyQuery* query) {
   std::vector<std::byte> got;
+  auto last_answer = std::chrono::steady_clock::now();
   for (auto idle = kFirstIdlePoll;;) {
     const int tag = ranks.poll_message(0, -1, got);
     if (tag < 0) {
       std::this_thread::sleep_for(idle);
-      idle = std::min(2 * idle, kLongestIdlePoll);
+      if (std::chrono::steady_clock::now() - last_answer > kStayAwake) idle = std::min(2 * idle, kLongestIdlePoll);
       continue;
     }
     idle = kFirstIdlePoll;
@@ -256,6 +261,7 @@ void answer_distance_queries(Ranks& ranks, const HierarchyQuery* query) {
     }
     worker.join();
     ranks.send_message(0, kAnswer, reply);
+    last_answer = std::chrono::steady_clock::now();
   }
 }
 
