@@ -98,7 +98,7 @@ scene.add(surface, reference, points, tets);
 
 let info = null;
 const stats = { extract: 0, encode: 0, wait: 0, transfer: 0, decode: 0, bytes: 0, triangles: 0, vertices: 0, active: 0, incremental: false, inRange: true,
-                refTriangles: null, error: 0, guaranteed: true, level: 0, coarse: false, distance: null };
+                refTriangles: null, error: 0, guaranteed: true, level: 0, coarse: false, distance: null, rank: 0 };
 
 function resize() {
   const w = window.innerWidth, h = window.innerHeight;
@@ -166,7 +166,8 @@ function updateStats() {
     `triangles: ${stats.triangles}`,
     `vertices: ${stats.vertices}`,
     `active tetrahedra: ${stats.active}`,
-    `extraction: ${(stats.extract * 1000).toFixed(1)} ms${stats.incremental ? ' (incremental)' : ''}`,
+    `extraction: ${(stats.extract * 1000).toFixed(1)} ms${stats.incremental ? ' (incremental)' : ''}` +
+      `${info.ranks > 1 && stats.distance !== null ? `, by rank ${stats.rank} of ${info.ranks}` : ''}`,
     `encoding: ${stats.encode.toFixed(1)} ms${stats.wait >= 1 ? `, after waiting ${stats.wait.toFixed(0)} ms for the background extraction` : ''}`,
     `transfer: ${stats.transfer.toFixed(1)} ms, ${(stats.bytes / Math.max(stats.triangles, 1)).toFixed(1)} bytes/triangle`,
     `decode: ${stats.decode.toFixed(1)} ms`,
@@ -374,6 +375,7 @@ async function pump() {
     stats.guaranteed = r.headers.get('X-Error-Guaranteed') === '1';
     stats.level = Number(r.headers.get('X-Level'));
     stats.distance = r.headers.has('X-Distance') ? Number(r.headers.get('X-Distance')) : null;
+    stats.rank = Number(r.headers.get('X-Rank') || 0);
     stats.coarse = coarse;
     // Every surface within a distance tells the next drag how far to go (at rest too: the first
     // drag then starts near its target).

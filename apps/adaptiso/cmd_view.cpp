@@ -90,7 +90,10 @@ void add_view(CLI::App& app) {
       return;
     }
     std::optional<RankSurfaces> rank_surfaces;  // outlives the server, which calls its hook
-    if (ranks.distributed() && grid->hierarchy) o.distance_surfaces = rank_surfaces.emplace(ranks).hook();
+    if (ranks.distributed() && grid->hierarchy) {
+      o.distance_surfaces = rank_surfaces.emplace(ranks).hook();
+      o.ranks = ranks.size();
+    }
     ViewServer server(o);
     if (volume) server.set_volume(volume);
     // Handed over: the server frees the part once it has read the whole, and closes the file.

@@ -51,6 +51,7 @@ struct ViewOptions {
   // Where surfaces within a distance are made (empty: in this process). Only for a grid that
   // stays the one set first (set_grid, or its whole read later), since the makers hold their own.
   DistanceSurfaces distance_surfaces;
+  int ranks = 1;  // the processes those are made by (mpirun … view), in /api/info for the page
 };
 
 class ViewServer {

@@ -419,6 +419,7 @@ void ViewServer::Impl::info(const httplib::Request&, httplib::Response& res) {
     for (const auto& l : sessions.levels()) ladder.push_back({{"bound", l.bound}, {"built", l.built}, {"cell_floor", l.cell_floor}});
     j["levels"] = ladder;
   }
+  j["ranks"] = opt.ranks;
   const auto m = sessions.memory();
   j["memory"] = {
       {"budget", m.budget},   {"resident", m.resident},         {"extractors", m.extractors}, {"extractors_bytes", m.extractors_bytes},

@@ -59,6 +59,8 @@ def get(base, query):
     except urllib.error.HTTPError as e:
         return e.code, e.read(), dict(e.headers)
 
+import json
+assert json.loads(get(mltwo, 'api/info')[1])['ranks'] == 2 and json.loads(get(mlone, 'api/info')[1])['ranks'] == 1
 # One at a time: rank 1 makes each, the bytes one process's.
 for a, b, q in [(mlone, mltwo, 'api/surface?iso=0.5&distance=1&format=plain'),
                 (mlone, mltwo, 'api/surface?iso=0.3&distance=0.5&collapse=0&format=compact'),
