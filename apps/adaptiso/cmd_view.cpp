@@ -74,6 +74,9 @@ void add_view(CLI::App& app) {
       throw InputError(
           "'adaptiso view' over MPI ranks serves a grid file (.adg): prepare it first (mpirun -np N adaptiso prepare VOLUME -o "
           "GRID.adg), then view GRID.adg");
+    if (ranks.distributed() && !ranks.serialized_threads())
+      throw InputError(
+          "'adaptiso view' over MPI ranks needs an MPI that lets a rank's threads call it one at a time (MPI_THREAD_SERIALIZED)");
     if (is_grid) {
       ShareTransport* share = ranks.distributed() ? &ranks : nullptr;
       file = std::make_shared<const OpenGridFile>(in->path, share);
@@ -83,14 +86,21 @@ void add_view(CLI::App& app) {
       options = pf->options(in->path);
       volume = std::make_shared<const Volume>(in->load());
     }
+    // The other ranks make surfaces within a distance, which only a bisection grid's hierarchy
+    // gives: every rank read the same file, so every rank refuses alike.
+    if (ranks.distributed() && !grid->hierarchy)
+      throw InputError(
+          fmt::format("{}: over MPI ranks 'adaptiso view' serves a bisection grid (this one keeps no hierarchy); run it "
+                      "without mpirun",
+                      in->path));
     if (!ranks.root()) {
       file.reset();
-      const auto query = grid->hierarchy ? std::make_unique<const HierarchyQuery>(grid) : nullptr;
-      answer_distance_queries(ranks, query.get());
+      const HierarchyQuery query(grid);
+      answer_distance_queries(ranks, query);
       return;
     }
     std::optional<RankSurfaces> rank_surfaces;  // outlives the server, which calls its hook
-    if (ranks.distributed() && grid->hierarchy) {
+    if (ranks.distributed()) {
       o.distance_surfaces = rank_surfaces.emplace(ranks).hook();
       o.ranks = ranks.size();
     }

@@ -41,10 +41,7 @@ Ranks::Ranks() {
     // Serialized: the viewer's connection threads on rank 0 hand surfaces to the other ranks
     // (view_ranks.cpp), one MPI call at a time.
     MPI_Init_thread(nullptr, nullptr, MPI_THREAD_SERIALIZED, &provided);
-    if (provided < MPI_THREAD_SERIALIZED) {
-      MPI_Finalize();
-      throw InputError("this MPI library does not let several threads of a rank call it one at a time (MPI_THREAD_SERIALIZED)");
-    }
+    serialized_ = provided >= MPI_THREAD_SERIALIZED;
     MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
     MPI_Comm_size(MPI_COMM_WORLD, &size_);
     mpi_ = true;
@@ -106,10 +103,12 @@ namespace {
 
 // MPI counts are ints: a message goes in pieces of at most 1 GiB, f(offset, count) for each.
 template <class F>
-void each_piece(std::size_t bytes, F f) {
-  constexpr std::size_t piece = std::size_t{1} << 30;
+void each_piece(std::size_t bytes, F f, std::size_t piece = std::size_t{1} << 30) {
   for (std::size_t at = 0; at < bytes; at += piece) f(at, static_cast<int>(std::min(piece, bytes - at)));
 }
+
+// send_message's pieces: small enough that a receiver short of memory can still drain them.
+constexpr std::size_t kMessagePiece = std::size_t{64} << 20;
 
 }  // namespace
 
@@ -144,12 +143,18 @@ void Ranks::receive(int from, std::span<std::byte> into) {
 #endif
 }
 
+// The pieces of a message after its header (send_message): a tag of their own, received right
+// after the header from the same rank (MPI keeps one sender's messages of one tag in order).
+constexpr int kMessagePieceTag = 30000;
+
 void Ranks::send_message(int to, int tag, std::span<const std::byte> bytes) {
 #ifdef ADAPTISO_HAVE_MPI
-  if (bytes.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))
-    throw InputError(fmt::format("rank {} would send {} bytes at once (at most 2 GiB)", rank_, bytes.size()));
-  MPI_Send(bytes.data(), static_cast<int>(bytes.size()), MPI_BYTE, to, tag, MPI_COMM_WORLD);
-  exchanged_ += bytes.size();
+  const std::uint64_t size = bytes.size();
+  MPI_Send(&size, 1, MPI_UINT64_T, to, tag, MPI_COMM_WORLD);
+  each_piece(
+      bytes.size(), [&](std::size_t at, int n) { MPI_Send(bytes.data() + at, n, MPI_BYTE, to, kMessagePieceTag, MPI_COMM_WORLD); },
+      kMessagePiece);
+  exchanged_ += sizeof size + bytes.size();
 #else
   (void)to, (void)tag, (void)bytes;
 #endif
@@ -162,11 +167,30 @@ int Ranks::poll_message(int from, int tag, std::vector<std::byte>& into) {
   MPI_Status status;
   MPI_Iprobe(from, tag < 0 ? MPI_ANY_TAG : tag, MPI_COMM_WORLD, &arrived, &status);
   if (!arrived) return -1;
-  int count = 0;
-  MPI_Get_count(&status, MPI_BYTE, &count);
-  into.resize(static_cast<std::size_t>(count));
-  MPI_Recv(into.data(), count, MPI_BYTE, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-  exchanged_ += into.size();
+  std::uint64_t size = 0;
+  MPI_Recv(&size, 1, MPI_UINT64_T, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  // An allocation that fails drains the pieces (64 MiB at a time) and throws: the message is lost
+  // to the caller, and the next one arrives whole.
+  try {
+    into.resize(size);
+  } catch (const std::bad_alloc&) {
+    std::vector<std::byte> piece;
+    each_piece(
+        size,
+        [&](std::size_t, int n) {  // drained piece by piece, so the next message is whole
+          piece.resize(static_cast<std::size_t>(n));
+          MPI_Recv(piece.data(), n, MPI_BYTE, status.MPI_SOURCE, kMessagePieceTag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+        },
+        kMessagePiece);
+    throw;
+  }
+  each_piece(
+      size,
+      [&](std::size_t at, int n) {
+        MPI_Recv(into.data() + at, n, MPI_BYTE, status.MPI_SOURCE, kMessagePieceTag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+      },
+      kMessagePiece);
+  exchanged_ += sizeof size + size;
   return status.MPI_TAG;
 #else
   (void)from, (void)tag, (void)into;

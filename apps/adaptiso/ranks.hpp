@@ -53,14 +53,17 @@ public:
   void receive(int from, std::span<std::byte> into) override;
   // Bytes from rank 0 to rank `to` (which receives them with receive(0, …)), in pieces likewise.
   void send_to(int to, std::span<const std::byte> bytes) override;
-  // Tagged point-to-point messages, for work handed out while rank 0 serves (view_ranks.hpp). MPI
-  // is started with MPI_THREAD_SERIALIZED: any thread may call these, one at a time (the caller
-  // serialises). At most 2 GiB a message (InputError beyond).
+  // Tagged point-to-point messages of any size, for work handed out while rank 0 serves
+  // (view_ranks.hpp): a header with the size, then pieces of at most 1 GiB. With
+  // serialized_threads() any thread may call these, one at a time (the caller serialises).
   void send_message(int to, int tag, std::span<const std::byte> bytes);
   // The first message from `from` with `tag` (any tag: -1) if one has arrived, its tag returned;
   // -1 when none has. Never blocks: OpenMPI's blocking receive spins, and an idle viewer's ranks
   // would each keep a core busy.
   int poll_message(int from, int tag, std::vector<std::byte>& into);
+  // Whether MPI lets several threads of this rank call it one at a time (MPI_THREAD_SERIALIZED,
+  // asked for; prepare and extract need only the main thread's).
+  bool serialized_threads() const { return serialized_; }
   // Bytes this rank sent to or received from others so far.
   std::uint64_t bytes_exchanged() const { return exchanged_; }
   // Stops every rank with this exit code (after this rank's message) when the ranks were started
@@ -74,7 +77,7 @@ private:
   Ranks();
   static inline Ranks* started_ = nullptr;
   int rank_ = 0, size_ = 1;
-  bool mpi_ = false;
+  bool mpi_ = false, serialized_ = true;
   std::uint64_t exchanged_ = 0;
 };
 

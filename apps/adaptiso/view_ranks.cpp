@@ -16,7 +16,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
-#include <limits>
 #include <mutex>
 #include <new>
 #include <stdexcept>
@@ -101,31 +100,29 @@ private:
 };
 
 // The answer to one ask, made on this rank.
-std::vector<std::byte> answer(const HierarchyQuery* query, const Ask& ask, const std::atomic<bool>& cancel) {
+std::vector<std::byte> answer(const HierarchyQuery& query, const Ask& ask, const std::atomic<bool>& cancel) {
   Bytes out;
-  out.put(ask.id);
   auto failed = [&](Status s, const std::string& message) {
+    out.bytes.clear();
+    out.put(ask.id);
     out.put(s);
     out.put_raw(message.data(), message.size());
   };
   try {
-    if (!query) throw InputError("this grid keeps no hierarchy: no surfaces within a distance");
     DistanceQueryStats stats;
-    const Mesh mesh = query->extract_within(ask.iso, ask.distance, &stats, ask.rounds, &cancel);
-    Bytes body;
-    body.put(Status::made);
-    body.put(stats);
-    body.put_array(mesh.positions);
-    body.put_array(mesh.normals);
-    body.put_array(mesh.triangles);
-    if (body.bytes.size() > static_cast<std::size_t>(std::numeric_limits<int>::max()))  // an MPI message's count is an int
-      throw InputError(fmt::format("a surface of {} triangles is too large to hand between ranks (at most 2 GiB)", mesh.triangles.size()));
-    out.put_raw(body.bytes.data(), body.bytes.size());
+    const Mesh mesh = query.extract_within(ask.iso, ask.distance, &stats, ask.rounds, &cancel);
+    // Written once, in place: the rank holds the mesh and its message, no third copy.
+    out.bytes.reserve(sizeof ask.id + 1 + sizeof stats + 3 * 8 +
+                      12 * (mesh.positions.size() + mesh.normals.size() + mesh.triangles.size()));
+    out.put(ask.id);
+    out.put(Status::made);
+    out.put(stats);
+    out.put_array(mesh.positions);
+    out.put_array(mesh.normals);
+    out.put_array(mesh.triangles);
   } catch (const ExtractCancelled&) {
     failed(Status::cancelled, "");
-  } catch (const OptionError& e) {
-    failed(Status::input_error, e.what());
-  } catch (const InputError& e) {
+  } catch (const InputError& e) {  // OptionError too
     failed(Status::input_error, e.what());
   } catch (const std::bad_alloc&) {
     failed(Status::out_of_memory, "");
@@ -171,8 +168,8 @@ struct RankSurfaces::State {
       int rank;
       ~GiveBack() { s.give_back(rank); }
     } give_back_on_exit{*this, rank};
-    Bytes ask;
-    ask.put(Ask{id, iso, distance, rounds});
+    Bytes ask;  // field by field: the struct's padding is not sent
+    ask.put(id), ask.put(iso), ask.put(distance), ask.put(static_cast<std::int32_t>(rounds));
     {
       std::lock_guard lock(mpi);
       ranks.send_message(rank, kAsk, ask.bytes);
@@ -181,7 +178,10 @@ struct RankSurfaces::State {
     for (bool told = false;;) {
       {
         std::lock_guard lock(mpi);
-        if (ranks.poll_message(rank, kAnswer, got) == kAnswer) break;
+        // An older ask's answer, left by a wait that ended without it (an allocation that failed
+        // while receiving it), is dropped: taken for this one's, every later answer of the rank
+        // would be one behind.
+        if (ranks.poll_message(rank, kAnswer, got) == kAnswer && answer_id(got) == id) break;
         if (!told && cancel && cancel->load(std::memory_order_relaxed)) {
           Bytes c;
           c.put(id);
@@ -191,12 +191,18 @@ struct RankSurfaces::State {
       }
       std::this_thread::sleep_for(kWaitPoll);
     }
-    return read_answer(got, id, rank, stats);
+    return read_answer(got, rank, stats);
   }
 
-  static Mesh read_answer(const std::vector<std::byte>& got, std::uint64_t id, int rank, DistanceQueryStats* stats) {
+  static std::uint64_t answer_id(const std::vector<std::byte>& got) {
+    std::uint64_t id = 0;
+    if (got.size() >= sizeof id) std::memcpy(&id, got.data(), sizeof id);
+    return id;
+  }
+
+  static Mesh read_answer(const std::vector<std::byte>& got, int rank, DistanceQueryStats* stats) {
     Reader in(got);
-    if (in.get<std::uint64_t>() != id) throw std::runtime_error(fmt::format("rank {} answered another request", rank));
+    in.get<std::uint64_t>();  // the id, matched
     switch (in.get<Status>()) {
       case Status::made: {
         const auto st = in.get<DistanceQueryStats>();
@@ -232,7 +238,7 @@ DistanceSurfaces RankSurfaces::hook() {
                    const std::atomic<bool>* cancel, int* process) { return s->make(local, iso, distance, rounds, stats, cancel, process); };
 }
 
-void answer_distance_queries(Ranks& ranks, const HierarchyQuery* query) {
+void answer_distance_queries(Ranks& ranks, const HierarchyQuery& query) {
   std::vector<std::byte> got;
   auto last_answer = std::chrono::steady_clock::now();
   for (auto idle = kFirstIdlePoll;;) {
@@ -245,7 +251,9 @@ void answer_distance_queries(Ranks& ranks, const HierarchyQuery* query) {
     idle = kFirstIdlePoll;
     if (tag == kStop) return;
     if (tag != kAsk) continue;  // a cancel of an ask answered already
-    const auto ask = Reader(got).get<Ask>();
+    Reader in(got);
+    Ask ask;
+    ask.id = in.get<std::uint64_t>(), ask.iso = in.get<double>(), ask.distance = in.get<double>(), ask.rounds = in.get<std::int32_t>();
     std::atomic<bool> cancel{false}, done{false};
     std::vector<std::byte> reply;
     // The query runs beside this thread, which alone speaks MPI and listens for its cancel.
@@ -254,7 +262,9 @@ void answer_distance_queries(Ranks& ranks, const HierarchyQuery* query) {
       done.store(true, std::memory_order_release);
     });
     while (!done.load(std::memory_order_acquire)) {
-      if (ranks.poll_message(0, kCancel, got) == kCancel && Reader(got).get<std::uint64_t>() == ask.id)
+      std::uint64_t id = 0;
+      if (ranks.poll_message(0, kCancel, got) == kCancel && got.size() == sizeof id &&
+          (std::memcpy(&id, got.data(), sizeof id), id == ask.id))
         cancel.store(true, std::memory_order_relaxed);
       else
         std::this_thread::sleep_for(kBusyPoll);

@@ -28,8 +28,7 @@ private:
   std::shared_ptr<State> state_;
 };
 
-// The other ranks' side: answers rank 0's queries with `query` until rank 0 says stop (a grid
-// without a hierarchy has no query: rank 0 then never asks).
-void answer_distance_queries(Ranks& ranks, const HierarchyQuery* query);
+// The other ranks' side: answers rank 0's queries with `query` until rank 0 says stop.
+void answer_distance_queries(Ranks& ranks, const HierarchyQuery& query);
 
 }  // namespace adaptiso::cli

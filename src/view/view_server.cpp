@@ -653,6 +653,13 @@ void ViewServer::Impl::routes() {
   const auto idle = std::chrono::milliseconds(static_cast<long long>(std::min(opt.thread_idle_seconds, 1e6) * 1000));
   http.new_task_queue = [idle] { return new detail::ElasticPool(256, idle, 4); };
   http.set_tcp_nodelay(true);  // small answers on a kept-alive connection were held back 40 ms (Nagle)
+  // SO_REUSEADDR only (a restarted viewer binds its port at once), not httplib's SO_REUSEPORT too:
+  // with it a second viewer on a port in use bound it silently and the kernel split the
+  // connections between the two, so a page got some surfaces of the other's grid.
+  http.set_socket_options([](socket_t sock) {
+    const int yes = 1;
+    setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
+  });
   http.set_read_timeout(5, 0);
   http.set_keep_alive_timeout(5);
   http.set_keep_alive_max_count(1000);  // the page asks for a surface per slider step on one connection

@@ -7,8 +7,9 @@
 #   more than one rank (rank 0 takes what finds the others busy);
 # - a page's next request cancels its previous one on the rank making it (409), and the next is
 #   one process's;
-# - an export with distance= is one process's; a volume (not a grid) is refused with exit 2; a
-#   killed rank ends the job.
+# - an export with distance= is one process's; a volume (not a grid) and a Delaunay grid (no
+#   hierarchy: nothing for the other ranks to make) are refused with exit 2 on every rank, and so
+#   is a port in use (the other ranks stopped, not left waiting); a killed rank ends the job.
 # Usage: view_over_ranks.sh ADAPTISO MPIEXEC
 set -euo pipefail
 # shellcheck source=ranks_common.sh
@@ -118,6 +119,26 @@ set -e
 [ $code -eq 2 ] || { echo "FAIL: view of a volume under mpirun exited $code"; cat "$W/vol.out"; exit 1; }
 grep -q "serves a grid file (.adg)" "$W/vol.out" || { echo "FAIL: no clear refusal"; cat "$W/vol.out"; exit 1; }
 echo "ok: a volume refused over ranks"
+
+# A Delaunay grid (no hierarchy: nothing for the other ranks to make) is refused on every rank,
+# exit 2, rather than leaving them idle (they once polled for ever).
+"$CLI" prepare "$W/ml.nrrd" --grid delaunay --quiet -o "$W/mld.adg"
+set +e
+timeout 120 "$MPIEXEC" -np 2 "$CLI" view "$W/mld.adg" --port 0 --quiet --web "$WEB" >"$W/d.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: view of a Delaunay grid under mpirun exited $code"; cat "$W/d.out"; exit 1; }
+grep -q "serves a bisection grid" "$W/d.out" || { echo "FAIL: no clear refusal"; cat "$W/d.out"; exit 1; }
+echo "ok: a Delaunay grid refused over ranks"
+
+# A port rank 0 cannot bind: exit 2, the other ranks stopped, not left waiting.
+port=$(echo "$URL_one" | sed 's|.*:\([0-9]*\)/$|\1|')
+set +e
+timeout 120 "$MPIEXEC" -np 2 "$CLI" view "$W/ml.adg" --port "$port" --quiet --web "$WEB" >"$W/p.out" 2>&1
+code=$?
+set -e
+[ $code -eq 2 ] || { echo "FAIL: a busy port under mpirun exited $code (124: hung)"; cat "$W/p.out"; exit 1; }
+echo "ok: a busy port refused over ranks: $(grep -m1 adaptiso "$W/p.out")"
 
 # A killed rank ends the job.
 kill_a_rank 2 "$CLI" view "$W/ml.adg" --port 0 --quiet --web "$WEB"

@@ -2,7 +2,7 @@
 // refused unless --allow-origin names them, pipelined requests answered in turn, other methods 405
 // with or without a body, the connection pool shrinking when idle, a request the memory budget
 // cannot hold now answered 503 with Retry-After (never a lasting 500), and docs/API.md specifying
-// every route the server registers (issues 40 and 41).
+// every route the server registers (issues 40 and 41), a port in use refused rather than shared.
 #include <arpa/inet.h>
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -164,6 +164,29 @@ TEST(Http, OtherMethodsAre405WithOrWithoutABody) {
   ASSERT_TRUE(patch);
   EXPECT_EQ(patch->status, 405);
   EXPECT_EQ(c.Get("/api/surface?iso=700")->status, 200);
+}
+
+TEST(Http, ASecondServerOnAPortInUseIsRefusedNotSharingIt) {
+  // Both bound (SO_REUSEPORT) and the kernel split the connections between two grids.
+  Running first(testutil::server_options());
+  ViewOptions o = testutil::server_options();
+  o.port = first.port;
+  ViewServer second(o);
+  EXPECT_THROW(second.bind(), InputError);
+}
+
+TEST(Http, APortIsBoundAgainAtOnceAfterItsServerStops) {
+  int port = 0;
+  {
+    Running first(testutil::server_options());
+    port = first.port;
+    auto c = first.client();
+    ASSERT_TRUE(c.Get("/api/info"));  // a connection closed by the server leaves TIME_WAIT behind
+  }
+  ViewOptions o = testutil::server_options();
+  o.port = port;
+  ViewServer again(o);
+  EXPECT_EQ(again.bind(), port);
 }
 
 TEST(Http, ThePoolShrinksWhenIdle) {
