@@ -10,10 +10,13 @@
 # - an export with distance= is one process's; a volume (not a grid) and a Delaunay grid (no
 #   hierarchy: nothing for the other ranks to make) are refused with exit 2 on every rank, and so
 #   is a port in use (the other ranks stopped, not left waiting); a killed rank ends the job.
-# Usage: view_over_ranks.sh ADAPTISO MPIEXEC
+# - an allocation that fails on rank 0 while it takes a rank's answer (SHIM, fail_alloc_shim.cpp)
+#   costs that surface a 503, and the answers after it are the ones asked for.
+# Usage: view_over_ranks.sh ADAPTISO MPIEXEC [SHIM]
 set -euo pipefail
 # shellcheck source=ranks_common.sh
 source "$(dirname "$0")/ranks_common.sh" "$@"
+SHIM=${3:-}
 WEB=$(cd "$(dirname "$0")/../../web" && pwd)
 
 "$CLI" generate marschner-lobb --size 33 --quiet -o "$W/ml.nrrd"
@@ -110,6 +113,45 @@ assert s1 == 409, f'the overtaken request answered {s1} (finished within 0.3 s?)
 assert s2 == 200 and b2 == get(one, 'api/surface?iso=100&distance=4&format=plain')[1], s2
 print('ok: the overtaken request cancelled (409), the next one process\'s, from rank', h2['X-Rank'])
 EOF
+
+# An allocation that fails on rank 0 while it takes rank 1's answer: that surface 503, the next
+# ones whole and the ones asked for (they once came one behind: 500s for ever after).
+if [ -n "$SHIM" ]; then
+  view_args=(view "$W/ml.adg" --port 0 --quiet --web "$WEB")
+  "$MPIEXEC" -np 1 env LD_PRELOAD="$SHIM" ADAPTISO_TEST_FAIL_NEW_BYTES=100000 "$CLI" "${view_args[@]}" : -np 1 "$CLI" "${view_args[@]}" \
+    >"$W/shim.out" 2>"$W/shim.err" &
+  PIDS+=($!)
+  for _ in $(seq 1 600); do
+    grep -q "serving http" "$W/shim.out" 2>/dev/null && break
+    sleep 0.1
+  done
+  url=$(grep -o 'http://[^ ]*/' "$W/shim.out" | head -1) || true
+  [ -n "$url" ] || { echo "FAIL: the shimmed viewer never served"; cat "$W/shim.out" "$W/shim.err"; exit 1; }
+  rank0=""
+  for p in $(pgrep -x adaptiso); do
+    grep -qz ADAPTISO_TEST_FAIL_NEW_BYTES "/proc/$p/environ" 2>/dev/null && rank0=$p
+  done
+  [ -n "$rank0" ] || { echo "FAIL: no shimmed rank 0"; exit 1; }
+  kill -USR1 "$rank0"
+  /usr/bin/env python3 - "$URL_mlone" "$url" <<'EOF'
+import sys, urllib.error, urllib.request
+one, shimmed = sys.argv[1:]
+def get(base, query):
+    try:
+        with urllib.request.urlopen(base + query, timeout=60) as r:
+            return r.status, r.read(), dict(r.headers)
+    except urllib.error.HTTPError as e:
+        return e.code, e.read(), dict(e.headers)
+s, body, _ = get(shimmed, 'api/surface?iso=0.5&distance=0&format=plain')
+assert s == 503, f'the failed allocation answered {s}: {body[:200]}'
+for q in ['api/surface?iso=0.3&distance=1&format=plain', 'api/surface?iso=0.6&distance=0.5&format=plain',
+          'api/surface?iso=0.5&distance=0&format=plain']:
+    s, body, h = get(shimmed, q)
+    assert s == 200, f'{q}: {s} {body[:200]} (one behind?)'
+    assert body == get(one, q)[1] and h['X-Rank'] == '1', q
+print('ok: a failed allocation on rank 0 cost one surface (503); the next three are the ones asked for')
+EOF
+fi
 
 # A volume is not served over ranks: one line, exit 2.
 set +e
