@@ -1,5 +1,6 @@
-// MPI ranks or one process (ranks.hpp). Payloads above 2 GiB per rank are refused rather than
-// split: the brick results a rank hands up are its share of one byte per voxel plus the seams.
+// MPI ranks or one process (ranks.hpp). A gather's payload above 2 GiB per rank is refused rather
+// than split: the brick results a rank hands up are its share of one byte per voxel plus the
+// seams. The other transfers go in pieces.
 #include "ranks.hpp"
 
 #include <fmt/format.h>
@@ -107,8 +108,10 @@ void each_piece(std::size_t bytes, F f, std::size_t piece = std::size_t{1} << 30
   for (std::size_t at = 0; at < bytes; at += piece) f(at, static_cast<int>(std::min(piece, bytes - at)));
 }
 
-// send_message's pieces: small enough that a receiver short of memory can still drain them.
-constexpr std::size_t kMessagePiece = std::size_t{64} << 20;
+// send_message's pieces: a receiver short of memory drains them through one buffer of this size,
+// held from its first message on (allocated when memory has just run out, it could fail too, and
+// the pieces left behind would then be taken for the next message's).
+constexpr std::size_t kMessagePiece = std::size_t{1} << 20;
 
 }  // namespace
 
@@ -167,21 +170,21 @@ int Ranks::poll_message(int from, int tag, std::vector<std::byte>& into) {
   MPI_Status status;
   MPI_Iprobe(from, tag < 0 ? MPI_ANY_TAG : tag, MPI_COMM_WORLD, &arrived, &status);
   if (!arrived) return -1;
+  drain_.resize(kMessagePiece);
   std::uint64_t size = 0;
   MPI_Recv(&size, 1, MPI_UINT64_T, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-  // An allocation that fails drains the pieces (64 MiB at a time) and throws: the message is lost
-  // to the caller, and the next one arrives whole.
+  // An allocation that fails drains the pieces and throws: the message is lost to the caller,
+  // and the next one arrives whole.
   try {
     into.resize(size);
   } catch (const std::bad_alloc&) {
-    std::vector<std::byte> piece;
     each_piece(
         size,
-        [&](std::size_t, int n) {  // drained piece by piece, so the next message is whole
-          piece.resize(static_cast<std::size_t>(n));
-          MPI_Recv(piece.data(), n, MPI_BYTE, status.MPI_SOURCE, kMessagePieceTag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+        [&](std::size_t, int n) {
+          MPI_Recv(drain_.data(), n, MPI_BYTE, status.MPI_SOURCE, kMessagePieceTag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
         },
         kMessagePiece);
+    exchanged_ += sizeof size + size;
     throw;
   }
   each_piece(

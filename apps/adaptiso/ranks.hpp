@@ -54,7 +54,7 @@ public:
   // Bytes from rank 0 to rank `to` (which receives them with receive(0, …)), in pieces likewise.
   void send_to(int to, std::span<const std::byte> bytes) override;
   // Tagged point-to-point messages of any size, for work handed out while rank 0 serves
-  // (view_ranks.hpp): a header with the size, then pieces of at most 64 MiB. With
+  // (view_ranks.hpp): a header with the size, then pieces of at most 1 MiB. With
   // serialized_threads() any thread may call these, one at a time (the caller serialises).
   void send_message(int to, int tag, std::span<const std::byte> bytes);
   // The first message from `from` with `tag` (any tag: -1) if one has arrived, its tag returned;
@@ -79,6 +79,7 @@ private:
   int rank_ = 0, size_ = 1;
   bool mpi_ = false, serialized_ = true;
   std::uint64_t exchanged_ = 0;
+  std::vector<std::byte> drain_;  // poll_message's: a message it cannot hold is received through it
 };
 
 }  // namespace adaptiso::cli

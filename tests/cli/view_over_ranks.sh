@@ -120,7 +120,8 @@ if [ -n "$SHIM" ]; then
   view_args=(view "$W/ml.adg" --port 0 --quiet --web "$WEB")
   "$MPIEXEC" -np 1 env LD_PRELOAD="$SHIM" ADAPTISO_TEST_FAIL_NEW_BYTES=100000 "$CLI" "${view_args[@]}" : -np 1 "$CLI" "${view_args[@]}" \
     >"$W/shim.out" 2>"$W/shim.err" &
-  PIDS+=($!)
+  shim_mpi=$!
+  PIDS+=($shim_mpi)
   for _ in $(seq 1 600); do
     grep -q "serving http" "$W/shim.out" 2>/dev/null && break
     sleep 0.1
@@ -128,7 +129,7 @@ if [ -n "$SHIM" ]; then
   url=$(grep -o 'http://[^ ]*/' "$W/shim.out" | head -1) || true
   [ -n "$url" ] || { echo "FAIL: the shimmed viewer never served"; cat "$W/shim.out" "$W/shim.err"; exit 1; }
   rank0=""
-  for p in $(pgrep -x adaptiso); do
+  for p in $(pgrep -P "$shim_mpi" -x adaptiso); do  # this job's ranks only
     grep -qz ADAPTISO_TEST_FAIL_NEW_BYTES "/proc/$p/environ" 2>/dev/null && rank0=$p
   done
   [ -n "$rank0" ] || { echo "FAIL: no shimmed rank 0"; exit 1; }
@@ -151,6 +152,7 @@ for q in ['api/surface?iso=0.3&distance=1&format=plain', 'api/surface?iso=0.6&di
     assert body == get(one, q)[1] and h['X-Rank'] == '1', q
 print('ok: a failed allocation on rank 0 cost one surface (503); the next three are the ones asked for')
 EOF
+  grep -q "fail_alloc_shim: failed an allocation" "$W/shim.err" || { echo "FAIL: the shim never fired"; cat "$W/shim.err"; exit 1; }
 fi
 
 # A volume is not served over ranks: one line, exit 2.
