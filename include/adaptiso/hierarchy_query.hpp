@@ -58,6 +58,7 @@ struct DistanceQueryStats {
 inline constexpr int kDefaultCollapseRounds = 2;
 inline constexpr int kMaxCollapseRounds = 16;
 
+class ShareTransport;  // select_shares.hpp
 namespace detail {
 struct HierarchyIndex;
 }
@@ -118,12 +119,27 @@ public:
   Mesh extract_within(double iso, double distance, DistanceQueryStats* stats = nullptr, int collapse_rounds = kDefaultCollapseRounds,
                       const std::atomic<bool>* cancel = nullptr) const;
 
+  // The same surface made by several processes together (issue 38): every process of `share`
+  // (select_shares.hpp) calls this with the same arguments on the same grid, and each returns the
+  // same mesh, byte for byte the one extract_within makes alone. The refinement's subtrees 12
+  // levels below the roots are dealt out by a hash of their place (the levels above are refined
+  // on every process, then again on process 0 with the owners' answers), the final walk's units
+  // in turn; process 0 assembles the mesh and sends it to the others, and each round of collapses
+  // probes a share of the collapses chosen. `stats` is the same on every process but its
+  // timings. Throws what extract_within throws, and whatever the transport throws; a process that
+  // fails mid-way (its memory) leaves the others waiting: the caller stops them (the command
+  // line: MPI_Abort).
+  Mesh extract_within(ShareTransport& share, double iso, double distance, DistanceQueryStats* stats = nullptr,
+                      int collapse_rounds = kDefaultCollapseRounds) const;
+
   double prepared_error() const;  // the smallest error a query can have
   const PreparedGrid& grid() const;
 
 private:
   std::shared_ptr<const PreparedGrid> grid_;
   std::unique_ptr<detail::HierarchyIndex> index_;
+  Mesh within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds, const std::atomic<bool>* cancel,
+              ShareTransport* share) const;
 };
 
 }  // namespace adaptiso

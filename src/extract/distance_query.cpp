@@ -59,7 +59,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <deque>
 #include <memory>
+#include <unordered_map>
 
 #include "adaptiso/error.hpp"
 #include "adaptiso/extractor.hpp"
@@ -68,6 +70,7 @@
 #include "extract/hierarchy_index.hpp"
 #include "extract/march_detail.hpp"
 #include "extract/triangle_cover.hpp"
+#include "grid/share_agree.hpp"
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"
 
@@ -180,12 +183,14 @@ inline constexpr auto kCornersOff = corners_off();
 // A tetrahedron inside the box during refinement: its corners and its edges' cut points (valid
 // where the edge is cut), and the tetrahedron it was split from (on the refinement's stack).
 constexpr int kEdgeOf[4][4] = {{-1, 0, 1, 2}, {0, -1, 3, 4}, {1, 3, -1, 5}, {2, 4, 5, -1}};
+struct Subtree;
 struct Node {
   Tet t;
   OrderState order;
   Corner c[4];
   Point cut[6];
   const Node* parent = nullptr;
+  Subtree* sub = nullptr;  // a subtree dealt to this process (Dealing), refined whole here
 };
 
 // The tetrahedra of the last probe's descent, root first.
@@ -544,12 +549,60 @@ struct Query {
   }
 };
 
+// ---- The refinement shared over processes (extract_within with a transport) ----
+//
+// The tetrahedra kDealtDepth levels below the roots are dealt out by a hash of their place, and
+// each process refines its own whole, recording their marks, tests and whether the surface shows
+// beneath them, not applying them. Above that depth every process refines alike, taking each dealt
+// tetrahedron as showing the surface: the answers only decide which marks are kept and which half
+// a look beneath searches next, so all processes meet the same dealt tetrahedra, all those one
+// process meets and perhaps more. Process 0 then gathers the records and refines the top levels
+// again with the owners' answers, taking the marks and tests of the dealt tetrahedra it meets:
+// one process's marks, which close_upwards turns into one process's selection.
+struct Subtree {
+  std::uint64_t key = 0;  // dealt_key
+  bool shows = false;
+  std::uint64_t tested = 0;
+  std::vector<std::int64_t> marks;  // as the refinement marks them, repeats included
+};
+struct Dealing {
+  enum class Pass { deal, finish };
+  Pass pass = Pass::deal;
+  int process = 0, processes = 1;
+  tbb::enumerable_thread_specific<std::deque<Subtree>> owned;  // deal: this process's, refined
+  std::unordered_map<std::uint64_t, Subtree> all;              // finish: every process's, by key
+};
+// 6·2^12 tetrahedra at most (cubes of a sixteenth of the lattice's side), most outside the box or
+// without a surface: enough to balance the processes, few enough that the levels above cost little.
+constexpr int kDealtDepth = 12;
+// A tetrahedron's place: the sum of its corners (four times its centre), unique among the
+// tetrahedra of one level, which do not overlap.
+std::uint64_t dealt_key(const Tet& t, std::int32_t S) {
+  const auto side = static_cast<std::uint64_t>(4) * static_cast<std::uint64_t>(S) + 1;
+  std::uint64_t sum[3];
+  for (int k = 0; k < 3; ++k) sum[k] = static_cast<std::uint64_t>(t[0][k] + t[1][k] + t[2][k] + t[3][k]);
+  return sum[0] + side * (sum[1] + side * sum[2]);
+}
+int dealt_owner(std::uint64_t key, int processes) {
+  std::uint64_t z = key + 0x9E3779B97F4A7C15ull;  // splitmix64: neighbours land on any process
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return static_cast<int>((z ^ (z >> 31)) % static_cast<std::uint64_t>(processes));
+}
+
 class Refine {
 public:
-  explicit Refine(const Query& q) : q_(q) {}
+  explicit Refine(const Query& q, Dealing* dealing = nullptr) : q_(q), dealing_(dealing) {}
 
-  void tetrahedron(const Tet& t, OrderState o, int depth) const {
+  void tetrahedron(const Tet& t, OrderState o, int depth, Subtree* sub = nullptr) const {
     if (tet_outside(q_.lat, t) || q_.cancelled()) return;  // cancelled: the caller throws
+    if (dealt_here(depth, sub)) {
+      const std::uint64_t key = dealt_key(t, q_.lat.S);
+      if (dealing_->pass == Dealing::Pass::finish) return void(take(key, [&](Subtree* s) { tetrahedron(t, o, depth, s); }));
+      if (dealt_owner(key, dealing_->processes) != dealing_->process) return;
+      sub = &dealing_->owned.local().emplace_back();
+      sub->key = key;
+    }
     Coord m;
     int i, j;
     if (!refinement(t, o, m, i, j)) return;  // a unit tetrahedron
@@ -557,11 +610,13 @@ public:
       std::uint32_t id;
       if (!worth_deciding(m, id)) return;  // before the corners' lookups: most of the box's lining stops here
       Node n{t, o, {}, {}};
+      n.sub = sub;
       for (int k = 0; k < 4; ++k) n.c[k] = q_.corner(t[static_cast<std::size_t>(k)]);
       for (int a = 0; a < 4; ++a)
         for (int b = a + 1; b < 4; ++b)
           if (q_.above(n.c[a].value) != q_.above(n.c[b].value)) n.cut[kEdgeOf[a][b]] = q_.cut(n.c[a], n.c[b]).p;
-      decide(n, m, i, j, id, depth);
+      const bool shows = decide(n, m, i, j, id, depth);
+      if (sub) sub->shows = shows;
       return;
     }
     // Across the box's far faces: split when the grid splits it, unless nothing beneath matters.
@@ -569,20 +624,71 @@ public:
     if (!q_.lining.may_cut(q_.lat, m, q_.iso)) return;
     const auto split = halves(t, o, m, i, j);  // no structured binding: clang 14 cannot capture one
     both(
-        depth, [&] { tetrahedron(split[0].tet, split[0].order, depth + 1); },
-        [&] { tetrahedron(split[1].tet, split[1].order, depth + 1); });
+        depth, sub, [&] { tetrahedron(split[0].tet, split[0].order, depth + 1, sub); },
+        [&] { tetrahedron(split[1].tet, split[1].order, depth + 1, sub); });
   }
 
 private:
   const Query& q_;
+  Dealing* dealing_;  // null: this process refines alone
   static constexpr int kParallelDepth = 14;
 
+  // A dealt subtree is refined by one thread (its record is its own), the levels above in parallel.
   template <class A, class B>
-  static void both(int depth, A&& a, B&& b) {
-    if (depth < kParallelDepth)
+  static void both(int depth, const Subtree* sub, A&& a, B&& b) {
+    if (depth < kParallelDepth && !sub)
       tbb::parallel_invoke(a, b);
     else
       a(), b();
+  }
+
+  bool dealt_here(int depth, const Subtree* sub) const { return dealing_ && depth == kDealtDepth && !sub; }
+  // At a dealt tetrahedron. Dealing: the owner refines it whole, recording; every process goes on
+  // as if it showed the surface. Finishing: its owner's record.
+  bool dealt(const Node& n, int depth) const {
+    const std::uint64_t key = dealt_key(n.t, q_.lat.S);
+    if (dealing_->pass == Dealing::Pass::finish)
+      return take(key, [&](Subtree* s) {
+        Node own = n;
+        own.sub = s;
+        s->shows = node(own, depth);
+      });
+    if (dealt_owner(key, dealing_->processes) != dealing_->process) return true;
+    Subtree& s = dealing_->owned.local().emplace_back();
+    s.key = key;
+    Node own = n;
+    own.sub = &s;
+    s.shows = node(own, depth);
+    return true;
+  }
+  // The record of dealt tetrahedron `key`, its marks and tests applied; refined here (`refine`
+  // filling a fresh record) if no process dealt it, which the top levels' walk rules out.
+  template <class Refine>
+  bool take(std::uint64_t key, Refine&& refine) const {
+    auto it = dealing_->all.find(key);
+    Subtree local;
+    Subtree* s = it != dealing_->all.end() ? &it->second : &local;
+    if (s == &local) refine(&local);
+    for (const std::int64_t v : s->marks)
+      if (q_.split.mark(v)) q_.marked.local().push_back(v);
+    q_.tested.local() += s->tested;
+    return s->shows;
+  }
+  // Diamond m split: recorded in a dealt subtree while dealing, else marked (not at all in the
+  // top levels while dealing: process 0 marks them when it finishes).
+  void mark(const Coord& m, Subtree* sub) const {
+    const std::int64_t v = q_.lat.index(m);
+    if (sub)
+      sub->marks.push_back(v);
+    else if (!dealing_ || dealing_->pass == Dealing::Pass::finish) {
+      if (q_.split.mark(v)) q_.marked.local().push_back(v);
+    }
+  }
+  void count_test(Subtree* sub) const {
+    if (sub)
+      ++sub->tested;
+    else if (!dealing_ || dealing_->pass == Dealing::Pass::finish)
+      ++q_.tested.local();
   }
 
   // Is the tetrahedron split in the grid, with a surface beneath?
@@ -595,6 +701,7 @@ private:
 
   // Does the surface show in this tetrahedron or beneath it, as the refinement leaves it?
   bool node(const Node& n, int depth) const {
+    if (dealt_here(depth, n.sub)) return dealt(n, depth);
     Coord m;
     int i, j;
     std::uint32_t id;
@@ -646,9 +753,9 @@ private:
     if (!split) return look_beneath(a, b, m, depth) || shows;
     bool found[2] = {false, false};
     both(
-        depth, [&] { found[0] = node(a, depth + 1); }, [&] { found[1] = node(b, depth + 1); });
+        depth, n.sub, [&] { found[0] = node(a, depth + 1); }, [&] { found[1] = node(b, depth + 1); });
     const bool keep = shows || found[0] || found[1];
-    if (keep && !q_.forced(id) && q_.split.mark(q_.lat.index(m))) q_.marked.local().push_back(q_.lat.index(m));
+    if (keep && !q_.forced(id)) mark(m, n.sub);
     return keep;
   }
 
@@ -667,7 +774,7 @@ private:
     if (!a_hides && !b_hides) return false;
     if (!node(a_hides ? a : b, depth + 1)) return false;
     node(a_hides ? b : a, depth + 1);
-    if (q_.split.mark(q_.lat.index(m))) q_.marked.local().push_back(q_.lat.index(m));
+    mark(m, a.sub);
     return true;
   }
 
@@ -685,7 +792,7 @@ private:
   // The tests of the top of this file.
   // longest2: the squared length of the tetrahedron's longest edge.
   bool splits(const Node& n, double longest2, const Corner& mid, int i, int j, const Point added[2], const bool cut[2]) const {
-    ++q_.tested.local();
+    count_test(n.sub);
     const auto code = static_cast<std::uint8_t>(q_.above(n.c[0].value) | (q_.above(n.c[1].value) << 1) | (q_.above(n.c[2].value) << 2) |
                                                 (q_.above(n.c[3].value) << 3));
     const double d2 = q_.distance * q_.distance;
@@ -974,7 +1081,10 @@ private:
 
 class Collapser {
 public:
-  Collapser(const Query& q, Mesh& mesh, double smallest) : q_(q), mesh_(mesh), d2_(q.distance * q.distance) {
+  // With `share`, every process holds the same mesh and chooses the same collapses; each probes
+  // its chunks of them (c ≡ process mod processes), and the verdicts are combined.
+  Collapser(const Query& q, Mesh& mesh, double smallest, ShareTransport* share)
+      : q_(q), mesh_(mesh), d2_(q.distance * q.distance), share_(share) {
     resize_big(at_, mesh.positions.size());
     for (std::size_t v = 0; v < at_.size(); ++v)
       for (int k = 0; k < 3; ++k) at_[v][k] = mesh.positions[v][k] / smallest;
@@ -988,12 +1098,16 @@ public:
     const std::vector<Collapse> chosen = choose(s);  // checks the flag first thing
     std::vector<std::uint8_t> pass(chosen.size(), 1);
     const std::size_t chunk = 256;
+    const std::size_t P = share_ ? static_cast<std::size_t>(share_->processes()) : 1,
+                      me = share_ ? static_cast<std::size_t>(share_->process()) : 0;
     tbb::parallel_for(std::size_t{0}, (chosen.size() + chunk - 1) / chunk, [&](std::size_t c) {
       ProbeTrail trail;  // the chosen collapses are in vertex order: neighbours mostly
       if (q_.cancelled()) return;
-      for (std::size_t i = c * chunk; i < std::min(chosen.size(), (c + 1) * chunk); ++i) pass[i] = probes_pass(s, chosen[i], trail);
+      const std::size_t end = std::min(chosen.size(), (c + 1) * chunk);
+      for (std::size_t i = c * chunk; i < end; ++i) pass[i] = c % P == me ? probes_pass(s, chosen[i], trail) : 0;
     });
     q_.throw_if_cancelled();  // before any collapse is applied: the probes of some were skipped
+    if (P > 1) share::combine_at_zero(*share_, std::span(pass), [](std::uint8_t& own, std::uint8_t theirs) { own |= theirs; });
     std::vector<std::uint8_t> dead(mesh_.triangles.size(), 0);
     std::size_t applied = 0;
     for (std::size_t i = 0; i < chosen.size(); ++i) {
@@ -1035,6 +1149,7 @@ private:
   const Query& q_;
   Mesh& mesh_;
   double d2_;
+  ShareTransport* share_;  // null: this process alone
   std::vector<Point> at_;  // voxels of the smallest spacing
   Stars stars_;
 
@@ -1178,9 +1293,9 @@ private:
 // (the next would remove fewer still at about the same cost: on the 512×512×120 MR head, whose
 // slices lie 3.7 voxels apart, the first round at 0.5 voxels removed 1.7 % of 5.4 M triangles in
 // 1.6 s, the second 0.8 % more in 0.85 s).
-std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds) {
+std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds, ShareTransport* share) {
   if (rounds == 0) return 0;
-  Collapser c(q, mesh, smallest);
+  Collapser c(q, mesh, smallest, share);
   std::size_t total = 0;
   for (int r = 0; r < rounds; ++r) {
     const std::size_t before = mesh.triangles.size(), n = c.round();
@@ -1220,8 +1335,81 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
 
 }  // namespace detail
 
+namespace detail {
+namespace {
+
+// Process 0: every process's dealt subtrees, by key. The others: theirs sent to it, as words (key,
+// shows, tests, marks' count, marks).
+void gather_dealt(ShareTransport& t, Dealing& d) {
+  if (t.process() != 0) {
+    std::vector<std::uint64_t> words;
+    for (const auto& part : d.owned)
+      for (const Subtree& s : part) {
+        words.insert(words.end(), {s.key, std::uint64_t{s.shows}, s.tested, s.marks.size()});
+        for (const std::int64_t v : s.marks) words.push_back(static_cast<std::uint64_t>(v));
+      }
+    share::send_vector(t, words);
+    return;
+  }
+  for (auto& part : d.owned)
+    for (Subtree& s : part) d.all.emplace(s.key, std::move(s));
+  for (int p = 1; p < t.processes(); ++p) {
+    const auto words = share::receive_vector<std::uint64_t>(t, p);
+    for (std::size_t i = 0; i + 4 <= words.size();) {
+      Subtree s;
+      s.key = words[i], s.shows = words[i + 1] != 0, s.tested = words[i + 2];
+      const std::uint64_t n = words[i + 3];
+      if (n > words.size() - i - 4) throw InputError(fmt::format("process {} sent a broken record of its share of the refinement", p));
+      s.marks.assign(words.begin() + static_cast<std::ptrdiff_t>(i + 4), words.begin() + static_cast<std::ptrdiff_t>(i + 4 + n));
+      i += 4 + n;
+      const std::uint64_t key = s.key;
+      d.all.emplace(key, std::move(s));
+    }
+  }
+}
+
+// Process 0: the walk's units f ≡ p (mod processes) from each process p, as words (keys' count,
+// leaves, visited, keys); the others send theirs.
+void gather_found(ShareTransport& t, std::vector<Found>& found) {
+  const auto P = static_cast<std::size_t>(t.processes());
+  if (t.process() != 0) {
+    std::vector<std::uint64_t> words;
+    for (std::size_t f = static_cast<std::size_t>(t.process()); f < found.size(); f += P) {
+      words.insert(words.end(), {found[f].keys.size(), found[f].leaves, found[f].visited});
+      words.insert(words.end(), found[f].keys.begin(), found[f].keys.end());
+    }
+    share::send_vector(t, words);
+    return;
+  }
+  for (int p = 1; p < t.processes(); ++p) {
+    const auto words = share::receive_vector<std::uint64_t>(t, p);
+    std::size_t i = 0;
+    for (std::size_t f = static_cast<std::size_t>(p); f < found.size(); f += P) {
+      if (i + 3 > words.size() || words[i] > words.size() - i - 3)
+        throw InputError(fmt::format("process {} sent a broken record of its share of the walk", p));
+      const std::uint64_t n = words[i];
+      found[f].leaves = words[i + 1], found[f].visited = words[i + 2];
+      found[f].keys.assign(words.begin() + static_cast<std::ptrdiff_t>(i + 3), words.begin() + static_cast<std::ptrdiff_t>(i + 3 + n));
+      i += 3 + n;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace detail
+
 Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds,
                                     const std::atomic<bool>* cancel) const {
+  return within(iso, distance, stats, collapse_rounds, cancel, nullptr);
+}
+
+Mesh HierarchyQuery::extract_within(ShareTransport& share, double iso, double distance, DistanceQueryStats* stats,
+                                    int collapse_rounds) const {
+  return within(iso, distance, stats, collapse_rounds, nullptr, &share);
+}
+
+Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds, const std::atomic<bool>* cancel,
+                            ShareTransport* share) const {
   using namespace detail;
   using Clock = std::chrono::steady_clock;
   if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
@@ -1257,12 +1445,32 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
                 marked,
                 tested,
                 cancel};
-  const Refine refine(q);
+  // Shared: every process refines its dealt subtrees, process 0 the top levels with their answers
+  // (Dealing), and its marks reach every process.
+  const bool shared = share && share->processes() > 1;
+  const std::size_t P = shared ? static_cast<std::size_t>(share->processes()) : 1,
+                    me = shared ? static_cast<std::size_t>(share->process()) : 0;
+  Dealing dealing;
+  dealing.process = static_cast<int>(me), dealing.processes = static_cast<int>(P);
+  const Refine refine(q, shared ? &dealing : nullptr);
   const auto roots = root_tetrahedra(lat.S);
-  tbb::parallel_for(0, 6, [&](int r) { refine.tetrahedron(roots[static_cast<std::size_t>(r)], root_order(r), 0); });
+  const auto refine_roots = [&] {
+    tbb::parallel_for(0, 6, [&](int r) { refine.tetrahedron(roots[static_cast<std::size_t>(r)], root_order(r), 0); });
+  };
+  refine_roots();
   q.throw_if_cancelled();  // the marks go back cleared however the query ends (Lease)
+  if (shared) {
+    gather_dealt(*share, dealing);
+    dealing.pass = Dealing::Pass::finish;
+    if (me == 0) refine_roots();
+  }
   std::vector<std::int64_t> pending;
   for (auto& part : marked) pending.insert(pending.end(), part.begin(), part.end());
+  if (shared) {
+    share::broadcast_vector(*share, pending);
+    if (me != 0)
+      for (const std::int64_t v : pending) split.mark(v);
+  }
   const std::size_t refined = pending.size();
   const std::size_t closure = close_upwards(q, std::move(pending));
   const auto t1 = Clock::now();
@@ -1272,7 +1480,7 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
   const Frontier top = walk.frontier(10);
   std::vector<Found> found(top.roots.size());
   tbb::parallel_for(std::size_t{0}, top.roots.size(), [&](std::size_t f) {
-    if (q.cancelled()) return;
+    if (q.cancelled() || f % P != me) return;  // shared: process p walks the units f ≡ p
     walk.visit(
         top.roots[f], index_->numbers, g.values,
         [&](const Tet&, const Corners& c, std::int64_t) {
@@ -1283,23 +1491,34 @@ Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQuerySt
   });
   const auto t2 = Clock::now();
   q.throw_if_cancelled();
+  if (shared) gather_found(*share, found);
   Mesh mesh;
-  const SnapRemap remap(q);
-  assemble(q, found, remap, mesh);
-  std::size_t marched = 0, visited = top.roots.size() + top.splits.size();
-  for (const Found& f : found) marched += f.leaves, visited += f.visited;
-  std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
-  // Clipped before the collapses: its cut points on the volume's far faces are border vertices,
-  // which the collapses keep as they keep every border, so the surface still ends on the box.
-  clip_to_volume_box(mesh, g.source);
+  std::uint64_t counts[3] = {0, top.roots.size() + top.splits.size(), tested.combine(std::plus<>())};  // marched, visited, tested
+  if (me == 0) {
+    const SnapRemap remap(q);
+    assemble(q, found, remap, mesh);
+    for (const Found& f : found) counts[0] += f.leaves, counts[1] += f.visited;
+    std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
+    // Clipped before the collapses: its cut points on the volume's far faces are border vertices,
+    // which the collapses keep as they keep every border, so the surface still ends on the box.
+    clip_to_volume_box(mesh, g.source);
+  }
+  if (shared) {  // process 0's surface and counts on every process, for the collapses
+    std::vector<Found>().swap(found);
+    share::broadcast_vector(*share, mesh.positions);
+    share::broadcast_vector(*share, mesh.normals);
+    share::broadcast_vector(*share, mesh.triangles);
+    share->broadcast(std::as_writable_bytes(std::span(counts)));
+  }
+  const std::size_t marched = counts[0], visited = counts[1];
   const auto t4 = Clock::now();
-  const std::size_t collapsed = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds) : 0;
+  const std::size_t collapsed = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr) : 0;
   if (stats) {
     stats->iso = iso;
     stats->distance = distance;
     stats->tetrahedra = marched;
     stats->visited = visited;
-    stats->tested = tested.combine(std::plus<>());
+    stats->tested = counts[2];
     stats->refined = refined + closure;
     stats->closure = closure;
     stats->triangles = mesh.triangle_count();

@@ -85,4 +85,29 @@ inline void agree_first_failure(ShareTransport& t, const std::exception_ptr& fai
   throw InputError(first == 0 ? message : fmt::format("{} (process {})", message, first));
 }
 
+// A vector of any length from this process (not 0) to process 0, which takes it with
+// receive_vector: its length, then its elements.
+template <class T>
+void send_vector(ShareTransport& t, const std::vector<T>& v) {
+  const std::uint64_t n = v.size();
+  t.send(std::as_bytes(std::span(&n, 1)));
+  t.send(std::as_bytes(std::span(v)));
+}
+template <class T>
+std::vector<T> receive_vector(ShareTransport& t, int from) {
+  std::uint64_t n = 0;
+  t.receive(from, std::as_writable_bytes(std::span(&n, 1)));
+  std::vector<T> v(n);
+  t.receive(from, std::as_writable_bytes(std::span(v)));
+  return v;
+}
+// Process 0's vector, of any length, on every process.
+template <class T>
+void broadcast_vector(ShareTransport& t, std::vector<T>& v) {
+  std::uint64_t n = v.size();
+  t.broadcast(std::as_writable_bytes(std::span(&n, 1)));
+  if (t.process() != 0) v.resize(n);
+  t.broadcast(std::as_writable_bytes(std::span(v)));
+}
+
 }  // namespace adaptiso::detail::share

@@ -2,8 +2,9 @@
 # `mpirun -np N adaptiso extract` shares the iso-values out over the ranks (rank r takes r, r + N,
 # …) and writes the meshes one process writes, byte for byte, for N = 2, 3, 4 (oversubscribed) on
 # every route: a scan (a few values a rank), the sweeping index (more), a distance with and without
-# collapses, a coarser error, and --simplify; a rank without an iso-value of its own; --json in
-# the values' order with what each rank did. A rank that cannot write its mesh names itself, exit
+# collapses, a coarser error, and --simplify; a rank without an iso-value of its own; surfaces at
+# a distance made by all ranks together (--rank-share surfaces, and auto's last n mod N values);
+# --json in the values' order with what each rank did. A rank that cannot write its mesh names itself, exit
 # 2, and no mesh of any rank reaches its name; nor when a rank is killed mid-run (issue 38); a
 # rank that alone cannot open its grid, or whose memory limit alone refuses it, is heard.
 # Usage: extract_over_ranks.sh ADAPTISO MPIEXEC
@@ -16,6 +17,9 @@ source "$(dirname "$0")/ranks_common.sh" "$@"
 # 23×17×9 uint8 noise, anisotropic spacing.
 noise_raw 2468 $((23 * 17 * 9)) "$W/noise.raw"
 "$CLI" prepare "$W/noise.raw" --dims 23,17,9 --type uint8 --spacing 1,0.7,2.5 --quiet -o "$W/noise.adg"
+# Refined below the depth whose subtrees are dealt out when ranks make a surface together.
+"$CLI" generate noise --size 64 --quiet -o "$W/n.nrrd"
+"$CLI" prepare "$W/n.nrrd" --quiet -o "$W/n.adg"
 
 check() {  # NAME GRID [extract options...]
   local name=$1 grid=$2
@@ -39,6 +43,9 @@ check sweep "$W/ml.adg" --iso 0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,0.35,0.65 --re
 check one-value "$W/ml.adg" --iso 0.5 --relative
 check distance "$W/ml.adg" --iso 0.3,0.5,0.7 --relative --distance 1
 check distance-no-collapse "$W/noise.adg" --iso 60,128,200 --distance 0.5 --collapse 0
+check distance-together "$W/n.adg" --iso 0.35,0.5 --relative --distance 0.5 --rank-share surfaces
+check distance-together-no-collapse "$W/noise.adg" --iso 60,128 --distance 0.5 --collapse 0 --rank-share surfaces
+check distance-in-turn "$W/n.adg" --iso 0.35,0.5,0.6 --relative --distance 1 --rank-share values
 check coarser "$W/noise.adg" --iso 60,90,128,160,200 --max-error 40
 check simplified "$W/noise.adg" --iso 90,128,160 --simplify 0.5
 
@@ -51,7 +58,9 @@ isos = [s['iso'] for s in j['surfaces']]
 assert isos == sorted(isos) and len(isos) == 4, isos
 assert [s['output'].rsplit('-', 1)[1] for s in j['surfaces']] == ['0.1.ply', '0.3.ply', '0.5.ply', '0.7.ply'], j['surfaces']
 r = j['ranks']
-assert r['ranks'] == 3 and r['iso_values_per_rank'] == [2, 1, 1], r
+# auto: 0.1, 0.3, 0.5 dealt in turn, 0.7 made by the three together
+assert r['ranks'] == 3 and r['iso_values_per_rank'] == [2, 2, 2], r
+assert r['iso_values_dealt'] == 3 and r['iso_values_made_together'] == 1, r
 assert len(r['peak_bytes_per_rank']) == 3 and all(p > 0 for p in r['peak_bytes_per_rank']), r
 assert len(r['load_seconds_per_rank']) == 3 and r['bytes_exchanged'] > 0, r
 print('ok: --json', r['iso_values_per_rank'])" "$W/j.json"
@@ -94,9 +103,13 @@ lone_failure "adaptiso: .*absent.adg: no such file (process 1)" "a rank alone un
 lone_failure "adaptiso (rank 1): .*ml.adg: loading a grid of" "a rank whose own memory limit refuses the load" "$W/ml.adg" --memory-limit 1M
 
 # A rank killed mid-run: mpirun fails and no mesh appears under its name.
-"$CLI" generate noise --size 64 --quiet -o "$W/n.nrrd"
-"$CLI" prepare "$W/n.nrrd" --quiet -o "$W/n.adg"
 mkdir -p "$W/killed"
 kill_a_rank 1 "$CLI" extract "$W/n.adg" --iso 0.3,0.4,0.5,0.6 --relative --distance 0.5 --threads 1 --quiet -o "$W/killed/s.ply"
 [ -z "$(ls -A "$W/killed")" ] || { echo "FAIL: a killed run left files"; ls -la "$W/killed"; exit 1; }
 echo "ok: a killed rank leaves no mesh (mpirun exit $killed_code)"
+# The same while the ranks make each surface together (a rank waits in the exchange for the dead one).
+mkdir -p "$W/killed-together"
+kill_a_rank 1 "$CLI" extract "$W/n.adg" --iso 0.3,0.4,0.5,0.6 --relative --distance 0.5 --threads 1 --rank-share surfaces --quiet \
+  -o "$W/killed-together/s.ply"
+[ -z "$(ls -A "$W/killed-together")" ] || { echo "FAIL: a killed run left files"; ls -la "$W/killed-together"; exit 1; }
+echo "ok: a rank killed while the ranks make surfaces together leaves no mesh (mpirun exit $killed_code)"

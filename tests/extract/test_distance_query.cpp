@@ -14,6 +14,7 @@
 #include <functional>
 #include <random>
 #include <set>
+#include <thread>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
@@ -22,6 +23,7 @@
 #include "adaptiso/volume_io.hpp"
 #include "extract/hierarchy_index.hpp"
 #include "extract/triangle_cover.hpp"
+#include "grid/thread_transport.hpp"
 #include "test_util.hpp"
 
 using namespace adaptiso;
@@ -257,6 +259,59 @@ TEST(DistanceQuery, CollapsesAcrossVertexBlocksAreTheSameForAnyThreadCount) {
   const auto census = testutil::edge_census(one, v.dims, v.spacing);
   EXPECT_EQ(census.nonmanifold, 0u);
   EXPECT_EQ(census.misoriented, 0u);
+}
+
+// The same surface made by 2, 3 and 4 processes together (threads playing them): one process's,
+// byte for byte, with its counts, and no message left unread. Fields whose refinement goes below
+// the dealt depth (12 levels: cubes of a sixteenth of the lattice), odd, anisotropic and thin.
+TEST(DistanceQuery, ProcessesTogetherMakeOneProcesssSurface) {
+  std::mt19937 rng(17);
+  Volume noise = make_volume({23, 14, 9}, ScalarType::f32);
+  for (std::int64_t i = 0; i < noise.voxel_count(); ++i) noise.set(i, std::sin(0.07 * double(i)) + 0.3 * double(rng() % 100) / 100);
+  Volume lobb = make_synthetic("marschner-lobb", 41, ScalarType::f32);
+  lobb.spacing = {1.0, 0.8, 1.3};
+  Volume thin = field({70, 33, 2}, {1, 1, 1}, [](double x, double y, double z) { return std::sin(0.3 * x) * std::cos(0.2 * y) + 0.1 * z; });
+  Volume torus = make_synthetic("torus", 65, ScalarType::f32);
+  for (const Volume* v : {&noise, &lobb, &thin, &torus}) {
+    const auto grid = testutil::prepared_at(*v, 0.01, true);
+    const HierarchyQuery query(grid);
+    const ValueRange r = value_range(*v);
+    for (double f : {0.35, 0.6})
+      for (double distance : {0.0, 0.5, 2.0})
+        for (int rounds : {0, 2}) {
+          const double iso = r.min + f * (r.max - r.min);
+          DistanceQueryStats alone_st;
+          const Mesh alone = query.extract_within(iso, distance, &alone_st, rounds);
+          for (int P : {2, 3, 4}) {
+            testutil::Hub hub;
+            std::vector<Mesh> got(static_cast<std::size_t>(P));
+            std::vector<DistanceQueryStats> st(static_cast<std::size_t>(P));
+            std::vector<std::thread> processes;
+            for (int p = 0; p < P; ++p)
+              processes.emplace_back([&, p] {
+                testutil::ThreadTransport t(hub, p, P);
+                const auto i = static_cast<std::size_t>(p);
+                got[i] = query.extract_within(t, iso, distance, &st[i], rounds);
+              });
+            for (auto& th : processes) th.join();
+            const std::string what = fmt::format("{}x{}x{} iso {} distance {} rounds {} processes {}", v->dims[0], v->dims[1], v->dims[2],
+                                                 iso, distance, rounds, P);
+            EXPECT_EQ(hub.left(), 0u) << what;
+            for (int p = 0; p < P; ++p) {
+              const auto i = static_cast<std::size_t>(p);
+              ASSERT_EQ(got[i].triangles, alone.triangles) << what << " process " << p;
+              EXPECT_EQ(got[i].positions, alone.positions) << what;
+              EXPECT_EQ(got[i].normals, alone.normals) << what;
+              EXPECT_EQ(st[i].tested, alone_st.tested) << what;
+              EXPECT_EQ(st[i].refined, alone_st.refined) << what;
+              EXPECT_EQ(st[i].closure, alone_st.closure) << what;
+              EXPECT_EQ(st[i].visited, alone_st.visited) << what;
+              EXPECT_EQ(st[i].tetrahedra, alone_st.tetrahedra) << what;
+              EXPECT_EQ(st[i].collapsed, alone_st.collapsed) << what;
+            }
+          }
+        }
+  }
 }
 
 TEST(DistanceQuery, ConcurrentQueriesGiveWhatEachGivesAlone) {
