@@ -685,10 +685,12 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
       .def(
           "extract",
           [](py::handle self, double iso, std::optional<double> max_error, bool relative, std::optional<double> distance,
-             std::optional<int> collapse) {
+             std::optional<int> collapse, const py::object& comm) {
             Grid& g = grid_of(self);
             if (max_error && distance) throw py::value_error("max_error and distance: give one of them");
             if (collapse && !distance) throw py::value_error("collapse needs distance");
+            if (!comm.is_none() && !distance) throw py::value_error("comm needs distance: only surfaces at a distance are made together");
+            const auto together = python::comm_transport(comm);  // null for one process
             Mesh mesh;
             std::optional<HierarchyQueryStats> query;
             std::optional<DistanceQueryStats> within;
@@ -701,9 +703,13 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
               if (distance) {
                 within.emplace();
                 const auto hierarchy = g.hierarchy();
-                interruptible([&](const std::atomic<bool>* cancel) {
-                  mesh = hierarchy->extract_within(value, *distance, &*within, collapse.value_or(kDefaultCollapseRounds), cancel);
-                });
+                const int rounds = collapse.value_or(kDefaultCollapseRounds);
+                if (together)  // collective: not cancelled on one process alone
+                  mesh = hierarchy->extract_within(*together, value, *distance, &*within, rounds);
+                else
+                  interruptible([&](const std::atomic<bool>* cancel) {
+                    mesh = hierarchy->extract_within(value, *distance, &*within, rounds, cancel);
+                  });
               } else if (max_error) {
                 const double e = relative ? from_fraction(range, *max_error, FractionOf::width, "max_error") : *max_error;
                 query.emplace();
@@ -720,8 +726,8 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
             return make_mesh(std::move(mesh), within ? distance_stats(*within) : query ? query_stats(*query) : extract_stats(*full));
           },
           py::arg("iso"), py::arg("max_error") = py::none(), py::arg("relative") = false, py::arg("distance") = py::none(),
-          py::arg("collapse") = py::none(),
-          R"(extract(iso, max_error=None, relative=False, distance=None, collapse=None) -> Mesh
+          py::arg("collapse") = py::none(), py::arg("comm") = py::none(),
+          R"(extract(iso, max_error=None, relative=False, distance=None, collapse=None, comm=None) -> Mesh
 
 The iso-surface at iso as a Mesh, which unpacks as (vertices float32 (N, 3), faces uint32 (M, 3),
 normals float32 (N, 3)): world coordinates (x, y, z), faces counter-clockwise seen from the side
@@ -734,6 +740,10 @@ collapse (with distance): up to this many rounds of edge collapses after the mar
 by the same tests (a quarter fewer triangles a round on the CT scans measured, 1-2 % on MR with
 thick slices; a round removing under a sixteenth is the last; default 2); 0 keeps every triangle
 inside its tetrahedron. ValueError outside 0..16.
+comm (with distance): an mpi4py communicator whose every process calls extract with the same
+arguments on the same grid: they make the surface together (the refinement, the walk and the
+collapses' probes shared out) and each gets the mesh one process makes, byte for byte (the CT
+bunny over 2 processes, one thread each: about 1.5x one's speed). Collective; not stopped by Ctrl-C.
 relative: iso (and max_error) as fractions of the value range. Safe to call from several threads.
 Ctrl-C stops it (KeyboardInterrupt) within about 0.1 s.)")
       .def(

@@ -4,7 +4,8 @@ Every rank prepares from a memmap of the same .npy file, or from the same volume
 rank given "other_shape" a different volume, one given "bad_option" a bad gradients name, to check
 that errors reach every rank) and rank 0 saves the grid; or (route "load") every rank loads the same
 grid file with comm (one rank given another file or other lazy=, to check that all refuse alike)
-and extracts a surface at a distance into OUTPUT.rank-R.npz. Each rank writes one line to OUTPUT.rank-R ("rank R: ok" or "rank R:
+and extracts a surface at a distance into OUTPUT.rank-R.npz (and with "together", the same
+surface made by all ranks with comm, into OUTPUT.rank-R.together.npz). Each rank writes one line to OUTPUT.rank-R ("rank R: ok" or "rank R:
 ErrorType: message"): mpiexec may interleave the ranks' standard outputs within a line.
 """
 import json
@@ -32,6 +33,9 @@ if job["route"] == "load":  # every rank loads a grid (rank "other_grid_rank" an
         grid = adaptiso.load(path, lazy=lazy, comm=comm)
         mesh = grid.extract(job["iso"], distance=job["distance"])
         np.savez(f"{job['output']}.rank-{rank}.npz", vertices=mesh.vertices, faces=mesh.faces)
+        if job.get("together"):  # the same surface made by all the ranks together
+            made = grid.extract(job["iso"], distance=job["distance"], comm=comm)
+            np.savez(f"{job['output']}.rank-{rank}.together.npz", vertices=made.vertices, faces=made.faces, normals=made.normals)
         if job.get("full"):  # the tetrahedra too (read later by a lazy load, each rank alone)
             full = grid.extract(job["iso"])
             np.savez(f"{job['output']}.rank-{rank}.full.npz", vertices=full.vertices, faces=full.faces)

@@ -187,11 +187,14 @@ def test_load_over_mpi_ranks_gives_every_rank_the_one_process_grid(tmp_path, ran
     expected, expected_full = one.extract(0.6, distance=0.5), one.extract(0.6)
     out = tmp_path / "load"
     lines = mpi_run(tmp_path, ranks, {"route": "load", "grid": str(grid), "lazy": lazy, "iso": 0.6, "distance": 0.5, "full": True,
-                                      "output": str(out)})
+                                      "together": True, "output": str(out)})
     assert lines == [f"rank {r}: ok" for r in range(ranks)]
     for r in range(ranks):
-        for got, want in [(np.load(f"{out}.rank-{r}.npz"), expected), (np.load(f"{out}.rank-{r}.full.npz"), expected_full)]:
+        for got, want in [(np.load(f"{out}.rank-{r}.npz"), expected), (np.load(f"{out}.rank-{r}.full.npz"), expected_full),
+                          (np.load(f"{out}.rank-{r}.together.npz"), expected)]:
             assert np.array_equal(got["vertices"], want.vertices) and np.array_equal(got["faces"], want.faces), r
+        # extract(distance=, comm=): the surface the ranks made together is one process's, normals too
+        assert np.array_equal(np.load(f"{out}.rank-{r}.together.npz")["normals"], expected.normals), r
 
 
 @needs_mpi
@@ -280,6 +283,17 @@ def test_bad_bricks_and_communicators_are_refused():
         adaptiso.prepare(v, grid="delaunay", brick_side=8)
     with pytest.raises(TypeError, match="comm: must be an mpi4py communicator"):
         adaptiso.prepare(v, comm=object())
+
+
+def test_extract_with_a_communicator_needs_a_distance_and_with_one_process_is_a_plain_extract(tmp_path):
+    grid, _ = distance_grids(tmp_path)
+    g = adaptiso.load(grid)
+    with pytest.raises(ValueError, match="comm needs distance"):
+        g.extract(0.6, comm=OneProcess())
+    alone, made = g.extract(0.6, distance=0.5), g.extract(0.6, distance=0.5, comm=OneProcess())
+    assert np.array_equal(alone.vertices, made.vertices) and np.array_equal(alone.faces, made.faces)
+    with pytest.raises(TypeError):
+        g.extract(0.6, distance=0.5, comm=object())
 
 
 def test_load_with_a_communicator_of_one_is_a_plain_load_and_another_object_is_refused(tmp_path):

@@ -54,6 +54,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <bit>
 #include <chrono>
@@ -1338,6 +1339,24 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
 namespace detail {
 namespace {
 
+// Every process asks for the same surface of grids of the same shape, or all refuse: the process
+// that differs with its own message, the others naming it (share::agree). Otherwise their shares
+// would be of different surfaces, and the mesh none of them.
+void agree_on_the_surface(ShareTransport& t, double iso, double distance, int rounds, std::size_t vertices, const Lattice& lat) {
+  const std::array<std::uint64_t, 7> mine{
+      std::bit_cast<std::uint64_t>(iso),    std::bit_cast<std::uint64_t>(distance), static_cast<std::uint64_t>(rounds),  vertices,
+      static_cast<std::uint64_t>(lat.X[0]), static_cast<std::uint64_t>(lat.X[1]),   static_cast<std::uint64_t>(lat.X[2])};
+  auto zero = mine;
+  t.broadcast(std::as_writable_bytes(std::span(zero)));
+  std::exception_ptr failed;
+  if (zero != mine)
+    failed = std::make_exception_ptr(InputError(fmt::format(
+        "process {} asked for another surface than process 0 (iso {}, distance {}, {} rounds of collapses, a grid of {} vertices; "
+        "process 0: iso {}, distance {}, {} rounds, {} vertices): every process must ask for the same surface of the same grid",
+        t.process(), iso, distance, rounds, vertices, std::bit_cast<double>(zero[0]), std::bit_cast<double>(zero[1]), zero[2], zero[3])));
+  share::agree(t, failed, "the surface made together");
+}
+
 // Process 0: every process's dealt subtrees, by key. The others: theirs sent to it, as words (key,
 // shows, tests, marks' count, marks).
 void gather_dealt(ShareTransport& t, Dealing& d) {
@@ -1450,6 +1469,7 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   const bool shared = share && share->processes() > 1;
   const std::size_t P = shared ? static_cast<std::size_t>(share->processes()) : 1,
                     me = shared ? static_cast<std::size_t>(share->process()) : 0;
+  if (shared) agree_on_the_surface(*share, iso, distance, collapse_rounds, g.vertex_count(), lat);
   Dealing dealing;
   dealing.process = static_cast<int>(me), dealing.processes = static_cast<int>(P);
   const Refine refine(q, shared ? &dealing : nullptr);

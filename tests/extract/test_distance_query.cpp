@@ -314,6 +314,40 @@ TEST(DistanceQuery, ProcessesTogetherMakeOneProcesssSurface) {
   }
 }
 
+// A process asking for another surface (iso, distance, rounds) or holding a grid of another shape
+// is refused on every process, before any share is made: it with its own message, the others
+// naming it (regression guard: the shares would be of different surfaces, the mesh none of them).
+TEST(DistanceQuery, ProcessesAskingForDifferentSurfacesAreRefusedByAll) {
+  const Volume v = make_synthetic("torus", 33, ScalarType::f32);
+  const Volume w = make_synthetic("torus", 35, ScalarType::f32);
+  const auto grid = testutil::prepared_at(v, 0.01, true), other = testutil::prepared_at(w, 0.01, true);
+  const HierarchyQuery query(grid), other_query(other);
+  struct Ask {
+    double iso, distance;
+    int rounds;
+    const HierarchyQuery* q;
+  };
+  for (const Ask odd : {Ask{0.45, 1, 2, &query}, Ask{0.4, 2, 2, &query}, Ask{0.4, 1, 1, &query}, Ask{0.4, 1, 2, &other_query}}) {
+    testutil::Hub hub;
+    std::vector<std::string> said(3);
+    std::vector<std::thread> processes;
+    for (int p = 0; p < 3; ++p)
+      processes.emplace_back([&, p] {
+        testutil::ThreadTransport t(hub, p, 3);
+        const Ask a = p == 2 ? odd : Ask{0.4, 1, 2, &query};
+        try {
+          a.q->extract_within(t, a.iso, a.distance, nullptr, a.rounds);
+        } catch (const InputError& e) {
+          said[static_cast<std::size_t>(p)] = e.what();
+        }
+      });
+    for (auto& th : processes) th.join();
+    EXPECT_NE(said[2].find("process 2 asked for another surface than process 0"), std::string::npos) << said[2];
+    for (int p : {0, 1}) EXPECT_NE(said[static_cast<std::size_t>(p)].find("process 2 cannot take its share"), std::string::npos) << said[p];
+    EXPECT_EQ(hub.left(), 0u);
+  }
+}
+
 TEST(DistanceQuery, ConcurrentQueriesGiveWhatEachGivesAlone) {
   // Queries share the index and its pool of marks.
   const Volume v = make_synthetic("torus", 49, ScalarType::f32);
