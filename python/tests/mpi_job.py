@@ -34,7 +34,8 @@ if job["route"] == "load":  # every rank loads a grid (rank "other_grid_rank" an
         mesh = grid.extract(job["iso"], distance=job["distance"])
         np.savez(f"{job['output']}.rank-{rank}.npz", vertices=mesh.vertices, faces=mesh.faces)
         if job.get("together"):  # the same surface made by all the ranks together
-            made = grid.extract(job["iso"], distance=job["distance"], comm=comm)
+            iso = job["iso"] + (0.01 if rank == job.get("other_iso_rank", -1) else 0)
+            made = grid.extract(iso, distance=job["distance"], comm=comm)
             np.savez(f"{job['output']}.rank-{rank}.together.npz", vertices=made.vertices, faces=made.faces, normals=made.normals)
         if job.get("full"):  # the tetrahedra too (read later by a lazy load, each rank alone)
             full = grid.extract(job["iso"])

@@ -198,6 +198,17 @@ def test_load_over_mpi_ranks_gives_every_rank_the_one_process_grid(tmp_path, ran
 
 
 @needs_mpi
+def test_a_rank_asking_for_another_surface_to_make_together_raises_on_every_rank(tmp_path):
+    grid, _ = distance_grids(tmp_path)
+    out = tmp_path / "other-iso"
+    lines = mpi_run(tmp_path, 3, {"route": "load", "grid": str(grid), "lazy": True, "iso": 0.6, "distance": 0.5, "together": True,
+                                  "other_iso_rank": 1, "output": str(out)})
+    assert lines[1].startswith("rank 1: ValueError: process 1 asked for another surface than process 0"), lines
+    for r in (0, 2):
+        assert lines[r].startswith(f"rank {r}: ValueError: process 1 cannot take its share of the surface made together"), lines
+
+
+@needs_mpi
 @pytest.mark.parametrize("other, key, value, lazy", [
     ("grid", "other_grid_rank", 1, True), ("grid", "other_grid_rank", 0, False), (None, "other_lazy_rank", 2, True),
     ("absent", "other_grid_rank", 2, True), ("absent", "other_grid_rank", 1, False), ("noise", "other_grid_rank", 1, True),
