@@ -743,8 +743,13 @@ inside its tetrahedron. ValueError outside 0..16.
 comm (with distance): an mpi4py communicator whose every process calls extract with the same
 arguments on the same grid: they make the surface together (the refinement, the walk and the
 collapses' probes shared out) and each gets the mesh one process makes, byte for byte (the CT
-bunny over 2 processes, one thread each: about 1.5x one's speed). Collective; not stopped by Ctrl-C.
-relative: iso (and max_error) as fractions of the value range. Safe to call from several threads.
+bunny over 2 processes, one thread each: about 1.5x one's speed). Collective: calls with one
+communicator are made in the same order on every process, one at a time (their messages would
+mix), and are not stopped by Ctrl-C; a process that dies mid-call leaves the others waiting (run
+under `python -m mpi4py`, which then stops the job). A process asking for another surface, or
+holding a grid of another shape, makes every process raise ValueError.
+relative: iso (and max_error) as fractions of the value range. Safe to call from several threads
+(without comm).
 Ctrl-C stops it (KeyboardInterrupt) within about 0.1 s.)")
       .def(
           "extractor",

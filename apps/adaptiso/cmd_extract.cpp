@@ -224,12 +224,14 @@ nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const Mes
 struct DistanceFlags {
   double distance = -1;
   int collapse = kDefaultCollapseRounds;
+  CLI::Option* option = nullptr;  // --distance, for the options that need it
   bool given() const { return distance >= 0; }
   void add(CLI::App* cmd) {
-    auto* d = cmd->add_option("--distance", distance,
-                              "Bisection grids: the fewest triangles within about this distance of the grid's surface (voxels of the "
-                              "smallest spacing), refined where this surface needs it")
-                  ->check(non_negative_number());
+    auto* d = option =
+        cmd->add_option("--distance", distance,
+                        "Bisection grids: the fewest triangles within about this distance of the grid's surface (voxels of the "
+                        "smallest spacing), refined where this surface needs it")
+            ->check(non_negative_number());
     cmd->add_option("--collapse", collapse,
                     fmt::format("With --distance: up to this many rounds of edge collapses after the march, each checked by the same "
                                 "tests (a quarter fewer triangles a round on the CT scans measured, 1-2 % on MR with thick slices; a "
@@ -240,37 +242,53 @@ struct DistanceFlags {
   }
 };
 
-// Every iso-value within a distance of the grid's own surface (surface-adaptive extraction).
-// With `together`, each surface is made by all its processes (hierarchy_query.hpp).
+// A surface within a distance and its statistics, to write_all's `record`.
+template <class Record>
+void record_within(Record& record, const Mesh& mesh, const DistanceQueryStats& st) {
+  const double seconds = st.refine_seconds + st.walk_seconds + st.march_seconds + st.collapse_seconds;
+  record(mesh,
+         {{"iso", st.iso},
+          {"in_range", st.in_range},
+          {"triangles", st.triangles},
+          {"vertices", st.vertices},
+          {"distance_voxels", st.distance},
+          {"marched_tetrahedra", st.tetrahedra},
+          {"tested_tetrahedra", st.tested},
+          {"split_diamonds", st.refined},
+          {"closure_diamonds", st.closure},
+          {"visited_tetrahedra", st.visited},
+          {"seconds", seconds},
+          {"refine_seconds", st.refine_seconds},
+          {"walk_seconds", st.walk_seconds},
+          {"march_seconds", st.march_seconds},
+          {"collapsed_edges", st.collapsed},
+          {"collapse_seconds", st.collapse_seconds}},
+         fmt::format("within about {:g} voxels of the grid's surface", st.distance), seconds);
+}
+
+// Surfaces made by all the processes of a transport (hierarchy_query.hpp), written as `written` says.
+struct Together {
+  ShareTransport* transport = nullptr;
+  std::vector<double> isos;
+  Written written;
+};
+
+// Every iso-value within a distance of the grid's own surface (surface-adaptive extraction), then
+// `together`'s values made together; one query index for both.
 nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const MeshOutputFlags& mesh_out, const std::vector<double>& isos,
                             const DistanceFlags& flags, const OutputFlags& out, const Written& written = {},
-                            ShareTransport* together = nullptr) {
-  if (isos.empty()) return nlohmann::json::array();
+                            const Together& together = {}) {
   const HierarchyQuery query(prepared);
-  return write_all(*prepared, mesh_out, isos, out, written, [&](double iso, auto&& record) {
+  auto all = write_all(*prepared, mesh_out, isos, out, written, [&](double iso, auto&& record) {
     DistanceQueryStats st;
-    const Mesh mesh = together ? query.extract_within(*together, iso, flags.distance, &st, flags.collapse)
-                               : query.extract_within(iso, flags.distance, &st, flags.collapse);
-    const double seconds = st.refine_seconds + st.walk_seconds + st.march_seconds + st.collapse_seconds;
-    record(mesh,
-           {{"iso", st.iso},
-            {"in_range", st.in_range},
-            {"triangles", st.triangles},
-            {"vertices", st.vertices},
-            {"distance_voxels", st.distance},
-            {"marched_tetrahedra", st.tetrahedra},
-            {"tested_tetrahedra", st.tested},
-            {"split_diamonds", st.refined},
-            {"closure_diamonds", st.closure},
-            {"visited_tetrahedra", st.visited},
-            {"seconds", seconds},
-            {"refine_seconds", st.refine_seconds},
-            {"walk_seconds", st.walk_seconds},
-            {"march_seconds", st.march_seconds},
-            {"collapsed_edges", st.collapsed},
-            {"collapse_seconds", st.collapse_seconds}},
-           fmt::format("within about {:g} voxels of the grid's surface", st.distance), seconds);
+    record_within(record, query.extract_within(iso, flags.distance, &st, flags.collapse), st);
   });
+  for (auto& made : write_all(*prepared, mesh_out, together.isos, out, together.written, [&](double iso, auto&&record) {
+         DistanceQueryStats st;
+         record_within(record, query.extract_within(*together.transport, iso, flags.distance, &st, flags.collapse), st);
+       }))
+    all.push_back(std::move(made));
+  return all;
 }
 
 // ---- extract over MPI ranks (issue 38) ----
@@ -301,18 +319,19 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
 // turn and the last n mod N made together: no rank waits for want of a value, and one value is
 // made 1.5x faster instead of by one rank alone.
 struct IsoShare {
-  std::vector<std::size_t> mine;    // this rank's iso-values' numbers among all, ascending
-  std::vector<std::size_t> counts;  // every rank's count
+  std::vector<std::size_t> mine;    // this rank's iso-values' numbers among all, ascending: its own, then those made together
+  std::vector<std::size_t> counts;  // every rank's count of its own
+  std::size_t n = 0;                // all the values
   std::size_t dealt = 0;            // values 0 … dealt − 1 are dealt in turn; the others made together
-  std::size_t own = 0;              // how many of `mine` are dealt to this rank (the first)
+  std::size_t own = 0;              // how many of `mine` are this rank's own (the first)
   std::vector<StagedFile> staged;   // this rank's meshes until every rank's are staged
   std::vector<std::string> lines;   // their lines, for rank 0 to print
 };
 IsoShare iso_share(std::size_t n, const Ranks& ranks, std::size_t dealt) {
   IsoShare s;
-  s.dealt = dealt;
+  s.n = n, s.dealt = dealt;
   const auto size = static_cast<std::size_t>(ranks.size()), rank = static_cast<std::size_t>(ranks.rank());
-  for (std::size_t r = 0; r < size; ++r) s.counts.push_back(dealt / size + (r < dealt % size) + (n - dealt));
+  for (std::size_t r = 0; r < size; ++r) s.counts.push_back(dealt / size + (r < dealt % size));
   for (std::size_t i = rank; i < dealt; i += size) s.mine.push_back(i);
   s.own = s.mine.size();
   for (std::size_t i = dealt; i < n; ++i) s.mine.push_back(i);
@@ -358,18 +377,16 @@ nlohmann::json commit_shares(Ranks& ranks, IsoShare& share, nlohmann::json mine,
       if (!j.contains(key) && r.contains(key)) j[key] = r[key];
   }
   // Iso-value i < dealt is rank i mod N's (i / N)-th; the others, made together, follow each
-  // rank's own on every rank, written by rank 0 (its lines in the same order).
+  // rank's own, written by rank 0 (its lines in the same order).
   j["surfaces"] = nlohmann::json::array();
-  const std::size_t N = got.size(), made_together = share.counts[0] - (share.dealt / N + (share.dealt % N > 0));
-  const std::size_t total = share.dealt + made_together;
-  for (std::size_t i = 0; i < total; ++i) {
+  const std::size_t N = got.size();
+  for (std::size_t i = 0; i < share.n; ++i) {
     const auto& r = i < share.dealt ? got[i % N] : got[0];
-    const std::size_t at = i < share.dealt ? i / N : share.dealt / N + (share.dealt % N > 0) + (i - share.dealt);
+    const std::size_t at = i < share.dealt ? i / N : share.counts[0] + (i - share.dealt);
     j["surfaces"].push_back(r["surfaces"][at]);
     if (!out.json && !out.quiet) std::cout << r["lines"][at].get<std::string>();
   }
-  per["iso_values_dealt"] = share.dealt;
-  per["iso_values_made_together"] = made_together;
+  per["iso_values_made_together"] = share.n - share.dealt;
   per["bytes_exchanged"] = ranks.bytes_exchanged();
   j["ranks"] = per;
   return j;
@@ -406,7 +423,8 @@ void add_extract(CLI::App& app) {
                   "Under mpirun with --distance: deal the iso-values out to the ranks in turn (values), make each surface with "
                   "all ranks together (surfaces), or deal out all but the last n mod ranks and make those together (auto)")
       ->check(CLI::IsMember({"auto", "surfaces", "values"}))
-      ->capture_default_str();
+      ->capture_default_str()
+      ->needs(distance->option);
   cmd->callback([=] {
     mesh_out->check(*input);
     std::optional<tbb::global_control> limit;
@@ -431,7 +449,7 @@ void add_extract(CLI::App& app) {
     const Written written{own, ranks.distributed() ? &share.staged : nullptr, ranks.distributed() ? &share.lines : nullptr};
     const Written written_together{shared, written.staged, written.lines, ranks.root()};
     nlohmann::json j;
-    if (!share.mine.empty()) {  // a rank with no iso-value of its own loads nothing
+    if (!share.mine.empty()) {  // a rank with no iso-value to make loads nothing
       auto t0 = Clock::now();
       // The hierarchy's queries walk the hierarchy alone: the tetrahedra stay on disk, no index is
       // built; nor for a few iso-values, which a scan of the tetrahedra finds faster. Every route
@@ -447,7 +465,7 @@ void add_extract(CLI::App& app) {
         // shared out: each walks a share of the hierarchy (grid_file.hpp, load_grid_shared).
         const auto [fewest, most] = std::minmax_element(share.counts.begin(), share.counts.end());
         const bool same_parts = hierarchy_only || (*most <= kMostScannedIsoValues) == (*fewest <= kMostScannedIsoValues);
-        const bool together = ranks.distributed() && *fewest > 0 && same_parts;
+        const bool together = ranks.distributed() && (*fewest > 0 || share.n > share.dealt) && same_parts;
         p = std::make_shared<const PreparedGrid>(together ? load_grid_shared(*input, parts, ranks, tp.callback())
                                                           : load_grid(*input, parts, tp.callback()));
       }
@@ -464,9 +482,7 @@ void add_extract(CLI::App& app) {
       j = {{"grid", *input}, {"vertices", grid.vertex_count()}, {"tetrahedra", tetrahedron_count(*p)}, {"load_seconds", t_load}};
       as_rank_failure(ranks, [&] {
         if (distance->given()) {
-          j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out, written);
-          for (auto& surface : distance_all(p, *mesh_out, together_values, *distance, *out, written_together, &ranks))
-            j["surfaces"].push_back(std::move(surface));
+          j["surfaces"] = distance_all(p, *mesh_out, values, *distance, *out, written, {&ranks, together_values, written_together});
         } else if (query) {
           const double e =
               *relative ? from_fraction(range, *max_error, FractionOf::width, *input + ": --max-error with --relative") : *max_error;

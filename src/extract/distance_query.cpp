@@ -576,6 +576,7 @@ struct Dealing {
 // 6·2^12 tetrahedra at most (cubes of a sixteenth of the lattice's side), most outside the box or
 // without a surface: enough to balance the processes, few enough that the levels above cost little.
 constexpr int kDealtDepth = 12;
+std::atomic<std::size_t> refinement_fallbacks{0};
 // A tetrahedron's place: the sum of its corners (four times its centre), unique among the
 // tetrahedra of one level, which do not overlap.
 std::uint64_t dealt_key(const Tet& t, std::int32_t S) {
@@ -595,38 +596,33 @@ class Refine {
 public:
   explicit Refine(const Query& q, Dealing* dealing = nullptr) : q_(q), dealing_(dealing) {}
 
-  void tetrahedron(const Tet& t, OrderState o, int depth, Subtree* sub = nullptr) const {
-    if (tet_outside(q_.lat, t) || q_.cancelled()) return;  // cancelled: the caller throws
-    if (dealt_here(depth, sub)) {
-      const std::uint64_t key = dealt_key(t, q_.lat.S);
-      if (dealing_->pass == Dealing::Pass::finish) return void(take(key, [&](Subtree* s) { tetrahedron(t, o, depth, s); }));
-      if (dealt_owner(key, dealing_->processes) != dealing_->process) return;
-      sub = &dealing_->owned.local().emplace_back();
-      sub->key = key;
-    }
+  // Returns whether the surface shows in t or beneath it when t lies inside the box (the
+  // refinement's roots and the tetrahedra across the box ignore it).
+  bool tetrahedron(const Tet& t, OrderState o, int depth, Subtree* sub = nullptr) const {
+    if (tet_outside(q_.lat, t) || q_.cancelled()) return false;  // cancelled: the caller throws
+    if (dealt_here(depth, sub)) return dealt(dealt_key(t, q_.lat.S), [&](Subtree& s) { return tetrahedron(t, o, depth, &s); });
     Coord m;
     int i, j;
-    if (!refinement(t, o, m, i, j)) return;  // a unit tetrahedron
+    if (!refinement(t, o, m, i, j)) return false;  // a unit tetrahedron
     if (tet_inside(q_.lat, t)) {
       std::uint32_t id;
-      if (!worth_deciding(m, id)) return;  // before the corners' lookups: most of the box's lining stops here
+      if (!worth_deciding(m, id)) return false;  // before the corners' lookups: most of the box's lining stops here
       Node n{t, o, {}, {}};
       n.sub = sub;
       for (int k = 0; k < 4; ++k) n.c[k] = q_.corner(t[static_cast<std::size_t>(k)]);
       for (int a = 0; a < 4; ++a)
         for (int b = a + 1; b < 4; ++b)
           if (q_.above(n.c[a].value) != q_.above(n.c[b].value)) n.cut[kEdgeOf[a][b]] = q_.cut(n.c[a], n.c[b]).p;
-      const bool shows = decide(n, m, i, j, id, depth);
-      if (sub) sub->shows = shows;
-      return;
+      return decide(n, m, i, j, id, depth);
     }
     // Across the box's far faces: split when the grid splits it, unless nothing beneath matters.
-    if (q_.lat.in_box(m) ? !q_.numbers.used(q_.lat.index(m)) : !placement(classify(m, q_.lat.k), q_.lat).forced) return;
-    if (!q_.lining.may_cut(q_.lat, m, q_.iso)) return;
+    if (q_.lat.in_box(m) ? !q_.numbers.used(q_.lat.index(m)) : !placement(classify(m, q_.lat.k), q_.lat).forced) return false;
+    if (!q_.lining.may_cut(q_.lat, m, q_.iso)) return false;
     const auto split = halves(t, o, m, i, j);  // no structured binding: clang 14 cannot capture one
     both(
         depth, sub, [&] { tetrahedron(split[0].tet, split[0].order, depth + 1, sub); },
         [&] { tetrahedron(split[1].tet, split[1].order, depth + 1, sub); });
+    return false;
   }
 
 private:
@@ -644,36 +640,34 @@ private:
   }
 
   bool dealt_here(int depth, const Subtree* sub) const { return dealing_ && depth == kDealtDepth && !sub; }
-  // At a dealt tetrahedron. Dealing: the owner refines it whole, recording; every process goes on
-  // as if it showed the surface. Finishing: its owner's record.
-  bool dealt(const Node& n, int depth) const {
-    const std::uint64_t key = dealt_key(n.t, q_.lat.S);
-    if (dealing_->pass == Dealing::Pass::finish)
-      return take(key, [&](Subtree* s) {
-        Node own = n;
-        own.sub = s;
-        s->shows = node(own, depth);
-      });
-    if (dealt_owner(key, dealing_->processes) != dealing_->process) return true;
-    Subtree& s = dealing_->owned.local().emplace_back();
-    s.key = key;
-    Node own = n;
-    own.sub = &s;
-    s.shows = node(own, depth);
-    return true;
-  }
-  // The record of dealt tetrahedron `key`, its marks and tests applied; refined here (`refine`
-  // filling a fresh record) if no process dealt it, which the top levels' walk rules out.
-  template <class Refine>
-  bool take(std::uint64_t key, Refine&& refine) const {
-    auto it = dealing_->all.find(key);
+  // At the dealt tetrahedron `key`; `refine(record)` refines it whole into the record and says
+  // whether the surface shows. Dealing: its owner refines it, and every process goes on as if it
+  // showed the surface. Finishing: its owner's record, its marks and tests applied; refined here
+  // if no process dealt it, which the deal pass's superset rules out (counted for the tests:
+  // shared_refinement_fallbacks).
+  template <class F>
+  bool dealt(std::uint64_t key, F&& refine) const {
+    if (dealing_->pass == Dealing::Pass::deal) {
+      if (dealt_owner(key, dealing_->processes) == dealing_->process) {
+        Subtree& s = dealing_->owned.local().emplace_back();
+        s.key = key;
+        s.shows = refine(s);
+        std::sort(s.marks.begin(), s.marks.end());  // a diamond is marked once per tetrahedron of it
+        s.marks.erase(std::unique(s.marks.begin(), s.marks.end()), s.marks.end());
+      }
+      return true;
+    }
+    const auto it = dealing_->all.find(key);
     Subtree local;
-    Subtree* s = it != dealing_->all.end() ? &it->second : &local;
-    if (s == &local) refine(&local);
-    for (const std::int64_t v : s->marks)
+    if (it == dealing_->all.end()) {
+      refinement_fallbacks.fetch_add(1, std::memory_order_relaxed);
+      local.shows = refine(local);
+    }
+    const Subtree& s = it != dealing_->all.end() ? it->second : local;
+    for (const std::int64_t v : s.marks)
       if (q_.split.mark(v)) q_.marked.local().push_back(v);
-    q_.tested.local() += s->tested;
-    return s->shows;
+    q_.tested.local() += s.tested;
+    return s.shows;
   }
   // Diamond m split: recorded in a dealt subtree while dealing, else marked (not at all in the
   // top levels while dealing: process 0 marks them when it finishes).
@@ -702,7 +696,12 @@ private:
 
   // Does the surface show in this tetrahedron or beneath it, as the refinement leaves it?
   bool node(const Node& n, int depth) const {
-    if (dealt_here(depth, n.sub)) return dealt(n, depth);
+    if (dealt_here(depth, n.sub))
+      return dealt(dealt_key(n.t, q_.lat.S), [&](Subtree& s) {
+        Node own = n;
+        own.sub = &s;
+        return node(own, depth);
+      });
     Coord m;
     int i, j;
     std::uint32_t id;
@@ -1309,6 +1308,8 @@ std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int roun
 
 }  // namespace
 
+std::size_t shared_refinement_fallbacks() { return refinement_fallbacks.load(); }
+
 ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, const std::vector<std::array<double, 3>>& points,
                                       const std::vector<std::int32_t>& from_halves) {
   const auto index = make_hierarchy_index(grid);
@@ -1339,22 +1340,24 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
 namespace detail {
 namespace {
 
-// Every process asks for the same surface of grids of the same shape, or all refuse: the process
-// that differs with its own message, the others naming it (share::agree). Otherwise their shares
-// would be of different surfaces, and the mesh none of them.
-void agree_on_the_surface(ShareTransport& t, double iso, double distance, int rounds, std::size_t vertices, const Lattice& lat) {
+// Every process asks for the same valid surface of grids of the same shape, or all refuse before
+// any share is made: a process whose arguments were refused (`bad`) or differ from process 0's
+// with its own message, the others naming it (share::agree). Otherwise a process would throw alone
+// and leave the others waiting, or their shares would be of different surfaces.
+void agree_on_the_surface(ShareTransport& t, std::exception_ptr bad, double iso, double distance, int rounds, std::size_t vertices,
+                          const Lattice& lat) {
   const std::array<std::uint64_t, 7> mine{
       std::bit_cast<std::uint64_t>(iso),    std::bit_cast<std::uint64_t>(distance), static_cast<std::uint64_t>(rounds),  vertices,
       static_cast<std::uint64_t>(lat.X[0]), static_cast<std::uint64_t>(lat.X[1]),   static_cast<std::uint64_t>(lat.X[2])};
   auto zero = mine;
-  t.broadcast(std::as_writable_bytes(std::span(zero)));
-  std::exception_ptr failed;
-  if (zero != mine)
-    failed = std::make_exception_ptr(InputError(fmt::format(
-        "process {} asked for another surface than process 0 (iso {}, distance {}, {} rounds of collapses, a grid of {} vertices; "
-        "process 0: iso {}, distance {}, {} rounds, {} vertices): every process must ask for the same surface of the same grid",
-        t.process(), iso, distance, rounds, vertices, std::bit_cast<double>(zero[0]), std::bit_cast<double>(zero[1]), zero[2], zero[3])));
-  share::agree(t, failed, "the surface made together");
+  if (share::differs_from_zero(t, zero) && !bad)
+    bad = std::make_exception_ptr(InputError(fmt::format(
+        "process {} asked for another surface than process 0 (iso {}, distance {}, {} rounds of collapses, a grid of {} vertices on a "
+        "{}x{}x{} lattice; process 0: iso {}, distance {}, {} rounds, {} vertices, {}x{}x{}): every process must ask for the same "
+        "surface of the same grid",
+        t.process(), iso, distance, rounds, vertices, mine[4], mine[5], mine[6], std::bit_cast<double>(zero[0]),
+        std::bit_cast<double>(zero[1]), zero[2], zero[3], zero[4], zero[5], zero[6])));
+  share::agree(t, bad, "the surface made together");
 }
 
 // Process 0: every process's dealt subtrees, by key. The others: theirs sent to it, as words (key,
@@ -1374,11 +1377,12 @@ void gather_dealt(ShareTransport& t, Dealing& d) {
     for (Subtree& s : part) d.all.emplace(s.key, std::move(s));
   for (int p = 1; p < t.processes(); ++p) {
     const auto words = share::receive_vector<std::uint64_t>(t, p);
-    for (std::size_t i = 0; i + 4 <= words.size();) {
+    for (std::size_t i = 0; i < words.size();) {
+      if (words.size() - i < 4 || words[i + 3] > words.size() - i - 4)
+        throw std::logic_error(fmt::format("process {} sent a broken record of its share of the refinement", p));
       Subtree s;
       s.key = words[i], s.shows = words[i + 1] != 0, s.tested = words[i + 2];
       const std::uint64_t n = words[i + 3];
-      if (n > words.size() - i - 4) throw InputError(fmt::format("process {} sent a broken record of its share of the refinement", p));
       s.marks.assign(words.begin() + static_cast<std::ptrdiff_t>(i + 4), words.begin() + static_cast<std::ptrdiff_t>(i + 4 + n));
       i += 4 + n;
       const std::uint64_t key = s.key;
@@ -1404,13 +1408,14 @@ void gather_found(ShareTransport& t, std::vector<Found>& found) {
     const auto words = share::receive_vector<std::uint64_t>(t, p);
     std::size_t i = 0;
     for (std::size_t f = static_cast<std::size_t>(p); f < found.size(); f += P) {
-      if (i + 3 > words.size() || words[i] > words.size() - i - 3)
-        throw InputError(fmt::format("process {} sent a broken record of its share of the walk", p));
+      if (words.size() - i < 3 || words[i] > words.size() - i - 3)
+        throw std::logic_error(fmt::format("process {} sent a broken record of its share of the walk", p));
       const std::uint64_t n = words[i];
       found[f].leaves = words[i + 1], found[f].visited = words[i + 2];
       found[f].keys.assign(words.begin() + static_cast<std::ptrdiff_t>(i + 3), words.begin() + static_cast<std::ptrdiff_t>(i + 3 + n));
       i += 3 + n;
     }
+    if (i != words.size()) throw std::logic_error(fmt::format("process {} sent more of the walk than its share", p));
   }
 }
 
@@ -1431,15 +1436,25 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
                             ShareTransport* share) const {
   using namespace detail;
   using Clock = std::chrono::steady_clock;
-  if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
-  if (!(distance >= 0) || !std::isfinite(distance))
-    throw OptionError("distance", fmt::format("must be a non-negative number of voxels, got {}", distance));
-  if (collapse_rounds < 0 || collapse_rounds > kMaxCollapseRounds)
-    throw OptionError("collapse", fmt::format("must be a number of rounds from 0 to {}, got {}", kMaxCollapseRounds, collapse_rounds));
   const auto t0 = Clock::now();
   const TetGrid& g = grid_->grid;
   const BisectionHierarchy& h = *grid_->hierarchy;
   const Lattice& lat = index_->lat;
+  std::exception_ptr bad;
+  try {
+    if (!std::isfinite(iso)) throw OptionError("iso", "must be a finite number");
+    if (!(distance >= 0) || !std::isfinite(distance))
+      throw OptionError("distance", fmt::format("must be a non-negative number of voxels, got {}", distance));
+    if (collapse_rounds < 0 || collapse_rounds > kMaxCollapseRounds)
+      throw OptionError("collapse", fmt::format("must be a number of rounds from 0 to {}, got {}", kMaxCollapseRounds, collapse_rounds));
+  } catch (const OptionError&) {
+    bad = std::current_exception();
+  }
+  const bool shared = share && share->processes() > 1;
+  if (shared)
+    agree_on_the_surface(*share, bad, iso, distance, collapse_rounds, g.vertex_count(), lat);
+  else if (bad)
+    std::rethrow_exception(bad);
   const double smallest = std::min({g.source.spacing[0], g.source.spacing[1], g.source.spacing[2]});
   // The marks go back to the pool however the query ends.
   struct Lease {
@@ -1466,10 +1481,8 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
                 cancel};
   // Shared: every process refines its dealt subtrees, process 0 the top levels with their answers
   // (Dealing), and its marks reach every process.
-  const bool shared = share && share->processes() > 1;
   const std::size_t P = shared ? static_cast<std::size_t>(share->processes()) : 1,
                     me = shared ? static_cast<std::size_t>(share->process()) : 0;
-  if (shared) agree_on_the_surface(*share, iso, distance, collapse_rounds, g.vertex_count(), lat);
   Dealing dealing;
   dealing.process = static_cast<int>(me), dealing.processes = static_cast<int>(P);
   const Refine refine(q, shared ? &dealing : nullptr);

@@ -111,6 +111,11 @@ struct HierarchyIndex {
 // without a hierarchy, or one that does not match its dimensions.
 std::unique_ptr<HierarchyIndex> make_hierarchy_index(const PreparedGrid& grid);
 
+// For the tests of a surface made by several processes (distance_query.cpp): how many dealt
+// subtrees process 0 met that no process had refined (then refined again there, the same mesh
+// but the work not shared), since the program started. The deal pass rules them out.
+std::size_t shared_refinement_fallbacks();
+
 // For the tests of the distance query's probes (distance_query.cpp): at each point (lattice
 // units, inside the box) the side of iso on which the grid's interpolant lies, found level by
 // level from the root tetrahedron holding it and cube by cube from each scale in `from_halves`

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <exception>
 #include <span>
@@ -83,6 +84,14 @@ inline void agree_first_failure(ShareTransport& t, const std::exception_ptr& fai
   message.resize(length);
   t.broadcast(std::as_writable_bytes(std::span(message.data(), message.size())));
   throw InputError(first == 0 ? message : fmt::format("{} (process {})", message, first));
+}
+
+// Whether `words` differ from process 0's, which they are then (broadcast from it). Collective.
+template <class T, std::size_t N>
+bool differs_from_zero(ShareTransport& t, std::array<T, N>& words) {
+  const std::array<T, N> mine = words;
+  t.broadcast(std::as_writable_bytes(std::span(words)));
+  return words != mine;
 }
 
 // A vector of any length from this process (not 0) to process 0, which takes it with

@@ -231,8 +231,7 @@ namespace {
 template <std::size_t N>
 void agree_same_file(ShareTransport& t, const std::string& path, const std::array<std::uint64_t, N>& mine) {
   std::array<std::uint64_t, N> zero = mine;
-  t.broadcast(std::as_writable_bytes(std::span(zero)));
-  std::int64_t other = zero == mine ? -1 : t.process();
+  std::int64_t other = detail::share::differs_from_zero(t, zero) ? t.process() : -1;
   detail::share::combine_at_zero(t, std::span(&other, 1), [](std::int64_t& own, std::int64_t theirs) {
     if (own < 0) own = theirs;
   });

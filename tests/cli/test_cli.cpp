@@ -841,6 +841,9 @@ TEST(ExtractCli, CollapseRoundsOutOfRangeOrWithoutADistanceAreRefused) {
   expect_refused(testutil::run_cli(extract + "--distance 1 --collapse 17 -o " + (t / "m.ply")), "--collapse", "--collapse 17");
   expect_refused(testutil::run_cli(extract + "--distance 1 --collapse -1 -o " + (t / "m.ply")), "--collapse", "--collapse -1");
   expect_refused(testutil::run_cli(extract + "--collapse 1 -o " + (t / "m.ply")), "--distance", "--collapse without --distance");
+  // --rank-share chooses how ranks share surfaces at a distance: refused without one, not ignored.
+  expect_refused(testutil::run_cli(extract + "--rank-share surfaces -o " + (t / "m.ply")), "--distance", "--rank-share without --distance");
+  expect_refused(testutil::run_cli(extract + "--distance 1 --rank-share some -o " + (t / "m.ply")), "--rank-share", "--rank-share some");
   EXPECT_FALSE(std::filesystem::exists(t / "m.ply"));
   // The rounds asked for, and fewer triangles than the march alone.
   auto marched = testutil::run_cli(extract + "--distance 1 --collapse 0 --json --quiet -o " + (t / "m.ply"));
