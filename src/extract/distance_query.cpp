@@ -62,6 +62,7 @@
 #include <cstdlib>
 #include <deque>
 #include <memory>
+#include <stdexcept>
 #include <unordered_map>
 
 #include "adaptiso/error.hpp"
