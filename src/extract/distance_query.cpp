@@ -676,16 +676,17 @@ private:
     const std::int64_t v = q_.lat.index(m);
     if (sub)
       sub->marks.push_back(v);
-    else if (!dealing_ || dealing_->pass == Dealing::Pass::finish) {
-      if (q_.split.mark(v)) q_.marked.local().push_back(v);
-    }
+    else if (top_levels_count() && q_.split.mark(v))
+      q_.marked.local().push_back(v);
   }
   void count_test(Subtree* sub) const {
     if (sub)
       ++sub->tested;
-    else if (!dealing_ || dealing_->pass == Dealing::Pass::finish)
+    else if (top_levels_count())
       ++q_.tested.local();
   }
+  // The levels above the dealt ones count (marks, tests) alone or when finishing, not while dealing.
+  bool top_levels_count() const { return !dealing_ || dealing_->pass == Dealing::Pass::finish; }
 
   // Is the tetrahedron split in the grid, with a surface beneath?
   bool worth_deciding(const Coord& m, std::uint32_t& id) const {
@@ -1532,13 +1533,12 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     const SnapRemap remap(q);
     assemble(q, found, remap, mesh);
     for (const Found& f : found) counts[0] += f.leaves, counts[1] += f.visited;
-    std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
     // Clipped before the collapses: its cut points on the volume's far faces are border vertices,
     // which the collapses keep as they keep every border, so the surface still ends on the box.
     clip_to_volume_box(mesh, g.source);
   }
-  if (shared) {  // process 0's surface and counts on every process, for the collapses
-    std::vector<Found>().swap(found);
+  std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
+  if (shared) {                      // process 0's surface and counts on every process, for the collapses
     share::broadcast_vector(*share, mesh.positions);
     share::broadcast_vector(*share, mesh.normals);
     share::broadcast_vector(*share, mesh.triangles);

@@ -14,7 +14,6 @@
 #include <functional>
 #include <random>
 #include <set>
-#include <thread>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
@@ -286,14 +285,10 @@ TEST(DistanceQuery, ProcessesTogetherMakeOneProcesssSurface) {
             testutil::Hub hub;
             std::vector<Mesh> got(static_cast<std::size_t>(P));
             std::vector<DistanceQueryStats> st(static_cast<std::size_t>(P));
-            std::vector<std::thread> processes;
-            for (int p = 0; p < P; ++p)
-              processes.emplace_back([&, p] {
-                testutil::ThreadTransport t(hub, p, P);
-                const auto i = static_cast<std::size_t>(p);
-                got[i] = query.extract_within(t, iso, distance, &st[i], rounds);
-              });
-            for (auto& th : processes) th.join();
+            testutil::as_processes(hub, P, [&](ShareTransport& t, int p) {
+              const auto i = static_cast<std::size_t>(p);
+              got[i] = query.extract_within(t, iso, distance, &st[i], rounds);
+            });
             const std::string what = fmt::format("{}x{}x{} iso {} distance {} rounds {} processes {}", v->dims[0], v->dims[1], v->dims[2],
                                                  iso, distance, rounds, P);
             EXPECT_EQ(hub.left(), 0u) << what;
@@ -334,18 +329,14 @@ TEST(DistanceQuery, ProcessesAskingForDifferentSurfacesAreRefusedByAll) {
                         Ask{0.4, -1, 2, &query}, Ask{0.4, 1, 17, &query}}) {
     testutil::Hub hub;
     std::vector<std::string> said(3);
-    std::vector<std::thread> processes;
-    for (int p = 0; p < 3; ++p)
-      processes.emplace_back([&, p] {
-        testutil::ThreadTransport t(hub, p, 3);
-        const Ask a = p == 2 ? odd : Ask{0.4, 1, 2, &query};
-        try {
-          a.q->extract_within(t, a.iso, a.distance, nullptr, a.rounds);
-        } catch (const InputError& e) {
-          said[static_cast<std::size_t>(p)] = e.what();
-        }
-      });
-    for (auto& th : processes) th.join();
+    testutil::as_processes(hub, 3, [&](ShareTransport& t, int p) {
+      const Ask a = p == 2 ? odd : Ask{0.4, 1, 2, &query};
+      try {
+        a.q->extract_within(t, a.iso, a.distance, nullptr, a.rounds);
+      } catch (const InputError& e) {
+        said[static_cast<std::size_t>(p)] = e.what();
+      }
+    });
     const bool refused_alone = odd.distance < 0 || odd.rounds > kMaxCollapseRounds;
     EXPECT_NE(said[2].find(refused_alone ? "must be" : "process 2 asked for another surface than process 0"), std::string::npos) << said[2];
     for (int p : {0, 1}) EXPECT_NE(said[static_cast<std::size_t>(p)].find("process 2 cannot take its share"), std::string::npos) << said[p];

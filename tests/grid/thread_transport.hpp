@@ -10,6 +10,7 @@
 #include <map>
 #include <mutex>
 #include <stdexcept>
+#include <thread>
 #include <vector>
 
 #include "adaptiso/select_shares.hpp"
@@ -76,5 +77,17 @@ private:
   Hub& hub_;
   int process_, processes_;
 };
+
+// `f(transport, p)` run by P threads playing processes 0 … P − 1 of one step; returns once all are done.
+template <class F>
+void as_processes(Hub& hub, int P, F&& f) {
+  std::vector<std::thread> threads;
+  for (int p = 0; p < P; ++p)
+    threads.emplace_back([&, p] {
+      ThreadTransport t(hub, p, P);
+      f(t, p);
+    });
+  for (auto& th : threads) th.join();
+}
 
 }  // namespace testutil

@@ -88,20 +88,16 @@ SharedLoad load_shared(const std::vector<std::string>& paths, GridParts parts = 
   const int processes = static_cast<int>(paths.size());
   testutil::Hub hub;
   SharedLoad out{std::vector<std::optional<PreparedGrid>>(paths.size()), std::vector<std::string>(paths.size())};
-  std::vector<std::thread> threads;
-  for (int p = 0; p < processes; ++p)
-    threads.emplace_back([&, p] {
-      testutil::ThreadTransport t(hub, p, processes);
-      try {
-        const std::string& path = paths[static_cast<std::size_t>(p)];
-        out.grids[static_cast<std::size_t>(p)] = held_open ? OpenGridFile(path, &t).load(parts, {}, &t) : load_grid_shared(path, parts, t);
-      } catch (const InputError& e) {
-        out.refusals[static_cast<std::size_t>(p)] = e.what();
-      } catch (const std::exception& e) {  // a process left waiting: not the refusal every process must give
-        out.refusals[static_cast<std::size_t>(p)] = std::string("not an InputError: ") + e.what();
-      }
-    });
-  for (auto& t : threads) t.join();
+  testutil::as_processes(hub, processes, [&](ShareTransport& t, int p) {
+    try {
+      const std::string& path = paths[static_cast<std::size_t>(p)];
+      out.grids[static_cast<std::size_t>(p)] = held_open ? OpenGridFile(path, &t).load(parts, {}, &t) : load_grid_shared(path, parts, t);
+    } catch (const InputError& e) {
+      out.refusals[static_cast<std::size_t>(p)] = e.what();
+    } catch (const std::exception& e) {  // a process left waiting: not the refusal every process must give
+      out.refusals[static_cast<std::size_t>(p)] = std::string("not an InputError: ") + e.what();
+    }
+  });
   EXPECT_EQ(hub.left(), 0u) << "messages sent that nobody received";
   return out;
 }
@@ -629,17 +625,13 @@ TEST(GridFileSharedLoad, GivesEveryProcessTheGridOneProcessLoads) {
   {
     testutil::Hub hub;
     std::vector<std::string> said(2);
-    std::vector<std::thread> threads;
-    for (int p = 0; p < 2; ++p)
-      threads.emplace_back([&, p] {
-        testutil::ThreadTransport tr(hub, p, 2);
-        try {
-          load_grid_shared(t / "bi.adg", p == 0 ? GridParts::all : GridParts::tetrahedra, tr);
-        } catch (const std::exception& e) {
-          said[static_cast<std::size_t>(p)] = e.what();
-        }
-      });
-    for (auto& th : threads) th.join();
+    testutil::as_processes(hub, 2, [&](ShareTransport& tr, int p) {
+      try {
+        load_grid_shared(t / "bi.adg", p == 0 ? GridParts::all : GridParts::tetrahedra, tr);
+      } catch (const std::exception& e) {
+        said[static_cast<std::size_t>(p)] = e.what();
+      }
+    });
     EXPECT_EQ(hub.left(), 0u);
     for (const auto& m : said) EXPECT_NE(m.find("process 1 read other bytes than process 0"), std::string::npos) << m;
   }
