@@ -998,6 +998,131 @@ void assemble(const Query& q, std::vector<Found>& found, const EdgeRemap& remap,
   interpolate_vertices(g, order, q.iso, mesh);
 }
 
+// ---- The assembly shared over processes (extract_within with a transport) ----
+//
+// The final walk's units in contiguous chunks, kChunksPerProcess a process, chunk c walked and
+// numbered by process c mod P: each numbers its chunks' cut edges by first use and places their
+// vertices (the snap to the grid's cut edge and the interpolation, most of the assembly), and
+// process 0 numbers the chunks' edges again in chunk order, one lookup per edge of a chunk instead
+// of three per triangle. A chunk's edges in its own first-use order, taken chunk after chunk, give
+// the first-use order of the whole walk: one process's numbering, with one process's places (a
+// vertex's place depends on its edge alone). Several chunks a process, so that a surface lying in
+// part of the box still keeps every process busy.
+constexpr std::size_t kChunksPerProcess = 4;
+
+struct ChunkPlan {
+  std::size_t units = 0, chunks = 1, processes = 1;
+  std::size_t first(std::size_t c) const { return units * c / chunks; }
+  // Process `p`'s units: those of the chunks it owns.
+  std::vector<std::uint8_t> walked_by(std::size_t p) const {
+    std::vector<std::uint8_t> mine(units, 0);
+    for (std::size_t c = p; c < chunks; c += processes) std::fill(mine.begin() + first(c), mine.begin() + first(c + 1), 1);
+    return mine;
+  }
+};
+
+// A chunk numbered: its coarse cut edges by first use, each with its vertex's place; its triangles
+// as indices into them.
+struct NumberedChunk {
+  std::vector<std::uint64_t> order;
+  std::vector<std::uint32_t> local;  // 3 per triangle
+  std::vector<std::array<float, 3>> positions, normals;
+  std::uint64_t counts[2] = {0, 0};  // leaves marched, tetrahedra visited
+};
+
+NumberedChunk number_chunk(const Query& q, std::vector<Found>& found, std::size_t lo, std::size_t hi, const EdgeRemap& remap) {
+  NumberedChunk out;
+  std::size_t n = 0;
+  for (std::size_t f = lo; f < hi; ++f) n += found[f].keys.size();
+  std::vector<std::uint64_t> slots;
+  EdgeMap map(n / 6 + 16, slots);  // sized for the vertices, as assemble's
+  out.local.reserve(n);
+  for (std::size_t f = lo; f < hi; ++f) {
+    auto& keys = found[f].keys;
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+      if (i + 16 < keys.size()) map.prefetch(keys[i + 16]);
+      out.local.push_back(map.find_or_add(keys[i], out.order));
+    }
+    out.counts[0] += found[f].leaves, out.counts[1] += found[f].visited;
+    std::vector<std::uint64_t>().swap(keys);
+  }
+  std::vector<std::uint64_t> fine(out.order.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, fine.size(), 1024), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) fine[i] = remap.fine(out.order[i]);
+  });
+  Mesh placed;
+  interpolate_vertices(q.g, fine, q.iso, placed);
+  out.positions = std::move(placed.positions), out.normals = std::move(placed.normals);
+  return out;
+}
+
+void send_chunk(ShareTransport& t, const NumberedChunk& c) {
+  share::send_vector(t, std::vector<std::uint64_t>{c.counts[0], c.counts[1]});
+  share::send_vector(t, c.order);
+  share::send_vector(t, c.local);
+  share::send_vector(t, c.positions);
+  share::send_vector(t, c.normals);
+}
+
+NumberedChunk receive_chunk(ShareTransport& t, int from) {
+  NumberedChunk c;
+  const auto counts = share::receive_vector<std::uint64_t>(t, from);
+  c.order = share::receive_vector<std::uint64_t>(t, from);
+  c.local = share::receive_vector<std::uint32_t>(t, from);
+  c.positions = share::receive_vector<std::array<float, 3>>(t, from);
+  c.normals = share::receive_vector<std::array<float, 3>>(t, from);
+  const bool broken = counts.size() != 2 || c.positions.size() != c.order.size() || c.normals.size() != c.order.size() ||
+                      c.local.size() % 3 != 0 ||
+                      std::any_of(c.local.begin(), c.local.end(), [&](std::uint32_t i) { return i >= c.order.size(); });
+  if (broken) throw std::logic_error(fmt::format("process {} sent a broken record of its share of the assembly", from));
+  c.counts[0] = counts[0], c.counts[1] = counts[1];
+  return c;
+}
+
+// Every process: its chunks numbered and placed; process 0 receives the others' and returns the
+// mesh of them all, in chunk order (the others an empty one), with the leaves marched and the
+// tetrahedra visited.
+Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, std::vector<Found>& found, const EdgeRemap& remap,
+                     std::uint64_t counts[2]) {
+  const auto me = static_cast<std::size_t>(t.process());
+  std::vector<std::size_t> own;
+  for (std::size_t c = me; c < plan.chunks; c += plan.processes) own.push_back(c);
+  std::vector<NumberedChunk> numbered(plan.chunks);
+  tbb::parallel_for(std::size_t{0}, own.size(), [&](std::size_t i) {
+    const std::size_t c = own[i];
+    numbered[c] = number_chunk(q, found, plan.first(c), plan.first(c + 1), remap);
+  });
+  Mesh mesh;
+  if (me != 0) {
+    for (const std::size_t c : own) send_chunk(t, numbered[c]);
+    return mesh;
+  }
+  for (int p = 1; p < t.processes(); ++p)
+    for (std::size_t c = static_cast<std::size_t>(p); c < plan.chunks; c += plan.processes) numbered[c] = receive_chunk(t, p);
+  std::size_t edges = 0, triangles = 0;
+  for (const auto& c : numbered) edges += c.order.size(), triangles += c.local.size() / 3;
+  std::vector<std::uint64_t> slots, order;
+  EdgeMap map(edges, slots);
+  order.reserve(edges);
+  mesh.positions.reserve(edges), mesh.normals.reserve(edges);
+  mesh.triangles.reserve(triangles);
+  std::vector<std::uint32_t> global;
+  for (auto& c : numbered) {
+    global.resize(c.order.size());
+    for (std::size_t j = 0; j < c.order.size(); ++j) {
+      if (j + 16 < c.order.size()) map.prefetch(c.order[j + 16]);
+      const std::size_t before = order.size();
+      global[j] = map.find_or_add(c.order[j], order);
+      if (order.size() > before) mesh.positions.push_back(c.positions[j]), mesh.normals.push_back(c.normals[j]);
+    }
+    for (std::size_t k = 0; k < c.local.size(); k += 3)
+      mesh.triangles.push_back({global[c.local[k]], global[c.local[k + 1]], global[c.local[k + 2]]});
+    counts[0] += c.counts[0], counts[1] += c.counts[1];
+    c = NumberedChunk{};
+  }
+  return mesh;
+}
+
 // ---- Edge collapses after the query ----
 //
 // Marching tetrahedra make 2–3× marching cubes' triangles per cut cell, and most of them are not
@@ -1393,34 +1518,6 @@ void gather_dealt(ShareTransport& t, Dealing& d) {
   }
 }
 
-// Process 0: the walk's units f ≡ p (mod processes) from each process p, as words (keys' count,
-// leaves, visited, keys); the others send theirs.
-void gather_found(ShareTransport& t, std::vector<Found>& found) {
-  const auto P = static_cast<std::size_t>(t.processes());
-  if (t.process() != 0) {
-    std::vector<std::uint64_t> words;
-    for (std::size_t f = static_cast<std::size_t>(t.process()); f < found.size(); f += P) {
-      words.insert(words.end(), {found[f].keys.size(), found[f].leaves, found[f].visited});
-      words.insert(words.end(), found[f].keys.begin(), found[f].keys.end());
-    }
-    share::send_vector(t, words);
-    return;
-  }
-  for (int p = 1; p < t.processes(); ++p) {
-    const auto words = share::receive_vector<std::uint64_t>(t, p);
-    std::size_t i = 0;
-    for (std::size_t f = static_cast<std::size_t>(p); f < found.size(); f += P) {
-      if (words.size() - i < 3 || words[i] > words.size() - i - 3)
-        throw std::logic_error(fmt::format("process {} sent a broken record of its share of the walk", p));
-      const std::uint64_t n = words[i];
-      found[f].leaves = words[i + 1], found[f].visited = words[i + 2];
-      found[f].keys.assign(words.begin() + static_cast<std::ptrdiff_t>(i + 3), words.begin() + static_cast<std::ptrdiff_t>(i + 3 + n));
-      i += 3 + n;
-    }
-    if (i != words.size()) throw std::logic_error(fmt::format("process {} sent more of the walk than its share", p));
-  }
-}
-
 }  // namespace
 }  // namespace detail
 
@@ -1514,8 +1611,10 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   const Traversal<FinalRule> walk(lat, rule);
   const Frontier top = walk.frontier(10);
   std::vector<Found> found(top.roots.size());
+  const ChunkPlan plan{top.roots.size(), shared ? kChunksPerProcess * P : 1, P};
+  const std::vector<std::uint8_t> mine = plan.walked_by(me);
   tbb::parallel_for(std::size_t{0}, top.roots.size(), [&](std::size_t f) {
-    if (q.cancelled() || f % P != me) return;  // shared: process p walks the units f ≡ p
+    if (q.cancelled() || !mine[f]) return;  // shared: each process walks the units of its chunks
     walk.visit(
         top.roots[f], index_->numbers, g.values,
         [&](const Tet&, const Corners& c, std::int64_t) {
@@ -1526,13 +1625,16 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   });
   const auto t2 = Clock::now();
   q.throw_if_cancelled();
-  if (shared) gather_found(*share, found);
   Mesh mesh;
   std::uint64_t counts[3] = {0, top.roots.size() + top.splits.size(), tested.combine(std::plus<>())};  // marched, visited, tested
-  if (me == 0) {
-    const SnapRemap remap(q);
+  const SnapRemap remap(q);
+  if (shared) {
+    mesh = assemble_shared(q, *share, plan, found, remap, counts);
+  } else {
     assemble(q, found, remap, mesh);
     for (const Found& f : found) counts[0] += f.leaves, counts[1] += f.visited;
+  }
+  if (me == 0) {
     // Clipped before the collapses: its cut points on the volume's far faces are border vertices,
     // which the collapses keep as they keep every border, so the surface still ends on the box.
     clip_to_volume_box(mesh, g.source);
