@@ -124,8 +124,9 @@ public:
   // same mesh, byte for byte the one extract_within makes alone. The refinement's subtrees 12
   // levels below the roots are dealt out by a hash of their place (the levels above are refined
   // on every process, then again on process 0 with the owners' answers), the final walk's units
-  // in turn; process 0 assembles the mesh and sends it to the others, and each round of collapses
-  // probes a share of the collapses chosen. `stats` is the same on every process but its
+  // in contiguous chunks (4 a process, in turn), each process numbering its chunks' vertices and
+  // placing them; process 0 numbers the chunks' vertices again in chunk order and sends the mesh
+  // to the others, and each round of collapses probes a share of the collapses chosen. `stats` is the same on every process but its
   // timings. Throws what extract_within throws, and whatever the transport throws; a process that
   // fails mid-way (its memory) leaves the others waiting: the caller stops them (the command
   // line: MPI_Abort).
