@@ -1150,12 +1150,15 @@ struct Collapse {
 };
 
 // Vertex → triangles, and each vertex's ring (sorted) and whether it lies on the surface's border.
-// Rebuilt each round in the same buffers.
+// Rebuilt each round in the same buffers; the rings only for the vertices asked (build_rings,
+// ensure_ring): a surface made together chooses each block of vertices on one process.
 struct Stars {
+  static constexpr std::uint32_t kUnbuilt = ~std::uint32_t{0};
   std::vector<std::uint32_t> start, tris;       // CSR: vertex v's triangles
-  std::vector<std::uint32_t> ring, ring_count;  // v's ring from start[v] + v (at most its triangles + 1)
+  std::vector<std::uint32_t> ring, ring_count;  // v's ring from start[v] + v (at most its triangles + 1); kUnbuilt
   std::vector<std::uint8_t> border;
 
+  // The triangles of every vertex; no ring yet.
   void build(const Mesh& mesh) {
     const std::size_t V = mesh.positions.size(), T = mesh.triangles.size();
     assign_big(start, V + 1, std::uint32_t{0});
@@ -1167,11 +1170,17 @@ struct Stars {
     for (std::uint32_t t = 0; t < T; ++t)
       for (std::uint32_t v : mesh.triangles[t]) tris[fill_[v]++] = t;
     resize_big(ring, 3 * T + V);
-    resize_big(ring_count, V);
+    assign_big(ring_count, V, kUnbuilt);
     resize_big(border, V);
-    tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, static_cast<std::uint32_t>(V), 4096), [&](const auto& r) {
+  }
+  // The rings of vertices [lo, hi), in parallel.
+  void build_rings(const Mesh& mesh, std::uint32_t lo, std::uint32_t hi) {
+    tbb::parallel_for(tbb::blocked_range<std::uint32_t>(lo, hi, 4096), [&](const auto& r) {
       for (std::uint32_t v = r.begin(); v < r.end(); ++v) build_ring(mesh, v);
     });
+  }
+  void ensure_ring(const Mesh& mesh, std::uint32_t v) {
+    if (ring_count[v] == kUnbuilt) build_ring(mesh, v);
   }
   const std::uint32_t* ring_of(std::uint32_t v) const { return &ring[start[v] + v]; }
 
@@ -1222,8 +1231,8 @@ public:
   std::size_t round() {
     q_.throw_if_cancelled();
     stars_.build(mesh_);
+    const std::vector<Collapse> chosen = choose();  // checks the flag before it returns
     const Stars& s = stars_;
-    const std::vector<Collapse> chosen = choose(s);  // checks the flag first thing
     std::vector<std::uint8_t> pass(chosen.size(), 1);
     const std::size_t chunk = 256;
     const std::size_t P = share_ ? static_cast<std::size_t>(share_->processes()) : 1,
@@ -1304,32 +1313,86 @@ private:
   // vertices) 2.2 % did not, the choice took 0.31-0.33 s a round instead of 0.54-0.64 in one pass,
   // for 0.01 % more triangles. Blocks of 8192 cost the CT bunny's 79 k vertices 1.4 % more
   // triangles (14 % of its rings across blocks) for 5 ms less.
-  std::vector<Collapse> choose(const Stars& s) const {
+  // With a transport, block b is built and chosen by process b mod P (its rings, a third of a
+  // round's time with one thread, are built there only), which sends process 0 its choice, its
+  // vertices across blocks and its locks; process 0 chooses across the blocks (building the rings
+  // it needs) and broadcasts the collapses: one process's choice.
+  static constexpr std::uint32_t kBlock = 1u << 18;
+  struct BlockChoice {
+    std::vector<Collapse> chosen;
+    std::vector<std::uint32_t> across;  // collapsible, unlocked, ring across the block's bounds
+  };
+
+  std::vector<Collapse> choose() {
     const auto V = static_cast<std::uint32_t>(at_.size());
-    std::vector<std::uint8_t> locked(V, 0);
-    constexpr std::uint32_t kBlock = 1u << 18;
     const std::uint32_t blocks = (V + kBlock - 1) / kBlock;
-    std::vector<std::vector<Collapse>> chosen(blocks + 1);  // the last: the rings across blocks
-    std::vector<std::vector<std::uint32_t>> across(blocks);
-    tbb::parallel_for(std::uint32_t{0}, blocks, [&](std::uint32_t b) {
-      if (q_.cancelled()) return;
-      const std::uint32_t lo = b * kBlock, hi = std::min(V, lo + kBlock);
-      for (std::uint32_t v = lo; v < hi; ++v) {
-        if (locked[v] || !collapsible(s, v)) continue;
-        const std::uint32_t* rv = s.ring_of(v);
-        if (rv[0] < lo || rv[s.ring_count[v] - 1] >= hi)  // sorted
-          across[b].push_back(v);
-        else
-          choose_at(s, v, locked, chosen[b]);
-      }
+    const std::uint32_t P = share_ ? static_cast<std::uint32_t>(share_->processes()) : 1,
+                        me = share_ ? static_cast<std::uint32_t>(share_->process()) : 0;
+    std::vector<std::uint32_t> own;
+    for (std::uint32_t b = me; b < blocks; b += P) own.push_back(b);
+    for (std::uint32_t b : own) stars_.build_rings(mesh_, b * kBlock, block_end(b));
+    std::vector<std::uint8_t> locked(V, 0);
+    std::vector<BlockChoice> part(blocks);
+    tbb::parallel_for(std::size_t{0}, own.size(), [&](std::size_t i) {
+      if (!q_.cancelled()) choose_in_block(own[i], locked, part[own[i]]);
     });
     q_.throw_if_cancelled();
-    for (const auto& vs : across)
-      for (std::uint32_t v : vs)
-        if (!locked[v]) choose_at(s, v, locked, chosen[blocks]);
     std::vector<Collapse> all;
-    for (const auto& part : chosen) all.insert(all.end(), part.begin(), part.end());
+    if (P > 1 && me != 0) {
+      for (std::uint32_t b : own) {
+        share::send_vector(*share_, part[b].chosen);
+        share::send_vector(*share_, part[b].across);
+        share::send_vector(*share_, std::vector<std::uint8_t>(locked.begin() + b * kBlock, locked.begin() + block_end(b)));
+      }
+      share::broadcast_vector(*share_, all);
+      return all;
+    }
+    for (std::uint32_t p = 1; p < P; ++p)
+      for (std::uint32_t b = p; b < blocks; b += P) receive_block(static_cast<int>(p), b, part[b], locked);
+    std::vector<Collapse> across;
+    for (const auto& bc : part)
+      for (std::uint32_t v : bc.across)
+        if (!locked[v]) {
+          stars_.ensure_ring(mesh_, v);
+          const std::uint32_t* rv = stars_.ring_of(v);
+          for (std::uint32_t k = 0; k < stars_.ring_count[v]; ++k) stars_.ensure_ring(mesh_, rv[k]);
+          choose_at(stars_, v, locked, across);
+        }
+    for (const auto& bc : part) all.insert(all.end(), bc.chosen.begin(), bc.chosen.end());
+    all.insert(all.end(), across.begin(), across.end());
+    if (P > 1) share::broadcast_vector(*share_, all);
     return all;
+  }
+
+  std::uint32_t block_end(std::uint32_t b) const { return std::min(static_cast<std::uint32_t>(at_.size()), (b + 1) * kBlock); }
+
+  // Block b's collapses whose rings lie inside it, in vertex order, and its vertices whose do not.
+  void choose_in_block(std::uint32_t b, std::vector<std::uint8_t>& locked, BlockChoice& out) const {
+    const Stars& s = stars_;
+    const std::uint32_t lo = b * kBlock, hi = block_end(b);
+    for (std::uint32_t v = lo; v < hi; ++v) {
+      if (locked[v] || !collapsible(s, v)) continue;
+      const std::uint32_t* rv = s.ring_of(v);
+      if (rv[0] < lo || rv[s.ring_count[v] - 1] >= hi)  // sorted
+        out.across.push_back(v);
+      else
+        choose_at(s, v, locked, out.chosen);
+    }
+  }
+
+  // Process `from`'s choice in block b, checked: its collapses and locks inside the block.
+  void receive_block(int from, std::uint32_t b, BlockChoice& into, std::vector<std::uint8_t>& locked) const {
+    const std::uint32_t lo = b * kBlock, hi = block_end(b);
+    into.chosen = share::receive_vector<Collapse>(*share_, from);
+    into.across = share::receive_vector<std::uint32_t>(*share_, from);
+    const auto locks = share::receive_vector<std::uint8_t>(*share_, from);
+    const auto inside = [&](std::uint32_t v) { return v >= lo && v < hi; };
+    const bool broken =
+        locks.size() != hi - lo ||
+        std::any_of(into.chosen.begin(), into.chosen.end(), [&](const Collapse& c) { return !inside(c.v) || !inside(c.u); }) ||
+        !std::all_of(into.across.begin(), into.across.end(), inside) || !std::is_sorted(into.across.begin(), into.across.end());
+    if (broken) throw std::logic_error(fmt::format("process {} sent a broken record of its choice of collapses", from));
+    std::copy(locks.begin(), locks.end(), locked.begin() + lo);
   }
 
   bool collapsible(const Stars& s, std::uint32_t v) const {

@@ -236,7 +236,8 @@ TEST(DistanceQuery, SameMeshForAnyThreadCount) {
 }
 
 // The collapses' choice runs in blocks of 2^18 vertex numbers (distance_query.cpp): a foam of
-// more vertices than that, collapsed the same for 1, 2 and 4 threads, still manifold and oriented.
+// more vertices than that, collapsed the same for 1, 2 and 4 threads and for 2 and 3 processes
+// together, still manifold and oriented.
 TEST(DistanceQuery, CollapsesAcrossVertexBlocksAreTheSameForAnyThreadCount) {
   std::mt19937 rng(11);
   Volume v = make_volume({56, 56, 56}, ScalarType::f32);
@@ -258,6 +259,24 @@ TEST(DistanceQuery, CollapsesAcrossVertexBlocksAreTheSameForAnyThreadCount) {
   const auto census = testutil::edge_census(one, v.dims, v.spacing);
   EXPECT_EQ(census.nonmanifold, 0u);
   EXPECT_EQ(census.misoriented, 0u);
+  // Made together, each block of the choice is built and chosen on one process, the vertices
+  // across blocks on process 0 with the others' locks (2 processes: a block each, 3: one idle).
+  for (int P : {2, 3}) {
+    testutil::Hub hub;
+    std::vector<Mesh> got(static_cast<std::size_t>(P));
+    std::vector<DistanceQueryStats> shared(static_cast<std::size_t>(P));
+    testutil::as_processes(hub, P, [&](ShareTransport& t, int p) {
+      const auto i = static_cast<std::size_t>(p);
+      got[i] = query.extract_within(t, 0.5, 0.5, &shared[i], 2);
+    });
+    EXPECT_EQ(hub.left(), 0u) << P;
+    for (int p = 0; p < P; ++p) {
+      const auto i = static_cast<std::size_t>(p);
+      ASSERT_EQ(got[i].triangles, one.triangles) << P << " processes, process " << p;
+      EXPECT_EQ(got[i].positions, one.positions) << P;
+      EXPECT_EQ(shared[i].collapsed, st.collapsed) << P;
+    }
+  }
 }
 
 // The same surface made by 2, 3 and 4 processes together (threads playing them): one process's,
