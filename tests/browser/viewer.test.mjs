@@ -162,9 +162,14 @@ try {
   await page.goto(url, { waitUntil: 'load' });
   const notServed = () => [...assets].filter(([, status]) => status !== 200);
   if (notServed().length || failed.length) fail(`files the page loads did not answer 200: ${JSON.stringify(notServed())} ${failed.join('; ')}`);
-  const stats = page.locator('#stats');
   await page.waitForFunction(() => /triangles: [1-9]/.test(document.getElementById('stats').textContent), null, { timeout: 60000 });
-  const read = async () => ({ text: await stats.textContent(), iso: await stats.getAttribute('data-iso'), distance: await stats.getAttribute('data-distance') });
+  // In one evaluation: the page replaces a dragged surface with the one at rest between two
+  // round trips, so reading the text and the attributes one by one could pair a dragged surface's
+  // count with the rest surface's distance (CI saw 336 triangles at D = 2 checked against 0.5's 708).
+  const read = () => page.evaluate(() => {
+    const s = document.getElementById('stats');
+    return { text: s.textContent, iso: s.dataset.iso, distance: s.dataset.distance };
+  });
   const first = await read();
   const t1 = Number(first.text.match(/triangles: (\d+)/)[1]);
   // A bisection grid: the page asks for surfaces within a distance (0.5 voxels at rest by default).
