@@ -128,8 +128,9 @@ public:
   // placing them; process 0 numbers the chunks' vertices again in chunk order and sends the mesh
   // to the others; each round of collapses has each block of 2^18 vertices chosen on one process
   // (process 0 choosing across the blocks) and each process probing a share of the collapses
-  // chosen. `stats` is the same on every process but its timings. Throws what extract_within throws, and whatever the transport throws; a
-  // process that fails mid-way (its memory) leaves the others waiting: the caller stops them (the command line: MPI_Abort).
+  // chosen. `stats` is the same on every process but its timings. Throws what extract_within
+  // throws, and whatever the transport throws; a process that fails mid-way (its memory) leaves
+  // the others waiting: the caller stops them (the command line: MPI_Abort).
   Mesh extract_within(ShareTransport& share, double iso, double distance, DistanceQueryStats* stats = nullptr,
                       int collapse_rounds = kDefaultCollapseRounds) const;
 

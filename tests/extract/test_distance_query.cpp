@@ -235,6 +235,27 @@ TEST(DistanceQuery, SameMeshForAnyThreadCount) {
   }
 }
 
+namespace {
+
+// Each process's surface and counts when P processes (threads playing them) make one together;
+// no message may be left unread.
+struct MadeTogether {
+  Mesh mesh;
+  DistanceQueryStats stats;
+};
+std::vector<MadeTogether> made_together(const HierarchyQuery& query, int P, double iso, double distance, int rounds) {
+  testutil::Hub hub;
+  std::vector<MadeTogether> got(static_cast<std::size_t>(P));
+  testutil::as_processes(hub, P, [&](ShareTransport& t, int p) {
+    MadeTogether& mine = got[static_cast<std::size_t>(p)];
+    mine.mesh = query.extract_within(t, iso, distance, &mine.stats, rounds);
+  });
+  EXPECT_EQ(hub.left(), 0u) << P << " processes";
+  return got;
+}
+
+}  // namespace
+
 // The collapses' choice runs in blocks of 2^18 vertex numbers (distance_query.cpp): a foam of
 // more vertices than that, collapsed the same for 1, 2 and 4 threads and for 2 and 3 processes
 // together, still manifold and oriented.
@@ -262,19 +283,12 @@ TEST(DistanceQuery, CollapsesAcrossVertexBlocksAreTheSameForAnyThreadCount) {
   // Made together, each block of the choice is built and chosen on one process, the vertices
   // across blocks on process 0 with the others' locks (2 processes: a block each, 3: one idle).
   for (int P : {2, 3}) {
-    testutil::Hub hub;
-    std::vector<Mesh> got(static_cast<std::size_t>(P));
-    std::vector<DistanceQueryStats> shared(static_cast<std::size_t>(P));
-    testutil::as_processes(hub, P, [&](ShareTransport& t, int p) {
-      const auto i = static_cast<std::size_t>(p);
-      got[i] = query.extract_within(t, 0.5, 0.5, &shared[i], 2);
-    });
-    EXPECT_EQ(hub.left(), 0u) << P;
+    const auto got = made_together(query, P, 0.5, 0.5, 2);
     for (int p = 0; p < P; ++p) {
-      const auto i = static_cast<std::size_t>(p);
-      ASSERT_EQ(got[i].triangles, one.triangles) << P << " processes, process " << p;
-      EXPECT_EQ(got[i].positions, one.positions) << P;
-      EXPECT_EQ(shared[i].collapsed, st.collapsed) << P;
+      const MadeTogether& g = got[static_cast<std::size_t>(p)];
+      ASSERT_EQ(g.mesh.triangles, one.triangles) << P << " processes, process " << p;
+      EXPECT_EQ(g.mesh.positions, one.positions) << P;
+      EXPECT_EQ(g.stats.collapsed, st.collapsed) << P;
     }
   }
 }
@@ -301,28 +315,21 @@ TEST(DistanceQuery, ProcessesTogetherMakeOneProcesssSurface) {
           DistanceQueryStats alone_st;
           const Mesh alone = query.extract_within(iso, distance, &alone_st, rounds);
           for (int P : {2, 3, 4}) {
-            testutil::Hub hub;
-            std::vector<Mesh> got(static_cast<std::size_t>(P));
-            std::vector<DistanceQueryStats> st(static_cast<std::size_t>(P));
-            testutil::as_processes(hub, P, [&](ShareTransport& t, int p) {
-              const auto i = static_cast<std::size_t>(p);
-              got[i] = query.extract_within(t, iso, distance, &st[i], rounds);
-            });
+            const auto got = made_together(query, P, iso, distance, rounds);
             const std::string what = fmt::format("{}x{}x{} iso {} distance {} rounds {} processes {}", v->dims[0], v->dims[1], v->dims[2],
                                                  iso, distance, rounds, P);
-            EXPECT_EQ(hub.left(), 0u) << what;
             EXPECT_EQ(detail::shared_refinement_fallbacks(), 0u) << what;  // every dealt subtree was refined by its owner
             for (int p = 0; p < P; ++p) {
-              const auto i = static_cast<std::size_t>(p);
-              ASSERT_EQ(got[i].triangles, alone.triangles) << what << " process " << p;
-              EXPECT_EQ(got[i].positions, alone.positions) << what;
-              EXPECT_EQ(got[i].normals, alone.normals) << what;
-              EXPECT_EQ(st[i].tested, alone_st.tested) << what;
-              EXPECT_EQ(st[i].refined, alone_st.refined) << what;
-              EXPECT_EQ(st[i].closure, alone_st.closure) << what;
-              EXPECT_EQ(st[i].visited, alone_st.visited) << what;
-              EXPECT_EQ(st[i].tetrahedra, alone_st.tetrahedra) << what;
-              EXPECT_EQ(st[i].collapsed, alone_st.collapsed) << what;
+              const auto& [mesh, st] = got[static_cast<std::size_t>(p)];
+              ASSERT_EQ(mesh.triangles, alone.triangles) << what << " process " << p;
+              EXPECT_EQ(mesh.positions, alone.positions) << what;
+              EXPECT_EQ(mesh.normals, alone.normals) << what;
+              EXPECT_EQ(st.tested, alone_st.tested) << what;
+              EXPECT_EQ(st.refined, alone_st.refined) << what;
+              EXPECT_EQ(st.closure, alone_st.closure) << what;
+              EXPECT_EQ(st.visited, alone_st.visited) << what;
+              EXPECT_EQ(st.tetrahedra, alone_st.tetrahedra) << what;
+              EXPECT_EQ(st.collapsed, alone_st.collapsed) << what;
             }
           }
         }
