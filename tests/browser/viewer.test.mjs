@@ -56,7 +56,7 @@ const url = await new Promise((ok, bad) => {
 
 // With a distance, the surface the page draws: no edge collapses unless the page was given ?collapse=.
 async function apiTriangles(iso, distance = '') {
-  const within = distance === '' || distance === null ? '' : `&distance=${distance}&collapse=0`;
+  const within = distance === '' || distance == null ? '' : `&distance=${distance}&collapse=0`;
   const r = await fetch(`${url}api/surface?iso=${encodeURIComponent(iso)}&client=test-check${within}`);
   if (!r.ok) fail(`/api/surface answered ${r.status}`);
   const buf = await r.arrayBuffer();
