@@ -238,19 +238,20 @@ TEST(DistanceQuery, SameMeshForAnyThreadCount) {
 namespace {
 
 // Each process's surface and counts when P processes (threads playing them) make one together;
-// no message may be left unread.
+// no message may be left unread (`what` names the case in the failure).
 struct MadeTogether {
   Mesh mesh;
   DistanceQueryStats stats;
 };
-std::vector<MadeTogether> made_together(const HierarchyQuery& query, int P, double iso, double distance, int rounds) {
+std::vector<MadeTogether> made_together(const HierarchyQuery& query, int P, double iso, double distance, int rounds,
+                                        const std::string& what) {
   testutil::Hub hub;
   std::vector<MadeTogether> got(static_cast<std::size_t>(P));
   testutil::as_processes(hub, P, [&](ShareTransport& t, int p) {
     MadeTogether& mine = got[static_cast<std::size_t>(p)];
     mine.mesh = query.extract_within(t, iso, distance, &mine.stats, rounds);
   });
-  EXPECT_EQ(hub.left(), 0u) << P << " processes";
+  EXPECT_EQ(hub.left(), 0u) << what;
   return got;
 }
 
@@ -283,7 +284,7 @@ TEST(DistanceQuery, CollapsesAcrossVertexBlocksAreTheSameForAnyThreadCount) {
   // Made together, each block of the choice is built and chosen on one process, the vertices
   // across blocks on process 0 with the others' locks (2 processes: a block each, 3: one idle).
   for (int P : {2, 3}) {
-    const auto got = made_together(query, P, 0.5, 0.5, 2);
+    const auto got = made_together(query, P, 0.5, 0.5, 2, fmt::format("{} processes", P));
     for (int p = 0; p < P; ++p) {
       const MadeTogether& g = got[static_cast<std::size_t>(p)];
       ASSERT_EQ(g.mesh.triangles, one.triangles) << P << " processes, process " << p;
@@ -315,9 +316,9 @@ TEST(DistanceQuery, ProcessesTogetherMakeOneProcesssSurface) {
           DistanceQueryStats alone_st;
           const Mesh alone = query.extract_within(iso, distance, &alone_st, rounds);
           for (int P : {2, 3, 4}) {
-            const auto got = made_together(query, P, iso, distance, rounds);
             const std::string what = fmt::format("{}x{}x{} iso {} distance {} rounds {} processes {}", v->dims[0], v->dims[1], v->dims[2],
                                                  iso, distance, rounds, P);
+            const auto got = made_together(query, P, iso, distance, rounds, what);
             EXPECT_EQ(detail::shared_refinement_fallbacks(), 0u) << what;  // every dealt subtree was refined by its owner
             for (int p = 0; p < P; ++p) {
               const auto& [mesh, st] = got[static_cast<std::size_t>(p)];
