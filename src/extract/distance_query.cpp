@@ -540,6 +540,9 @@ struct Query {
   // vertices, so that a probe there interpolates in its finest tetrahedron with no descent.
   // Counted first: on the CT bunny at iso 1600.5, 3 of the first 600 k probe ends at D = 0.5 and
   // none of 200 k at 2 fell in such a cube. The grid beside its surface is coarser than that.
+  // Nor (2026-12-03) value_by_cubes prefetching the bitmap words of its first four cube centres
+  // before the first lookup (the centres depend on p alone): the same PLY bytes, the refinement
+  // 0.152-0.168 s against 0.153-0.164 at D = 0.5 (3 alternated pairs), within the noise.
   template <class Hint>
   bool far_from_surface(const Point& pv, const Point& normal, Hint&& near) const {
     bool side[2];
@@ -1153,6 +1156,17 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, s
 // 3.4 per collapse; then the rings and the choice. A round on the noisy 866 k-triangle surface at
 // iso 438 takes 0.25-0.35 s, on the 138 k of iso 1600.5 about 55 ms. Fetching both halves'
 // bitmap words one level ahead in the descent changed nothing measurable.
+// Counted (2026-12-03, the bunny at iso 1600.5, D = 0.5, 2 rounds): 96 % of the chosen collapses
+// pass; a probe's descent climbs 9.7 levels from its trail and goes down 9.7, and 87.5 % of them
+// end in a grid leaf, not on a one-sided span (near the surface the spans straddle). A round's
+// choice is serial for a mesh of one block (12-15 ms a round there, the probes 44-59 ms).
+// Tried and not kept, the same day: a per-chunk cache of the grid leaves the probes ended in,
+// tested before the climb (0.6 % of the probes fell in a cached leaf keyed by voxel and Kuhn
+// tetrahedron, 2.3 % in one of the last 64 leaves: the probes seldom share a leaf); the vertices
+// collapsed in earlier rounds as more known points of the grid's surface (1.2 k of round 2's
+// 45.8 k probes spared); a round's probes gathered and run in Morton order of their centres, so
+// that the trail climbs less (collapses 0.168-0.186 s against 0.148-0.153, 3 alternated pairs,
+// the same PLY bytes: the gathering and sorting cost more than the shorter climbs saved).
 
 struct Collapse {
   std::uint32_t v, u;
@@ -1335,12 +1349,12 @@ private:
 
   std::vector<Collapse> choose() {
     const auto V = static_cast<std::uint32_t>(at_.size());
-    const std::uint32_t blocks = (V + kBlock - 1) / kBlock;
+    const auto blocks = static_cast<std::uint32_t>((std::uint64_t{V} + kBlock - 1) / kBlock);
     const std::uint32_t P = share_ ? static_cast<std::uint32_t>(share_->processes()) : 1,
                         me = share_ ? static_cast<std::uint32_t>(share_->process()) : 0;
     std::vector<std::uint32_t> own;
     for (std::uint32_t b = me; b < blocks; b += P) own.push_back(b);
-    for (std::uint32_t b : own) stars_.build_rings(mesh_, b * kBlock, block_end(b));
+    for (std::uint32_t b : own) stars_.build_rings(mesh_, block_begin(b), block_end(b));
     std::vector<std::uint8_t> locked(V, 0);
     std::vector<BlockChoice> part(blocks);
     tbb::parallel_for(std::size_t{0}, own.size(), [&](std::size_t i) {
@@ -1352,7 +1366,7 @@ private:
       for (std::uint32_t b : own) {
         share::send_vector(*share_, part[b].chosen);
         share::send_vector(*share_, part[b].across);
-        share::send_vector(*share_, std::vector<std::uint8_t>(locked.begin() + b * kBlock, locked.begin() + block_end(b)));
+        share::send_vector(*share_, std::vector<std::uint8_t>(locked.begin() + block_begin(b), locked.begin() + block_end(b)));
       }
       share::broadcast_vector(*share_, all);
       return all;
@@ -1374,12 +1388,16 @@ private:
     return all;
   }
 
-  std::uint32_t block_end(std::uint32_t b) const { return std::min(static_cast<std::uint32_t>(at_.size()), (b + 1) * kBlock); }
+  // In 64 bits: the last block of a mesh of nearly 2^32 vertices ends past 32 bits.
+  std::uint32_t block_begin(std::uint32_t b) const { return static_cast<std::uint32_t>(std::uint64_t{b} * kBlock); }
+  std::uint32_t block_end(std::uint32_t b) const {
+    return static_cast<std::uint32_t>(std::min<std::uint64_t>(at_.size(), (std::uint64_t{b} + 1) * kBlock));
+  }
 
   // Block b's collapses whose rings lie inside it, in vertex order, and its vertices whose do not.
   void choose_in_block(std::uint32_t b, std::vector<std::uint8_t>& locked, BlockChoice& out) const {
     const Stars& s = stars_;
-    const std::uint32_t lo = b * kBlock, hi = block_end(b);
+    const std::uint32_t lo = block_begin(b), hi = block_end(b);
     for (std::uint32_t v = lo; v < hi; ++v) {
       if (locked[v] || !collapsible(s, v)) continue;
       const std::uint32_t* rv = s.ring_of(v);
@@ -1392,7 +1410,7 @@ private:
 
   // Process `from`'s choice in block b, checked: its collapses and locks inside the block.
   void receive_block(int from, std::uint32_t b, BlockChoice& into, std::vector<std::uint8_t>& locked) const {
-    const std::uint32_t lo = b * kBlock, hi = block_end(b);
+    const std::uint32_t lo = block_begin(b), hi = block_end(b);
     into.chosen = share::receive_vector<Collapse>(*share_, from);
     into.across = share::receive_vector<std::uint32_t>(*share_, from);
     const auto locks = share::receive_vector<std::uint8_t>(*share_, from);
