@@ -190,6 +190,11 @@ std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool 
         if (tag == 0x00281052) top->has_intercept = true;
         if (tag == 0x00281053) top->slope = x;
       }
+      if (tag == 0x00280004 && e.length != kUndefined) {
+        std::string v(reinterpret_cast<const char*>(&r.b[e.value]), e.length);
+        while (!v.empty() && (v.back() == ' ' || v.back() == '\0')) v.pop_back();
+        top->photometric = v;
+      }
       if (tag == 0x7fe00010) {
         top->has_pixels = true;
         top->encapsulated = e.length == kUndefined;
@@ -246,6 +251,14 @@ DicomSummary check_dicom_bytes(std::span<const unsigned char> bytes, const std::
     throw InputError(fmt::format("{}: DICOM RescaleIntercept without a usable RescaleSlope (it must be a non-zero number)", file));
   // GDCM asserts on other sample counts; adaptiso reads grey-scale images of whole bytes.
   if (s.samples != 1) throw InputError(fmt::format("{}: {} samples per pixel; adaptiso reads grey-scale images", file, s.samples));
+  // GDCM asserts on a palette image without its lookup tables, and takes a damaged value for the
+  // nearest one it knows (fuzz_dicom: "PALET\0\1ME2"); grey-scale is MONOCHROME1 or 2.
+  if (s.photometric && *s.photometric != "MONOCHROME1" && *s.photometric != "MONOCHROME2") {
+    std::string printable = s.photometric->substr(0, 32);  // one line, whatever the file holds
+    for (char& c : printable)
+      if (c < 0x20 || c > 0x7e) c = '?';
+    throw InputError(fmt::format("{}: PhotometricInterpretation '{}' is not grey-scale (MONOCHROME1 or MONOCHROME2)", file, printable));
+  }
   if (s.bits_allocated != 8 && s.bits_allocated != 16 && s.bits_allocated != 32 && s.bits_allocated != 64)
     throw InputError(fmt::format("{}: BitsAllocated {} is not supported (8, 16, 32 or 64)", file, s.bits_allocated));
   const std::uint64_t image =

@@ -11,8 +11,9 @@ struct DicomSummary {
   std::uint32_t rows = 0, columns = 0, bits_allocated = 0, samples = 1;
   std::uint64_t frames = 1, pixel_bytes = 0;
   bool has_pixels = false, encapsulated = false, has_intercept = false;
-  std::optional<double> slope;  // RescaleSlope as GDCM reads it
-  std::int64_t last_tag = -1;   // the data set's tags must ascend
+  std::optional<double> slope;             // RescaleSlope as GDCM reads it
+  std::int64_t last_tag = -1;              // the data set's tags must ascend
+  std::optional<std::string> photometric;  // PhotometricInterpretation, trailing spaces and NULs dropped
   // Where the data set ends when zero bytes pad the file after the pixel data (0: no padding).
   // GDCM parses padding as empty elements, an exception each: 2.1 s for 2.5 MB of zeros.
   std::uint64_t padded_from = 0;

@@ -345,6 +345,26 @@ TEST(HostileDicom, InterceptWithoutAUsableSlopeIsRefusedNotAGdcmAssert) {
   }
 }
 
+TEST(HostileDicom, PaletteOrDamagedPhotometricInterpretationIsRefusedNotAGdcmAssert) {
+  // Found by fuzz_dicom (CI's clean-clone run, 2026-12-03): "PALET\0\1ME2" where MONOCHROME2 was,
+  // which GDCM took for a palette image and asserted on in ReadImageInternal.
+  TempDir t("hostile");
+  const std::string ok = minimal_dicom("0", "1");
+  const std::size_t at = ok.find("MONOCHROME2");
+  ASSERT_NE(at, std::string::npos);
+  std::string one = ok;
+  one[at + 10] = '1';
+  testutil::write_bytes(t / "one.dcm", one);
+  EXPECT_EQ(read_volume(t / "one.dcm").voxel_count(), 64);
+  for (const std::string& pi : {std::string("PALET\0\1ME2", 11), std::string("RGB        "), std::string("MONOCHROME3")}) {
+    SCOPED_TRACE(pi);
+    std::string b = ok;
+    b.replace(at, 11, pi);
+    testutil::write_bytes(t / "pi.dcm", b);
+    expect_refused(t / "pi.dcm", "pi.dcm", "PhotometricInterpretation");
+  }
+}
+
 TEST(HostileNifti, Nifti2HeaderCutShortIsRefusedNotEndlessRecursion) {
   TempDir t("hostile");
   std::string h = testutil::u32(540) + std::string("n+2\0\r\n\032\n", 8);
