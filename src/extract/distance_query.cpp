@@ -1159,7 +1159,8 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, s
 // Counted (2026-12-03, the bunny at iso 1600.5, D = 0.5, 2 rounds): 96 % of the chosen collapses
 // pass; a probe's descent climbs 9.7 levels from its trail and goes down 9.7, and 87.5 % of them
 // end in a grid leaf, not on a one-sided span (near the surface the spans straddle). A round's
-// choice is serial for a mesh of one block (12-15 ms a round there, the probes 44-59 ms).
+// choice is serial for a mesh of one block (7-9 ms a round there after 4 ms of rings built in
+// parallel; the probes 44-59 ms).
 // Tried and not kept, the same day: a per-chunk cache of the grid leaves the probes ended in,
 // tested before the climb (0.6 % of the probes fell in a cached leaf keyed by voxel and Kuhn
 // tetrahedron, 2.3 % in one of the last 64 leaves: the probes seldom share a leaf); the vertices

@@ -7,6 +7,7 @@
 #include "adaptiso/gradients.hpp"
 
 #include "util/big_array.hpp"
+#include "util/progress_counter.hpp"
 
 #include <tbb/combinable.h>
 #include <tbb/parallel_for.h>
@@ -56,7 +57,7 @@ void least_squares_gradients(TetGrid& grid, const Progress& progress) {
   const VertexRings rings = vertex_rings(grid);
   const std::size_t n = grid.vertex_count();
   grid.gradients.assign(n, {0, 0, 0});
-  std::atomic<std::size_t> done{0};
+  detail::ProgressCounter done(progress, "gradients", n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024), [&](const tbb::blocked_range<std::size_t>& r) {
     Eigen::MatrixXd A;
     Eigen::VectorXd b;
@@ -79,8 +80,7 @@ void least_squares_gradients(TetGrid& grid, const Progress& progress) {
       Eigen::Vector4d x = svd.solve(b);
       grid.gradients[v] = {static_cast<float>(x(1)), static_cast<float>(x(2)), static_cast<float>(x(3))};
     }
-    std::size_t d = done += r.size();
-    report(progress, "gradients", static_cast<double>(d) / static_cast<double>(n));
+    done.advance(r.size());
   });
 }
 
@@ -95,7 +95,7 @@ void central_difference_gradients(TetGrid& grid, const Volume& vol, const Progre
   const std::int64_t stride[3] = {1, vol.dims[0], vol.dims[0] * vol.dims[1]};
   visit_values(vol, [&]<class T>(std::span<const T> values) {
     const T* f = values.data();
-    std::atomic<std::size_t> done{0};
+    detail::ProgressCounter done(progress, "gradients", n);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const tbb::blocked_range<std::size_t>& r) {
       for (std::size_t v = r.begin(); v < r.end(); ++v) {
         std::array<std::int64_t, 3> p;
@@ -117,8 +117,7 @@ void central_difference_gradients(TetGrid& grid, const Volume& vol, const Progre
         }
         grid.gradients[v] = out;
       }
-      const std::size_t k = done += r.size();
-      report(progress, "gradients", static_cast<double>(k) / static_cast<double>(std::max<std::size_t>(n, 1)));
+      done.advance(r.size());
     });
   });
 }
@@ -136,8 +135,8 @@ ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& gri
   std::vector<float> error;  // per voxel, < 0 until a tetrahedron claims it
   detail::assign_big(error, nvox, unclaimed);
   tbb::combinable<double> largest([] { return 0.0; });
-  std::atomic<std::size_t> done{0};
   const std::size_t nt = grid.tet_count();
+  detail::ProgressCounter done(progress, "reconstruction error", nt);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, nt, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
     double& worst = largest.local();
     for (std::size_t t = r.begin(); t < r.end(); ++t) {
@@ -189,8 +188,7 @@ ReconstructionError piecewise_linear_error(const Volume& vol, const TetGrid& gri
             worst = std::max(worst, e);
           }
     }
-    std::size_t d = done += r.size();
-    report(progress, "reconstruction error", static_cast<double>(d) / static_cast<double>(nt));
+    done.advance(r.size());
   });
   struct Sum {
     double sq = 0;

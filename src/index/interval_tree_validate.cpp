@@ -21,6 +21,7 @@
 #include "adaptiso/interval_tree.hpp"
 #include "index/tet_range.hpp"
 #include "util/big_array.hpp"
+#include "util/progress_counter.hpp"
 
 namespace adaptiso {
 using detail::prefetch_values;
@@ -104,13 +105,8 @@ void validate_interval_tree(const IntervalTree& tree, const TetGrid& grid, const
     return false;
   };
   // Progress over both lists' entries, told at most a hundred times.
-  std::atomic<std::uint64_t> checked{0};
-  const std::uint64_t all = 2 * tree.entries();
-  auto advance = [&](std::uint64_t n) {
-    const std::uint64_t before = checked.fetch_add(n, std::memory_order_relaxed);
-    if (all && (before * 100 / all) != ((before + n) * 100 / all))
-      adaptiso::report(progress, "check index", static_cast<double>(before + n) / all);
-  };
+  detail::ProgressCounter checked(progress, "check index", 2 * tree.entries());
+  auto advance = [&](std::uint64_t n) { checked.advance(n); };
   adaptiso::report(progress, "check index", 0);
   auto ahead = [&](const std::uint32_t* list, std::uint64_t k, std::uint64_t e) {
     if (k + 16 < e && list[k + 16] < T) {

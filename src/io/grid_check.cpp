@@ -24,6 +24,7 @@
 #include "grid/traversal.hpp"
 #include "util/big_array.hpp"
 #include "util/memory.hpp"
+#include "util/progress_counter.hpp"
 
 namespace adaptiso::detail {
 namespace {
@@ -384,7 +385,7 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
   std::vector<std::size_t> own;  // the subtrees this process walks
   for (std::size_t f = 0; f < roots; ++f)
     if (share.mine(f)) own.push_back(f);
-  std::atomic<std::size_t> walked_roots{0};
+  detail::ProgressCounter walked_roots(progress, "check grid", own.size(), 0.1, 1);
   tbb::parallel_for(std::size_t{0}, own.size(), [&](std::size_t i) {
     const std::size_t f = own[i];
     std::uint64_t count = 0, sum = 0;
@@ -403,9 +404,7 @@ void check_hierarchy(const PreparedGrid& p, const std::string& path, std::option
     leaves[f + 1] = count;
     hashes[f] = sum;
     volumes[f] = volume;
-    const std::size_t done = walked_roots.fetch_add(1, std::memory_order_relaxed) + 1;
-    if (done * 100 / own.size() != (done - 1) * 100 / own.size())
-      report(progress, "check grid", 0.1 + 0.9 * static_cast<double>(done) / static_cast<double>(own.size()));
+    walked_roots.advance(1);
   });
   // Every process's subtrees in every process's findings: the others' counts, volumes and spans
   // are zero and empty here, so sums and unions combine them.

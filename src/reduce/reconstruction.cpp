@@ -24,8 +24,10 @@
 #include <bit>
 #include <cmath>
 #include <limits>
+#include <optional>
 
 #include "adaptiso/reduce.hpp"
+#include "util/progress_counter.hpp"
 
 namespace adaptiso {
 namespace {
@@ -55,7 +57,7 @@ public:
       om.counts[static_cast<std::size_t>(l - 1)] = n;
       om.merged[static_cast<std::size_t>(l - 1)].assign(static_cast<std::size_t>(n[0] * n[1] * n[2]), 0);
     }
-    total_atomic_ = static_cast<double>(om.counts[0][0] * om.counts[0][1] * om.counts[0][2]);
+    done_.emplace(progress_, "reduce: reconstruction", static_cast<std::uint64_t>(om.counts[0][0] * om.counts[0][1] * om.counts[0][2]));
   }
 
   void run() {
@@ -71,8 +73,7 @@ private:
   double bound_;
   OctreeMerges& om_;
   const Progress& progress_;
-  double total_atomic_;
-  std::atomic<std::int64_t> done_{0};
+  std::optional<detail::ProgressCounter> done_;  // atomic cubes, made once their count is known
 
   // Every voxel of the box [lo, hi] against trilinear interpolation from the box corners; row(y, z)
   // points at the box's first voxel of that row (the volume, or a block copied out of it).
@@ -199,8 +200,7 @@ private:
       for (int i = 0; i < 8; ++i) child(i);
     }
     if (l == 5) {
-      std::int64_t n = done_.fetch_add(512) + 512;  // atomic cubes per level-5 cube
-      report(progress_, "reduce: reconstruction", std::min(1.0, static_cast<double>(n) / total_atomic_));
+      done_->advance(512);  // atomic cubes per level-5 cube
     }
     bool all = true;
     double mn = std::numeric_limits<double>::infinity(), mx = -mn;

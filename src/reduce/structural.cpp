@@ -16,10 +16,10 @@
 #include <tbb/parallel_reduce.h>
 
 #include <fmt/format.h>
-#include <atomic>
 #include <cmath>
 
 #include "adaptiso/reduce.hpp"
+#include "util/progress_counter.hpp"
 
 namespace adaptiso {
 namespace {
@@ -34,7 +34,7 @@ inline void rounded_direction(const Grad& g, double mag, int d[3]) {
 template <class GradFn>
 std::vector<std::int64_t> suppress(const Dims& dm, double threshold, GradFn grad, const Progress& progress) {
   std::vector<std::vector<std::int64_t>> per_slice(static_cast<std::size_t>(dm[2]));
-  std::atomic<std::int64_t> done{0};
+  detail::ProgressCounter done(progress, "reduce: structural", static_cast<std::uint64_t>(dm[2]));
   tbb::parallel_for(std::int64_t{0}, dm[2], [&](std::int64_t z) {
     auto& out = per_slice[static_cast<std::size_t>(z)];
     for (std::int64_t y = 0; y < dm[1]; ++y)
@@ -57,8 +57,7 @@ std::vector<std::int64_t> suppress(const Dims& dm, double threshold, GradFn grad
         }
         if (ok && strictly) out.push_back(x + dm[0] * (y + dm[1] * z));
       }
-    std::int64_t n = ++done;
-    if ((n & 7) == 0) report(progress, "reduce: structural", static_cast<double>(n) / static_cast<double>(dm[2]));
+    done.advance(1);
   });
   std::vector<std::int64_t> kept;
   for (auto& s : per_slice) kept.insert(kept.end(), s.begin(), s.end());

@@ -156,6 +156,8 @@ std::size_t walk_items(const Reader& r, std::size_t at, int depth) {
 }
 
 std::uint32_t us_value(const Reader& r, const Element& e) { return e.length >= 2 ? r.u16(e.value) : 0; }
+// A text element's bytes, as the file holds them (its length is defined).
+std::string text_value(const Reader& r, const Element& e) { return {reinterpret_cast<const char*>(&r.b[e.value]), e.length}; }
 
 std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool until_delimiter, int depth, DicomSummary* top) {
   if (depth > kMaxDepth) r.fail("sequences nested too deep", at);
@@ -169,7 +171,7 @@ std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool 
       if (tag == 0x00280100) top->bits_allocated = us_value(r, e);
       if (tag == 0x00280002) top->samples = us_value(r, e);
       if (tag == 0x00280008 && e.length != kUndefined) {
-        std::string s(reinterpret_cast<const char*>(&r.b[e.value]), e.length);
+        const std::string s = text_value(r, e);
         auto n = parse_finite(trim(s.substr(0, s.find('\\'))));
         top->frames = n && *n >= 1 && *n <= 1e9 ? static_cast<std::uint64_t>(*n) : 1;
       }
@@ -185,13 +187,13 @@ std::size_t walk_dataset(const Reader& r, std::size_t at, std::size_t end, bool 
       if ((tag == 0x00281052 || tag == 0x00281053) && e.length != kUndefined) {
         // GDCM asserts on a zero rescale slope, and takes a missing one as zero when an intercept
         // is given; it reads the value as a stream does (a leading number, else 0).
-        std::string v(reinterpret_cast<const char*>(&r.b[e.value]), e.length);
+        const std::string v = text_value(r, e);
         const double x = std::strtod(trim(v.substr(0, v.find('\\'))).c_str(), nullptr);
         if (tag == 0x00281052) top->has_intercept = true;
         if (tag == 0x00281053) top->slope = x;
       }
       if (tag == 0x00280004 && e.length != kUndefined) {
-        std::string v(reinterpret_cast<const char*>(&r.b[e.value]), e.length);
+        std::string v = text_value(r, e);
         while (!v.empty() && (v.back() == ' ' || v.back() == '\0')) v.pop_back();
         top->photometric = v;
       }
@@ -237,7 +239,7 @@ DicomSummary check_dicom_bytes(std::span<const unsigned char> bytes, const std::
     while (at < bytes.size() && r.u16(at) == 0x0002) {
       Element e = read_element(r, at);
       if (e.length == kUndefined) r.fail("undefined length in the file meta information", at);
-      if (e.element == 0x0010) syntax = trim(std::string(reinterpret_cast<const char*>(&bytes[e.value]), e.length).c_str());
+      if (e.element == 0x0010) syntax = trim(text_value(r, e).c_str());
       at = e.value + e.length;
     }
   }
