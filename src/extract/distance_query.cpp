@@ -195,18 +195,6 @@ struct Node {
   Subtree* sub = nullptr;  // a subtree dealt to this process (Dealing), refined whole here
 };
 
-// The tetrahedra of the last probe's descent, root first.
-struct ProbeTrail {
-  static constexpr int kMax = 128;
-  Tet t[kMax];
-  OrderState o[kMax];
-  int depth = 0;
-  void push(const Tet& next, OrderState no) {
-    if (depth == kMax) return;
-    t[depth] = next, o[depth] = no, ++depth;
-  }
-};
-
 struct Query {
   const Lattice& lat;
   const VertexNumbers& numbers;
@@ -318,7 +306,7 @@ struct Query {
   // With `near`, the descent starts from the nearest of it and its ancestors that holds p: a probe
   // beside the tetrahedron being tested is mostly inside it or its parent.
   bool value_at(const Point& p, double& value, const Node* near = nullptr) const {
-    if (near && value_by_cubes(p, value, std::max(1, cube_scale(near->t) / 2))) return true;
+    if (near && value_from_below(p, value, std::max(1, cube_scale(near->t) / 2)) == Cubes::answered) return true;
     Tet t;
     OrderState o;
     while (near && !holds(near->t, p)) near = near->parent;
@@ -326,26 +314,17 @@ struct Query {
       t = near->t, o = near->order;
     else if (!root_holding(p, t, o))
       return false;
-    return descend(p, value, t, o, [](const Tet&, OrderState) {});
+    return descend(p, value, t, o);
   }
-  // The same from the deepest tetrahedron of the last descent that holds p (a probe near the
-  // last one, as the probes of a mesh walked in its vertices' order mostly are).
-  bool value_at(const Point& p, double& value, ProbeTrail& trail) const {
-    while (trail.depth > 0 && !holds(trail.t[trail.depth - 1], p)) --trail.depth;
-    Tet t;
-    OrderState o;
-    if (trail.depth > 0) {
-      t = trail.t[trail.depth - 1], o = trail.o[trail.depth - 1];
-    } else {
-      if (!root_holding(p, t, o)) return false;
-      trail.push(t, o);
-    }
-    return descend(p, value, t, o, [&](const Tet& next, OrderState no) { trail.push(next, no); });
+  // The same for a probe beside a mesh: cube by cube from the smallest cubes up, else from the
+  // root tetrahedron holding p.
+  struct FromCubes {};
+  bool value_at(const Point& p, double& value, FromCubes) const {
+    return value_from_below(p, value, lat.S / 2) == Cubes::answered || value_at(p, value);
   }
   // From t (which holds p) towards the grid's leaf holding p, until everything beneath is on one
-  // side; each tetrahedron stepped into is passed to `entered`.
-  template <class Entered>
-  bool descend(const Point& p, double& value, Tet t, OrderState o, Entered&& entered) const {
+  // side.
+  bool descend(const Point& p, double& value, Tet t, OrderState o) const {
     for (;;) {
       Coord m;
       int i, j;
@@ -365,7 +344,6 @@ struct Query {
       const auto& e = order_table::kTable[o];
       t[static_cast<std::size_t>(keeps_i ? j : i)] = m;
       o = keeps_i ? e.at_j : e.at_i;
-      entered(t, o);
     }
     if (!tet_inside(lat, t)) return false;
     return interpolate(t, p, value);
@@ -411,7 +389,21 @@ struct Query {
   // the leaf is found by bisecting that cube's Kuhn tetrahedron holding p at its longest edge
   // (unique in this hierarchy). Returns false where it cannot tell (a cube across the box's far
   // faces, or the first cube not split): the caller descends level by level.
-  bool value_by_cubes(const Point& p, double& value, std::int32_t h0) const {
+  enum class Cubes { answered, unsplit, across };
+  // Cube by cube from the smallest cubes holding p up (half sides 1, 2, 4, … up to `top`), the
+  // first split one descended (value_by_cubes): the grid is conforming, so every cube above a
+  // split one is split too, and starting at the smallest one found split gives the answer that
+  // starting higher gives. Near the surface the grid's leaves are small, so a probe mostly starts
+  // at a cube of side 2 or 4: one lookup where coming down from the tested tetrahedron's scale
+  // took 3.4 (the CT bunny at D = 2), and the collapses' probes, which came down level by level
+  // from the last probe's tetrahedra, 12.3.
+  Cubes value_from_below(const Point& p, double& value, std::int32_t top) const {
+    for (std::int32_t half = 1;; half *= 2) {
+      const Cubes c = value_by_cubes(p, value, half);
+      if (c != Cubes::unsplit || half >= std::min(top, lat.S / 2)) return c;
+    }
+  }
+  Cubes value_by_cubes(const Point& p, double& value, std::int32_t h0) const {
     std::int32_t last = 0;  // the side of the last split cube, 0 before the first
     Coord lo_last{};
     h0 = std::min(h0, lat.S / 2);  // larger "cubes" hold no diamond: the root cube's centre is S/2
@@ -420,19 +412,19 @@ struct Query {
       Coord lo, c;
       for (int a = 0; a < 3; ++a) {
         lo[a] = std::min(static_cast<std::int32_t>(p[a] / side) * side, lat.S - side);
-        if (lo[a] + side > lat.X[a]) return false;  // across the box: spans of the part inside only
+        if (lo[a] + side > lat.X[a]) return Cubes::across;  // spans of the part inside only
         c[a] = lo[a] + half;
       }
       const std::int64_t voxel = lat.index(c);
       if (!numbers.used(voxel)) {
-        if (last == 0) return false;
+        if (last == 0) return Cubes::unsplit;
         break;
       }
-      if (one_sided(numbers.id(voxel), value)) return true;
+      if (one_sided(numbers.id(voxel), value)) return Cubes::answered;
       last = side, lo_last = lo;
       if (half == 1) break;
     }
-    if (last == 0) return false;  // no cube looked at (S = 1)
+    if (last == 0) return Cubes::across;  // no cube looked at (S = 1)
     // The Kuhn tetrahedron of the last split cube holding p: from the cube's corner at odd
     // multiples of its side along the diagonal, the axes in decreasing order of p's distance from
     // that corner.
@@ -472,13 +464,13 @@ struct Query {
       if (unit) break;
       const std::int64_t voxel = lat.index(m);
       if (!numbers.used(voxel)) break;
-      if (one_sided(numbers.id(voxel), value)) return true;
+      if (one_sided(numbers.id(voxel), value)) return Cubes::answered;
       const auto& off = kCornersOff[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)];
       const Point ti{double(t[i][0]), double(t[i][1]), double(t[i][2])};
       const double sp = orient(m, t[off[0]], t[off[1]], p), si = orient(m, t[off[0]], t[off[1]], ti);
       t[static_cast<std::size_t>((sp >= 0) == (si >= 0) ? j : i)] = m;
     }
-    return interpolate(t, p, value);
+    return interpolate(t, p, value) ? Cubes::answered : Cubes::across;
   }
   // Is p (voxels) farther than the distance from the grid's surface? It is within it when the
   // grid's interpolant has opposite signs at p ± distance·normal (the surface crosses the segment
@@ -534,8 +526,13 @@ struct Query {
   // with no orientation test, the same decisions (the same PLY bytes on nine shared volumes, 2–3
   // iso-values each, D = 0.25 to 8, 0 and 2 rounds): on the bunny the refinement 0.059–0.067 s
   // against 0.082–0.091 at D = 2 and 0.135–0.148 against 0.151–0.178 at 0.5 (3 alternated pairs).
-  // The collapses' probes start from their trail, deep already: cubes from the top, or from four
-  // times the last probe's finest cube, took as long.
+  // Since 2026-12-07 both the refinement's and the collapses' probes search from the smallest
+  // cubes up (value_from_below): on the bunny at D = 2, 1.1 cube lookups a probe where coming down
+  // from the tested tetrahedron took 3.4 (the refinement about a tenth faster: the upper lookups
+  // mostly hit the cache), and where the collapses' probes came down level by level from the
+  // last probe's path (12.3 steps after a climb of 9.7; coming down cube by cube from the top, or
+  // from four times the last probe's finest cube, had taken as long), 1.1 lookups and one
+  // tetrahedron's step: the collapses 1.5-1.6x faster.
   // Not built (2026-12-03): a bit per cube of side 2 whose 19 inner lattice points are all grid
   // vertices, so that a probe there interpolates in its finest tetrahedron with no descent.
   // Counted first: on the CT bunny at iso 1600.5, 3 of the first 600 k probe ends at D = 0.5 and
@@ -1152,22 +1149,24 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, s
 // collapsed: the link condition would then need its ring's edges too (a closed tetrahedron would
 // fold flat).
 //
-// Cost (CT bunny, 2 cores): the probes, about 1 µs a descent (cache misses down the hierarchy),
-// 3.4 per collapse; then the rings and the choice. A round on the noisy 866 k-triangle surface at
-// iso 438 takes 0.25-0.35 s, on the 138 k of iso 1600.5 about 55 ms. Fetching both halves'
-// bitmap words one level ahead in the descent changed nothing measurable.
-// Counted (2026-12-03, the bunny at iso 1600.5, D = 0.5, 2 rounds): 96 % of the chosen collapses
-// pass; a probe's descent climbs 9.7 levels from its trail and goes down 9.7, and 87.5 % of them
-// end in a grid leaf, not on a one-sided span (near the surface the spans straddle). A round's
-// choice is serial for a mesh of one block (7-9 ms a round there after 4 ms of rings built in
-// parallel; the probes 44-59 ms).
-// Tried and not kept, the same day: a per-chunk cache of the grid leaves the probes ended in,
-// tested before the climb (0.6 % of the probes fell in a cached leaf keyed by voxel and Kuhn
-// tetrahedron, 2.3 % in one of the last 64 leaves: the probes seldom share a leaf); the vertices
-// collapsed in earlier rounds as more known points of the grid's surface (1.2 k of round 2's
-// 45.8 k probes spared); a round's probes gathered and run in Morton order of their centres, so
-// that the trail climbs less (collapses 0.168-0.186 s against 0.148-0.153, 3 alternated pairs,
-// the same PLY bytes: the gathering and sorting cost more than the shorter climbs saved).
+// Cost (CT bunny, 2 cores): the probes, 3.4 per collapse, each found from the smallest cubes up
+// (Query::value_from_below: 1.1 cube lookups and one tetrahedron's step on average); then the
+// rings and the choice. Counted (2026-12-03, the bunny at iso 1600.5, D = 0.5, 2 rounds): 96 % of
+// the chosen collapses pass, and 87.5 % of the probes end in a grid leaf, not on a one-sided span
+// (near the surface the spans straddle). A round's choice is serial for a mesh of one block (7-9
+// ms a round there after 4 ms of rings built in parallel).
+// Until 2026-12-07 each chunk's probes came down from the last probe's path (a trail of
+// tetrahedra: a climb of 9.7 levels, then 9.7 down, the bunny at 0.5): the collapses took 1.5-1.6x
+// as long (D = 0.5: 0.154 s against 0.103, D = 2: 0.072 against 0.044, medians of 6 alternated
+// runs), and a probe on the box's far face was judged or not by where the last one had gone (the
+// descent from the root does not judge it, nor now the collapses: the bunny at iso 800 is the
+// one surface of 168 compared whose bytes changed).
+// Tried and not kept (2026-12-03), for the trail: a per-chunk cache of the grid leaves the probes
+// ended in, tested before the climb (0.6 % of the probes fell in a cached leaf keyed by voxel and
+// Kuhn tetrahedron, 2.3 % in one of the last 64 leaves: the probes seldom share a leaf); the
+// vertices collapsed in earlier rounds as more known points of the grid's surface (1.2 k of round
+// 2's 45.8 k probes spared); a round's probes gathered and run in Morton order of their centres,
+// so that the trail climbs less (the gathering and sorting cost more than the shorter climbs saved).
 
 struct Collapse {
   std::uint32_t v, u;
@@ -1262,10 +1261,9 @@ public:
     const std::size_t P = share_ ? static_cast<std::size_t>(share_->processes()) : 1,
                       me = share_ ? static_cast<std::size_t>(share_->process()) : 0;
     tbb::parallel_for(std::size_t{0}, (chosen.size() + chunk - 1) / chunk, [&](std::size_t c) {
-      ProbeTrail trail;  // the chosen collapses are in vertex order: neighbours mostly
       if (q_.cancelled()) return;
       const std::size_t end = std::min(chosen.size(), (c + 1) * chunk);
-      for (std::size_t i = c * chunk; i < end; ++i) pass[i] = c % P == me ? probes_pass(s, chosen[i], trail) : 0;
+      for (std::size_t i = c * chunk; i < end; ++i) pass[i] = c % P == me ? probes_pass(s, chosen[i]) : 0;
     });
     q_.throw_if_cancelled();  // before any collapse is applied: the probes of some were skipped
     if (P > 1) share::combine_at_zero(*share_, std::span(pass), [](std::uint8_t& own, std::uint8_t theirs) { own |= theirs; });
@@ -1491,7 +1489,7 @@ private:
 
   // Every new triangle's centre within the distance of the grid's surface, as the refinement
   // tests its triangles: within it of a corner or of v (cut points), or probed.
-  bool probes_pass(const Stars& s, const Collapse& c, ProbeTrail& trail) const {
+  bool probes_pass(const Stars& s, const Collapse& c) const {
     for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
       if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
       Point b[3];
@@ -1503,7 +1501,7 @@ private:
       Point centre, unit;
       for (int i = 0; i < 3; ++i) centre[i] = (b[0][i] + b[1][i] + b[2][i]) / 3, unit[i] = n[i] / len;
       if (near_a_point(centre, {&b[0], &b[1], &b[2], &at_[c.v]})) continue;
-      if (q_.far_from_surface(centre, unit, trail)) return false;
+      if (q_.far_from_surface(centre, unit, Query::FromCubes{})) return false;
     }
     return true;
   }
@@ -1547,9 +1545,15 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
     n.points += judged;
     for (const std::int32_t half : from_halves) {
       double cubes = 0;
-      if (!q.value_by_cubes(p, cubes, half)) continue;
-      ++n.by_cubes;
-      n.disagreed += !judged || q.above(cubes) != q.above(level);  // off the grid one way, not the other
+      if (q.value_by_cubes(p, cubes, half) == Query::Cubes::answered) {
+        ++n.by_cubes;
+        n.disagreed += !judged || q.above(cubes) != q.above(level);  // off the grid one way, not the other
+      }
+      double below = 0;
+      if (q.value_from_below(p, below, half) == Query::Cubes::answered) {
+        ++n.from_below;
+        n.disagreed += !judged || q.above(below) != q.above(level);
+      }
     }
   }
   return n;

@@ -118,12 +118,14 @@ std::size_t shared_refinement_fallbacks();
 
 // For the tests of the distance query's probes (distance_query.cpp): at each point (lattice
 // units, inside the box) the side of iso on which the grid's interpolant lies, found level by
-// level from the root tetrahedron holding it and cube by cube from each scale in `from_halves`
-// (halves of cube sides, powers of two); counted: the answers the cubes gave, and of those the
-// ones that disagree with the level-by-level descent or that it does not judge (off the grid:
-// a leaf across the box's far faces).
+// level from the root tetrahedron holding it, cube by cube down from each scale in `from_halves`
+// (halves of cube sides, powers of two), and cube by cube from the smallest cubes up to each
+// scale; counted: the answers the cubes gave each way, and of those the ones that disagree with
+// the level-by-level descent or that it does not judge (off the grid: a leaf across the box's
+// far faces).
 struct ProbeRouteCounts {
-  std::size_t points = 0, by_cubes = 0, disagreed = 0;  // points: those the level-by-level descent judges
+  std::size_t points = 0;  // those the level-by-level descent judges
+  std::size_t by_cubes = 0, from_below = 0, disagreed = 0;
 };
 ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, const std::vector<std::array<double, 3>>& points,
                                       const std::vector<std::int32_t>& from_halves);

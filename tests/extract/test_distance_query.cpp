@@ -669,9 +669,10 @@ TEST(DistanceQuery, ATetrahedronShowingASpeckOfSurfaceIsSearchedForTheRest) {
   EXPECT_LE(p95.query_to_grid, 2);
 }
 
-// The probes' cube-by-cube descent (value_by_cubes) answers as the level-by-level one does: at
-// random points and at lattice points, edge midpoints and cube centres, from every cube scale
-// (and larger ones, which it clamps), on noise over odd and 2-voxel-thick boxes, a sphere on a
+// The probes' cube-by-cube descent (value_by_cubes) answers as the level-by-level one does, and
+// so does its search from the smallest cubes up (value_from_below): at random points and at
+// lattice points, edge midpoints and cube centres, from every cube scale (and larger ones, which
+// it clamps), on noise over odd and 2-voxel-thick boxes, a sphere on a
 // power-of-two box (the padded lattice) and on a box that is the root cube, one cell, integer data
 // at half-integer iso-values and a field prepared coarse and fine.
 TEST(DistanceQuery, TheProbesCubeByCubeDescentAnswersAsTheLevelByLevelOne) {
@@ -720,6 +721,7 @@ TEST(DistanceQuery, TheProbesCubeByCubeDescentAnswersAsTheLevelByLevelOne) {
       // From most scales at most points, but for cubes across the box (all of them in the slab).
       if (std::min({d[0], d[1], d[2]}) > 2) {
         EXPECT_GT(n.by_cubes, n.points) << iso;
+        EXPECT_GT(n.from_below, n.points) << iso;
       }
       EXPECT_EQ(n.disagreed, 0u) << iso;
     }
