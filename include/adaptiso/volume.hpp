@@ -167,6 +167,10 @@ inline Vec3 grid_to_world(const Vec3& origin, const std::array<double, 9>& d, co
           origin[2] + d[6] * g[0] + d[7] * g[1] + d[8] * g[2]};
 }
 
+// Its inverse: the grid-frame position (index ⊙ spacing) of world point w. A general 3×3 inverse:
+// files may record directions that are not exactly orthonormal.
+Vec3 world_to_grid(const Vec3& origin, const std::array<double, 9>& d, const Vec3& w);
+
 // A box of voxels [lo, hi] per axis (inclusive), in index space.
 struct VoxelBox {
   Dims lo{0, 0, 0}, hi{0, 0, 0};

@@ -1243,11 +1243,21 @@ class Collapser {
 public:
   // With `share`, every process holds the same mesh and chooses the same collapses; each probes
   // its chunks of them (c ≡ process mod processes), and the verdicts are combined.
+  // The mesh's positions are world coordinates (the volume's origin and direction applied); the
+  // probes' frame is the grid's (index ⊙ spacing), so they are taken back through the direction's
+  // inverse. Distances and angles are the same in both: the direction is a rotation, perhaps with
+  // a reflection.
   Collapser(const Query& q, Mesh& mesh, double smallest, ShareTransport* share)
       : q_(q), mesh_(mesh), d2_(q.distance * q.distance), share_(share) {
     resize_big(at_, mesh.positions.size());
-    for (std::size_t v = 0; v < at_.size(); ++v)
-      for (int k = 0; k < 3; ++k) at_[v][k] = mesh.positions[v][k] / smallest;
+    const GridSource& s = q.g.source;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, at_.size(), 16384), [&](const auto& r) {
+      for (std::size_t v = r.begin(); v < r.end(); ++v) {
+        const auto& w = mesh.positions[v];
+        const Vec3 g = world_to_grid(s.origin, s.direction, {w[0], w[1], w[2]});
+        for (int k = 0; k < 3; ++k) at_[v][k] = g[k] / smallest;
+      }
+    });
   }
 
   // One round; returns the collapses applied.
@@ -1309,7 +1319,7 @@ private:
   Mesh& mesh_;
   double d2_;
   ShareTransport* share_;  // null: this process alone
-  std::vector<Point> at_;  // voxels of the smallest spacing
+  std::vector<Point> at_;  // grid frame, voxels of the smallest spacing
   Stars stars_;
 
   static bool has(const std::array<std::uint32_t, 3>& t, std::uint32_t u) { return t[0] == u || t[1] == u || t[2] == u; }

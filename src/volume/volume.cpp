@@ -113,9 +113,7 @@ void Volume::set(std::int64_t linear, double v) {
 
 Vec3 Volume::grid_to_world(const Vec3& g) const { return adaptiso::grid_to_world(origin, direction, g); }
 
-Vec3 Volume::world_to_voxel(const Vec3& w) const {
-  // General 3×3 inverse: files may record directions that are not exactly orthonormal.
-  const auto& d = direction;
+Vec3 world_to_grid(const Vec3& origin, const std::array<double, 9>& d, const Vec3& w) {
   Vec3 r{w[0] - origin[0], w[1] - origin[1], w[2] - origin[2]};
   double c00 = d[4] * d[8] - d[5] * d[7], c01 = d[5] * d[6] - d[3] * d[8], c02 = d[3] * d[7] - d[4] * d[6];
   double det = d[0] * c00 + d[1] * c01 + d[2] * c02;
@@ -123,6 +121,11 @@ Vec3 Volume::world_to_voxel(const Vec3& w) const {
                    c02, d[1] * d[6] - d[0] * d[7], d[0] * d[4] - d[1] * d[3]};
   Vec3 g{};
   for (int a = 0; a < 3; ++a) g[a] = (inv[3 * a] * r[0] + inv[3 * a + 1] * r[1] + inv[3 * a + 2] * r[2]) / det;
+  return g;
+}
+
+Vec3 Volume::world_to_voxel(const Vec3& w) const {
+  const Vec3 g = world_to_grid(origin, direction, w);
   return {g[0] / spacing[0], g[1] / spacing[1], g[2] / spacing[2]};
 }
 
