@@ -544,14 +544,39 @@ struct Query {
   bool far_from_surface(const Point& pv, const Point& normal, Hint&& near) const {
     bool side[2];
     for (int s = 0; s < 2; ++s) {
-      const double sign = s ? -1 : 1;
-      Point x;
-      for (int a = 0; a < 3; ++a) x[a] = std::clamp((pv[a] + sign * distance * normal[a]) / unit[a], 0.0, double(lat.X[a]));
-      double v;
-      if (!value_at(x, v, near)) return false;
-      side[s] = above(v);
+      if (!side_at(pv, normal, s ? -distance : distance, side[s], near)) return false;
     }
     return side[0] == side[1];
+  }
+  // The collapses' test: the same, and where the ends agree, the grid's side at p and at p ±
+  // distance/2 too: two crossings within the distance (a thin layer, a fold, a bump of noise)
+  // put p within it as surely as one. The refinement does not look inside (above: its "needless"
+  // splits are what bring a layer's other sheet into the mesh); a collapse only moves triangles
+  // the refinement placed, and keeps the vertex it removes within the distance of the new ones.
+  // Measured (2026-12-07, two rounds at D = 0.5): of the collapses' probes that failed on ends
+  // alone, 65-73 % had such crossings on the MR head, the chest CT and the FLAIR brain, 2 % on the
+  // CT bunny.
+  bool far_from_surface_looking_inside(const Point& pv, const Point& normal) const {
+    bool end[2];
+    for (int s = 0; s < 2; ++s)
+      if (!side_at(pv, normal, s ? -distance : distance, end[s], FromCubes{})) return false;
+    if (end[0] != end[1]) return false;
+    for (const double t : {0.0, distance / 2, -distance / 2}) {
+      bool inside;
+      if (side_at(pv, normal, t, inside, FromCubes{}) && inside != end[0]) return false;
+    }
+    return true;
+  }
+  // The grid's side of the iso-value at pv + t·normal (voxels), clamped to the box; false where
+  // no leaf inside the box judges it.
+  template <class Hint>
+  bool side_at(const Point& pv, const Point& normal, double t, bool& side, Hint&& near) const {
+    Point x;
+    for (int a = 0; a < 3; ++a) x[a] = std::clamp((pv[a] + t * normal[a]) / unit[a], 0.0, double(lat.X[a]));
+    double v;
+    if (!value_at(x, v, near)) return false;
+    side = above(v);
+    return true;
   }
 };
 
@@ -1511,7 +1536,7 @@ private:
       Point centre, unit;
       for (int i = 0; i < 3; ++i) centre[i] = (b[0][i] + b[1][i] + b[2][i]) / 3, unit[i] = n[i] / len;
       if (near_a_point(centre, {&b[0], &b[1], &b[2], &at_[c.v]})) continue;
-      if (q_.far_from_surface(centre, unit, Query::FromCubes{})) return false;
+      if (q_.far_from_surface_looking_inside(centre, unit)) return false;
     }
     return true;
   }
@@ -1567,6 +1592,19 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
     }
   }
   return n;
+}
+
+bool collapse_test_says_far(const PreparedGrid& grid, double iso, double distance, const std::array<double, 3>& centre,
+                            const std::array<double, 3>& normal) {
+  const auto index = make_hierarchy_index(grid);
+  Marks split(1);
+  tbb::enumerable_thread_specific<std::vector<std::int64_t>> marked;
+  tbb::enumerable_thread_specific<std::size_t> tested(0);
+  const auto& s = grid.grid.source.spacing;
+  const double smallest = std::min({s[0], s[1], s[2]});
+  const Query q{index->lat, index->numbers, index->lining, grid.grid, *grid.hierarchy, iso, distance, 2 * distance, false,
+                {s[0] / smallest, s[1] / smallest, s[2] / smallest}, split, marked, tested, nullptr};
+  return q.far_from_surface_looking_inside(centre, normal);
 }
 
 }  // namespace detail

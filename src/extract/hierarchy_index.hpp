@@ -130,4 +130,10 @@ struct ProbeRouteCounts {
 ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, const std::vector<std::array<double, 3>>& points,
                                       const std::vector<std::int32_t>& from_halves);
 
+// For the tests of the collapses' probes (distance_query.cpp): does the test a collapse's new
+// triangle takes find no surface of the grid within `distance` of `centre` along the unit
+// `normal` (voxels of the smallest spacing, in the grid's frame)?
+bool collapse_test_says_far(const PreparedGrid& grid, double iso, double distance, const std::array<double, 3>& centre,
+                            const std::array<double, 3>& normal);
+
 }  // namespace adaptiso::detail

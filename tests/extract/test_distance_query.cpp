@@ -727,6 +727,30 @@ TEST(DistanceQuery, CollapsesProbeTheGridWhereverTheVolumeSitsInTheWorld) {
   }
 }
 
+// A layer thinner than the distance: both of its sheets lie within the distance of a point on
+// either, though ± the distance along the normal both ends lie outside the layer. The collapses
+// looked only at those ends until 2026-12-07 (65-73 % of the probes that failed on the MR head,
+// the chest CT and the FLAIR brain at 0.5 voxels had such crossings inside); they now look inside
+// the segment too, and still find a point far from the layer far.
+TEST(DistanceQuery, TheCollapsesTestFindsALayerThinnerThanTheDistance) {
+  // A plate across z = 16: 0.6 there, 0 a voxel away; at iso 0.5 its sheets lie at 16 ± 1/6.
+  const Volume v = field({20, 20, 33}, {1, 1, 1}, [](double, double, double z) { return z == 16 ? 0.6 : 0.0; });
+  const auto grid = testutil::prepared_at(v, 0, false);
+  const std::array<double, 3> across{0, 0, 1}, oblique{0.6, 0, 0.8};
+  for (double distance : {0.5, 1.0, 2.0}) {
+    SCOPED_TRACE(testing::Message() << "distance " << distance);
+    for (const auto& n : {across, oblique}) {
+      // On a sheet, inside the layer, and outside it with the layer half the distance along the
+      // normal (the test looks at the point and at ± half the distance: a layer between those is
+      // missed, a failed collapse and not a wrong one).
+      for (double z : {16 - 1.0 / 6, 16.0, 16 + 1.0 / 6, 16 - distance / 2 * n[2]})
+        EXPECT_FALSE(detail::collapse_test_says_far(*grid, 0.5, distance, {9.3, 10.6, z}, n)) << z;
+      // Farther than the distance from both sheets along the normal: far.
+      EXPECT_TRUE(detail::collapse_test_says_far(*grid, 0.5, distance, {9.3, 10.6, 16 + 1.0 / 6 + 1.3 * distance / n[2]}, n));
+    }
+  }
+}
+
 // The probes' cube-by-cube descent (value_by_cubes) answers as the level-by-level one does, and
 // so does its search from the smallest cubes up (value_from_below): at random points and at
 // lattice points, edge midpoints and cube centres, from every cube scale (and larger ones, which
