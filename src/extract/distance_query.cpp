@@ -1602,8 +1602,9 @@ bool collapse_test_says_far(const PreparedGrid& grid, double iso, double distanc
   tbb::enumerable_thread_specific<std::size_t> tested(0);
   const auto& s = grid.grid.source.spacing;
   const double smallest = std::min({s[0], s[1], s[2]});
-  const Query q{index->lat, index->numbers, index->lining, grid.grid, *grid.hierarchy, iso, distance, 2 * distance, false,
-                {s[0] / smallest, s[1] / smallest, s[2] / smallest}, split, marked, tested, nullptr};
+  const Query q{index->lat, index->numbers, index->lining, grid.grid, *grid.hierarchy,
+                iso,        distance,       2 * distance,  false,     {s[0] / smallest, s[1] / smallest, s[2] / smallest},
+                split,      marked,         tested,        nullptr};
   return q.far_from_surface_looking_inside(centre, normal);
 }
 
