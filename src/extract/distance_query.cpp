@@ -1045,7 +1045,9 @@ void assemble(const Query& q, std::vector<Found>& found, const EdgeRemap& remap,
 // of three per triangle. A chunk's edges in its own first-use order, taken chunk after chunk, give
 // the first-use order of the whole walk: one process's numbering, with one process's places (a
 // vertex's place depends on its edge alone). Several chunks a process, so that a surface lying in
-// part of the box still keeps every process busy.
+// part of the box still keeps every process busy. Process 0 looks up only the edges that may lie
+// in another unit too (`open`: both ends on one face of their unit's tetrahedron); any other edge
+// is new wherever it comes, and takes the next number without a lookup.
 constexpr std::size_t kChunksPerProcess = 4;
 
 struct ChunkPlan {
@@ -1063,20 +1065,50 @@ struct ChunkPlan {
 // as indices into them.
 struct NumberedChunk {
   std::vector<std::uint64_t> order;
+  std::vector<std::uint8_t> open;    // per edge of order: 1 where another unit may hold it too
   std::vector<std::uint32_t> local;  // 3 per triangle
   std::vector<std::array<float, 3>> positions, normals;
   std::uint64_t counts[2] = {0, 0};  // leaves marched, tetrahedra visited
 };
 
-NumberedChunk number_chunk(const Query& q, std::vector<Found>& found, std::size_t lo, std::size_t hi, const EdgeRemap& remap) {
+// Do lattice points a and b, corners of leaves inside t, both lie on one face of t? Only then can
+// the edge between them belong to a leaf outside t: an edge whose ends lie on different faces, or
+// one inside, crosses t's interior, which no other unit's leaves reach. Exact: integer orientations.
+bool on_one_face(const Tet& t, const Coord& a, const Coord& b) {
+  const auto on_plane = [](const Coord& p0, const Coord& p1, const Coord& p2, const Coord& x) {
+    std::int64_t u[3], v[3], w[3];
+    for (int k = 0; k < 3; ++k) u[k] = p1[k] - p0[k], v[k] = p2[k] - p0[k], w[k] = x[k] - p0[k];
+    const std::int64_t n[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
+    return __int128{n[0]} * w[0] + __int128{n[1]} * w[1] + __int128{n[2]} * w[2] == 0;
+  };
+  for (int k = 0; k < 4; ++k) {
+    const Coord &p0 = t[static_cast<std::size_t>((k + 1) % 4)], &p1 = t[static_cast<std::size_t>((k + 2) % 4)],
+                &p2 = t[static_cast<std::size_t>((k + 3) % 4)];
+    if (on_plane(p0, p1, p2, a) && on_plane(p0, p1, p2, b)) return true;  // in t and on the face's plane: on the face
+  }
+  return false;
+}
+
+NumberedChunk number_chunk(const Query& q, const std::vector<adaptiso::detail::Subtree>& units, std::vector<Found>& found, std::size_t lo,
+                           std::size_t hi, const EdgeRemap& remap) {
   NumberedChunk out;
   std::size_t n = 0;
   for (std::size_t f = lo; f < hi; ++f) n += found[f].keys.size();
   std::vector<std::uint64_t> slots;
   EdgeMap map(n / 6 + 16, slots);  // sized for the vertices, as assemble's
   out.local.reserve(n);
+  const auto lattice_point = [&](std::uint32_t v) {
+    const auto& p = q.g.ijk[v];
+    return Coord{static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])};
+  };
   for (std::size_t f = lo; f < hi; ++f) {
+    const std::size_t before = out.order.size();
     number_keys(found[f].keys, map, out.order, out.local);
+    for (std::size_t j = before; j < out.order.size(); ++j) {
+      const std::uint64_t key = out.order[j];
+      out.open.push_back(
+          on_one_face(units[f].tet, lattice_point(static_cast<std::uint32_t>(key >> 32)), lattice_point(static_cast<std::uint32_t>(key))));
+    }
     out.counts[0] += found[f].leaves, out.counts[1] += found[f].visited;
     std::vector<std::uint64_t>().swap(found[f].keys);
   }
@@ -1089,6 +1121,7 @@ NumberedChunk number_chunk(const Query& q, std::vector<Found>& found, std::size_
 void send_chunk(ShareTransport& t, const NumberedChunk& c) {
   share::send_vector(t, std::vector<std::uint64_t>{c.counts[0], c.counts[1]});
   share::send_vector(t, c.order);
+  share::send_vector(t, c.open);
   share::send_vector(t, c.local);
   share::send_vector(t, c.positions);
   share::send_vector(t, c.normals);
@@ -1098,11 +1131,12 @@ NumberedChunk receive_chunk(ShareTransport& t, int from) {
   NumberedChunk c;
   const auto counts = share::receive_vector<std::uint64_t>(t, from);
   c.order = share::receive_vector<std::uint64_t>(t, from);
+  c.open = share::receive_vector<std::uint8_t>(t, from);
   c.local = share::receive_vector<std::uint32_t>(t, from);
   c.positions = share::receive_vector<std::array<float, 3>>(t, from);
   c.normals = share::receive_vector<std::array<float, 3>>(t, from);
   const bool broken = counts.size() != 2 || c.positions.size() != c.order.size() || c.normals.size() != c.order.size() ||
-                      c.local.size() % 3 != 0 ||
+                      c.open.size() != c.order.size() || c.local.size() % 3 != 0 ||
                       std::any_of(c.local.begin(), c.local.end(), [&](std::uint32_t i) { return i >= c.order.size(); });
   if (broken) throw std::logic_error(fmt::format("process {} sent a broken record of its share of the assembly", from));
   c.counts[0] = counts[0], c.counts[1] = counts[1];
@@ -1112,15 +1146,15 @@ NumberedChunk receive_chunk(ShareTransport& t, int from) {
 // Every process: its chunks numbered and placed; process 0 receives the others' and returns the
 // mesh of them all, in chunk order (the others an empty one), with the leaves marched and the
 // tetrahedra visited.
-Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, std::vector<Found>& found, const EdgeRemap& remap,
-                     std::uint64_t counts[2]) {
+Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, const std::vector<adaptiso::detail::Subtree>& units,
+                     std::vector<Found>& found, const EdgeRemap& remap, std::uint64_t counts[2]) {
   const auto me = static_cast<std::size_t>(t.process());
   std::vector<std::size_t> own;
   for (std::size_t c = me; c < plan.chunks; c += plan.processes) own.push_back(c);
   std::vector<NumberedChunk> numbered(plan.chunks);
   tbb::parallel_for(std::size_t{0}, own.size(), [&](std::size_t i) {
     const std::size_t c = own[i];
-    numbered[c] = number_chunk(q, found, plan.first(c), plan.first(c + 1), remap);
+    numbered[c] = number_chunk(q, units, found, plan.first(c), plan.first(c + 1), remap);
   });
   Mesh mesh;
   if (me != 0) {
@@ -1129,32 +1163,44 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, s
   }
   for (int p = 1; p < t.processes(); ++p)
     for (std::size_t c = static_cast<std::size_t>(p); c < plan.chunks; c += plan.processes) numbered[c] = receive_chunk(t, p);
-  std::size_t edges = 0, triangles = 0;
-  for (const auto& c : numbered) edges += c.order.size(), triangles += c.local.size() / 3;
-  // The map holds at most `edges` keys: sized so that it never grows (below 7/10 full), and no
-  // larger (its slots are fresh pages, faulted in at about 0.5 GB/s a thread on this machine).
-  std::vector<std::uint64_t> slots, order;
-  EdgeMap map(edges * 5 / 7 + 1, slots);
-  resize_for_overwrite(order, edges);  // faulted in at once, then filled in order
-  order.clear();
+  std::size_t edges = 0, open = 0, triangles = 0;
+  for (const auto& c : numbered) {
+    edges += c.order.size(), triangles += c.local.size() / 3;
+    open += static_cast<std::size_t>(std::count(c.open.begin(), c.open.end(), std::uint8_t{1}));
+  }
+  // The map holds the open edges only, at most `open` keys: sized so that it never grows (below
+  // 7/10 full), and no larger (its slots are fresh pages, faulted in at about 0.5 GB/s a thread
+  // on this machine). Its numbers index `open_keys`; `open_global` gives theirs in the mesh.
+  std::vector<std::uint64_t> slots, open_keys;
+  std::vector<std::uint32_t> open_global, global;
+  EdgeMap map(open * 5 / 7 + 1, slots);
+  open_keys.reserve(open), open_global.reserve(open);
   resize_for_overwrite(mesh.positions, edges), resize_for_overwrite(mesh.normals, edges);
   resize_for_overwrite(mesh.triangles, triangles);
-  std::vector<std::uint32_t> global;
-  std::size_t tri = 0;
+  std::size_t vertices = 0, tri = 0;
+  const auto add_vertex = [&](const NumberedChunk& c, std::size_t j) {
+    mesh.positions[vertices] = c.positions[j], mesh.normals[vertices] = c.normals[j];
+    return static_cast<std::uint32_t>(vertices++);
+  };
   for (auto& c : numbered) {
     global.resize(c.order.size());
     for (std::size_t j = 0; j < c.order.size(); ++j) {
-      if (j + 16 < c.order.size()) map.prefetch(c.order[j + 16]);
-      const std::size_t before = order.size();
-      global[j] = map.find_or_add(c.order[j], order);
-      if (order.size() > before) mesh.positions[before] = c.positions[j], mesh.normals[before] = c.normals[j];
+      if (!c.open[j]) {
+        global[j] = add_vertex(c, j);
+        continue;
+      }
+      if (j + 16 < c.order.size() && c.open[j + 16]) map.prefetch(c.order[j + 16]);
+      const std::size_t before = open_keys.size();
+      const std::uint32_t m = map.find_or_add(c.order[j], open_keys);
+      if (open_keys.size() > before) open_global.push_back(add_vertex(c, j));
+      global[j] = open_global[m];
     }
     for (std::size_t k = 0; k < c.local.size(); k += 3)
       mesh.triangles[tri++] = {global[c.local[k]], global[c.local[k + 1]], global[c.local[k + 2]]};
     counts[0] += c.counts[0], counts[1] += c.counts[1];
     c = NumberedChunk{};
   }
-  mesh.positions.resize(order.size()), mesh.normals.resize(order.size());
+  mesh.positions.resize(vertices), mesh.normals.resize(vertices);
   return mesh;
 }
 
@@ -1775,7 +1821,7 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   std::uint64_t counts[3] = {0, top.roots.size() + top.splits.size(), tested.combine(std::plus<>())};  // marched, visited, tested
   const SnapRemap remap(q);
   if (shared) {
-    mesh = assemble_shared(q, *share, plan, found, remap, counts);
+    mesh = assemble_shared(q, *share, plan, top.roots, found, remap, counts);
   } else {
     assemble(q, found, remap, mesh);
     for (const Found& f : found) counts[0] += f.leaves, counts[1] += f.visited;
