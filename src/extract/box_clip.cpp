@@ -97,79 +97,128 @@ public:
     return any.load();
   }
 
-  void clip(Mesh& out, ClipMap* map) {
+  // Which triangles stay whole, which go and which are cut (into `pieces`), and which vertices
+  // are still used: everything the output's arrays are made from, read from the input alone.
+  void plan() {
     const std::size_t V = in_.vertex_count(), T = in_.triangle_count();
     // Per triangle: kept whole (1), dropped (0) or cut (its pieces, one thread below: they are few).
-    std::vector<std::uint32_t> first(T + 1, 0);
-    std::vector<std::uint8_t> crosses(T, 0);
+    first_.assign(T + 1, 0);
+    crosses_.assign(T, 0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t t = r.begin(); t < r.end(); ++t) {
         const auto& tri = in_.triangles[t];
         if (outside_[tri[0]] | outside_[tri[1]] | outside_[tri[2]])
-          crosses[t] = 1;
+          crosses_[t] = 1;
         else
-          first[t] = 1;
+          first_[t] = 1;
       }
     });
-    std::vector<std::array<std::uint32_t, 3>> pieces;  // of cut triangles, in triangle order; ids ≥ V are cut points
     for (std::size_t t = 0; t < T; ++t)
-      if (crosses[t]) first[t] = cut(in_.triangles[t], V, pieces);
-    const std::uint32_t triangles = exclusive_scan(first);  // first[t]: the pieces before t
+      if (crosses_[t]) first_[t] = cut(in_.triangles[t], V, pieces_);  // ids ≥ V are cut points
+    triangles_ = exclusive_scan(first_);                               // first_[t]: the pieces before t
     // The vertices still used, in their order, then the cut points in theirs.
     const std::size_t N = V + cut_u_.size();
     std::vector<std::uint8_t> used(N, 0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t t = r.begin(); t < r.end(); ++t)
-        if (!crosses[t])
+        if (!crosses_[t])
           for (std::uint32_t v : in_.triangles[t]) std::atomic_ref<std::uint8_t>(used[v]).store(1, std::memory_order_relaxed);
     });
-    for (const auto& p : pieces)
+    for (const auto& p : pieces_)
       for (std::uint32_t v : p) used[v] = 1;
-    std::vector<std::uint32_t> id(N + 1);
-    for (std::size_t v = 0; v < N; ++v) id[v] = used[v];
-    const std::uint32_t vertices = exclusive_scan(id);  // id[v]: v's place when used
+    id_.resize(N + 1);
+    for (std::size_t v = 0; v < N; ++v) id_[v] = used[v];
+    vertices_ = exclusive_scan(id_);  // id_[v]: v's place when used
+    for (std::size_t v = 0; v < N; ++v)
+      if (!used[v]) id_[v] = kUnused;
+  }
+
+  // The planned mesh written into `out` (and `map`).
+  void write(Mesh& out, ClipMap* map) {
+    const std::size_t V = in_.vertex_count(), T = in_.triangle_count(), N = V + cut_u_.size();
     const bool normals = in_.normals.size() == V;
-    out.positions.resize(vertices);
-    out.normals.resize(normals ? vertices : 0);
-    out.triangles.resize(triangles);
-    std::vector<std::uint32_t> from(map ? vertices : 0);
+    out.positions.resize(vertices_);
+    out.normals.resize(normals ? vertices_ : 0);
+    out.triangles.resize(triangles_);
+    std::vector<std::uint32_t> from(map ? vertices_ : 0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, N, 16384), [&](const auto& r) {
       for (std::size_t v = r.begin(); v < r.end(); ++v) {
-        if (!used[v]) continue;
-        const std::uint32_t i = id[v];
+        const std::uint32_t i = id_[v];
+        if (i == kUnused) continue;
         if (v < V) {
           out.positions[i] = in_.positions[v];
           if (normals) out.normals[i] = in_.normals[v];
         } else {
-          const Vec3& u = cut_u_[v - V];
-          const Vec3 w = geometry_.voxel_to_world(u[0], u[1], u[2]);
-          out.positions[i] = {static_cast<float>(w[0]), static_cast<float>(w[1]), static_cast<float>(w[2])};
-          if (normals) out.normals[i] = cut_n_[v - V];
+          place_cut_point(out, i, v - V, normals);
         }
         if (map) from[i] = v < V ? static_cast<std::uint32_t>(v) : ClipMap::kNew;
       }
     });
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, T, 16384), [&](const auto& r) {
       for (std::size_t t = r.begin(); t < r.end(); ++t)
-        if (!crosses[t]) {
+        if (!crosses_[t]) {
           const auto& tri = in_.triangles[t];
-          out.triangles[first[t]] = {id[tri[0]], id[tri[1]], id[tri[2]]};
+          out.triangles[first_[t]] = {id_[tri[0]], id_[tri[1]], id_[tri[2]]};
         }
     });
-    std::size_t piece = 0;
-    for (std::size_t t = 0; t < T; ++t)
-      if (crosses[t])
-        for (std::uint32_t k = first[t]; k < first[t + 1]; ++k, ++piece) {
-          const auto& p = pieces[piece];
-          out.triangles[k] = {id[p[0]], id[p[1]], id[p[2]]};
-        }
+    write_pieces(out);
     if (map) {
-      map->first = std::move(first);
+      map->first = std::move(first_);
       map->vertex_from = std::move(from);
     }
   }
 
+  // The same into the input mesh itself, when every triangle's pieces land at or before its own
+  // place (first_[t] ≤ t: a triangle cut into several has as many dropped before it), so that
+  // one pass in order never overwrites what it has still to read; false, untouched, otherwise.
+  // The copy's arrays were fresh memory: 0.27 s of a single thread's clip of the 512×512×120 MR
+  // head's 7.3 M triangles at 0.5 voxels, most of it the kernel zeroing their pages.
+  bool write_in_place(Mesh& mesh) {
+    const std::size_t V = in_.vertex_count(), T = in_.triangle_count();
+    for (std::size_t t = 0; t <= T; ++t)
+      if (first_[t] > t) return false;
+    const bool normals = in_.normals.size() == V;
+    for (std::size_t v = 0; v < V; ++v) {  // id_[v] ≤ v: in order, nothing unread is overwritten
+      const std::uint32_t i = id_[v];
+      if (i == kUnused) continue;
+      mesh.positions[i] = mesh.positions[v];
+      if (normals) mesh.normals[i] = mesh.normals[v];
+    }
+    mesh.positions.resize(vertices_);
+    if (normals) mesh.normals.resize(vertices_);
+    for (std::size_t c = 0; c < cut_u_.size(); ++c)
+      if (id_[V + c] != kUnused) place_cut_point(mesh, id_[V + c], c, normals);
+    for (std::size_t t = 0; t < T; ++t)
+      if (!crosses_[t]) {
+        const auto tri = mesh.triangles[t];
+        mesh.triangles[first_[t]] = {id_[tri[0]], id_[tri[1]], id_[tri[2]]};
+      }
+    write_pieces(mesh);
+    mesh.triangles.resize(triangles_);
+    return true;
+  }
+
 private:
+  static constexpr std::uint32_t kUnused = ~std::uint32_t{0};
+
+  // Cut point c (index coordinates) placed at out's vertex i, in the world.
+  void place_cut_point(Mesh& out, std::uint32_t i, std::size_t c, bool normals) const {
+    const Vec3& u = cut_u_[c];
+    const Vec3 w = geometry_.voxel_to_world(u[0], u[1], u[2]);
+    out.positions[i] = {static_cast<float>(w[0]), static_cast<float>(w[1]), static_cast<float>(w[2])};
+    if (normals) out.normals[i] = cut_n_[c];
+  }
+  // The cut triangles' pieces at their places.
+  void write_pieces(Mesh& out) const {
+    std::size_t piece = 0;
+    for (std::size_t t = 0; t < crosses_.size(); ++t)
+      if (crosses_[t])
+        for (std::uint32_t k = first_[t]; k < first_[t + 1]; ++k, ++piece) {
+          const auto& p = pieces_[piece];
+          out.triangles[k] = {id_[p[0]], id_[p[1]], id_[p[2]]};
+        }
+  }
+
   Vec3 index_of(const std::array<float, 3>& p) const {
     const auto& o = geometry_.origin;
     const double w[3] = {p[0] - o[0], p[1] - o[1], p[2] - o[2]};
@@ -242,6 +291,12 @@ private:
   std::vector<std::array<float, 3>> cut_n_;
   std::unordered_map<CutKey, std::uint32_t, CutKeyHash> cuts_;
   std::vector<std::uint32_t> poly_, next_;
+  // plan()'s: per triangle its first output triangle (and the total after), whether it is cut;
+  // the cut ones' pieces in triangle order; per vertex (then cut point) its output place.
+  std::vector<std::uint32_t> first_, id_;
+  std::vector<std::uint8_t> crosses_;
+  std::vector<std::array<std::uint32_t, 3>> pieces_;
+  std::uint32_t triangles_ = 0, vertices_ = 0;
 };
 
 }  // namespace
@@ -250,13 +305,21 @@ bool clip_to_volume_box(const Mesh& in, const GridSource& source, Mesh& out, Cli
   if (!source.padded()) return false;
   Clipper c(in, source);
   if (!c.locate()) return false;
-  c.clip(out, map);
+  c.plan();
+  c.write(out, map);
   return true;
 }
 
-void clip_to_volume_box(Mesh& mesh, const GridSource& source) {
+Clipped clip_to_volume_box(Mesh& mesh, const GridSource& source) {
+  if (!source.padded()) return Clipped::nothing;
+  Clipper c(mesh, source);
+  if (!c.locate()) return Clipped::nothing;
+  c.plan();
+  if (c.write_in_place(mesh)) return Clipped::in_place;
   Mesh out;
-  if (clip_to_volume_box(mesh, source, out)) mesh = std::move(out);
+  c.write(out, nullptr);
+  mesh = std::move(out);
+  return Clipped::copied;
 }
 
 void carry_vertex_keys(const ClipMap& map, const std::vector<std::uint64_t>& keys, std::uint64_t cut, std::vector<std::uint64_t>& out) {

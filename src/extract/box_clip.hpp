@@ -34,8 +34,10 @@ struct ClipMap {
 // when the lattice is not padded or no vertex lies past the box.
 bool clip_to_volume_box(const Mesh& in, const GridSource& source, Mesh& out, ClipMap* map = nullptr);
 
-// The same in place.
-void clip_to_volume_box(Mesh& mesh, const GridSource& source);
+// The same in place: the same output, written over the input's arrays where every triangle's
+// pieces land at or before its own place (no fresh memory), else through a copy. Says which.
+enum class Clipped { nothing, in_place, copied };
+Clipped clip_to_volume_box(Mesh& mesh, const GridSource& source);
 
 // Per-vertex keys of the input mesh carried to the clipped mesh's vertices: a cut point gets `cut`.
 void carry_vertex_keys(const ClipMap& map, const std::vector<std::uint64_t>& keys, std::uint64_t cut, std::vector<std::uint64_t>& out);
