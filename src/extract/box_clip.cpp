@@ -97,7 +97,7 @@ public:
     return any.load();
   }
 
-  // Which triangles stay whole, which go and which are cut (into `pieces`), and which vertices
+  // Which triangles stay whole, which go and which are cut (into `pieces_`), and which vertices
   // are still used: everything the output's arrays are made from, read from the input alone.
   void plan() {
     const std::size_t V = in_.vertex_count(), T = in_.triangle_count();
@@ -185,7 +185,7 @@ public:
       if (normals) mesh.normals[i] = mesh.normals[v];
     }
     mesh.positions.resize(vertices_);
-    if (normals) mesh.normals.resize(vertices_);
+    mesh.normals.resize(normals ? vertices_ : 0);  // as the copy: none unless one per vertex
     for (std::size_t c = 0; c < cut_u_.size(); ++c)
       if (id_[V + c] != kUnused) place_cut_point(mesh, id_[V + c], c, normals);
     for (std::size_t t = 0; t < T; ++t)
