@@ -220,6 +220,11 @@ struct Query {
     const std::uint32_t id = numbers.id(lat.index(c));
     return {c, id, g.values[id]};
   }
+  // Grid vertex v's lattice point.
+  Coord lattice_point(std::uint32_t v) const {
+    const auto& p = g.ijk[v];
+    return {static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])};
+  }
   bool forced(std::uint32_t id) const { return h.error_code[id] == ErrorCodes::kForced; }
   bool may_cut(std::uint32_t id) const {
     const auto& span = h.value_span[id];
@@ -972,10 +977,7 @@ public:
 
 private:
   const Query& q_;
-  Corner corner(std::uint32_t v) const {
-    const auto& p = q_.g.ijk[v];
-    return {{static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])}, v, q_.g.values[v]};
-  }
+  Corner corner(std::uint32_t v) const { return {q_.lattice_point(v), v, q_.g.values[v]}; }
 };
 
 // One unit's cut-edge keys numbered by first use into `map` (new edges appended to `order`), their
@@ -1097,17 +1099,13 @@ NumberedChunk number_chunk(const Query& q, const std::vector<adaptiso::detail::S
   std::vector<std::uint64_t> slots;
   EdgeMap map(n / 6 + 16, slots);  // sized for the vertices, as assemble's
   out.local.reserve(n);
-  const auto lattice_point = [&](std::uint32_t v) {
-    const auto& p = q.g.ijk[v];
-    return Coord{static_cast<std::int32_t>(p[0]), static_cast<std::int32_t>(p[1]), static_cast<std::int32_t>(p[2])};
-  };
   for (std::size_t f = lo; f < hi; ++f) {
     const std::size_t before = out.order.size();
     number_keys(found[f].keys, map, out.order, out.local);
     for (std::size_t j = before; j < out.order.size(); ++j) {
       const std::uint64_t key = out.order[j];
-      out.open.push_back(
-          on_one_face(units[f].tet, lattice_point(static_cast<std::uint32_t>(key >> 32)), lattice_point(static_cast<std::uint32_t>(key))));
+      out.open.push_back(on_one_face(units[f].tet, q.lattice_point(static_cast<std::uint32_t>(key >> 32)),
+                                     q.lattice_point(static_cast<std::uint32_t>(key))));
     }
     out.counts[0] += found[f].leaves, out.counts[1] += found[f].visited;
     std::vector<std::uint64_t>().swap(found[f].keys);
@@ -1605,20 +1603,27 @@ std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int roun
   return total;
 }
 
+// A query for the test hooks (compare_probe_routes, collapse_test_says_far), which probe and
+// never split: its tests and marks are never read.
+struct ProbeOnlyQuery {
+  std::unique_ptr<HierarchyIndex> index;
+  Marks split{1};
+  tbb::enumerable_thread_specific<std::vector<std::int64_t>> marked;
+  tbb::enumerable_thread_specific<std::size_t> tested{0};
+  Query q;
+  ProbeOnlyQuery(const PreparedGrid& grid, double iso, double distance, const Point& unit)
+      : index(make_hierarchy_index(grid)), q{index->lat,   index->numbers, index->lining, grid.grid, *grid.hierarchy, iso,    distance,
+                                             2 * distance, false,          unit,          split,     marked,          tested, nullptr} {}
+};
+
 }  // namespace
 
 std::size_t shared_refinement_fallbacks() { return refinement_fallbacks.load(); }
 
 ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, const std::vector<std::array<double, 3>>& points,
                                       const std::vector<std::int32_t>& from_halves) {
-  const auto index = make_hierarchy_index(grid);
-  Marks split(1);
-  tbb::enumerable_thread_specific<std::vector<std::int64_t>> marked;
-  tbb::enumerable_thread_specific<std::size_t> tested(0);
-  // Only the probes' fields matter here: the distance, the tests and the marks are never read.
-  const double distance = 1;
-  const Query q{index->lat,   index->numbers, index->lining, grid.grid, *grid.hierarchy, iso,    distance,
-                2 * distance, false,          {1, 1, 1},     split,     marked,          tested, nullptr};
+  const ProbeOnlyQuery probe(grid, iso, 1, {1, 1, 1});  // only the probes' fields matter: the distance is never read
+  const Query& q = probe.q;
   ProbeRouteCounts n;
   for (const auto& p : points) {
     double level = 0;
@@ -1642,16 +1647,10 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
 
 bool collapse_test_says_far(const PreparedGrid& grid, double iso, double distance, const std::array<double, 3>& centre,
                             const std::array<double, 3>& normal) {
-  const auto index = make_hierarchy_index(grid);
-  Marks split(1);
-  tbb::enumerable_thread_specific<std::vector<std::int64_t>> marked;
-  tbb::enumerable_thread_specific<std::size_t> tested(0);
   const auto& s = grid.grid.source.spacing;
   const double smallest = std::min({s[0], s[1], s[2]});
-  const Query q{index->lat, index->numbers, index->lining, grid.grid, *grid.hierarchy,
-                iso,        distance,       2 * distance,  false,     {s[0] / smallest, s[1] / smallest, s[2] / smallest},
-                split,      marked,         tested,        nullptr};
-  return q.far_from_surface_looking_inside(centre, normal);
+  const ProbeOnlyQuery probe(grid, iso, distance, {s[0] / smallest, s[1] / smallest, s[2] / smallest});
+  return probe.q.far_from_surface_looking_inside(centre, normal);
 }
 
 }  // namespace detail
