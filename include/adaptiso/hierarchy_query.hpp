@@ -89,8 +89,9 @@ public:
   // triangle longer than 3·distance one of its corner quarters' centres, farther than the
   // distance from the grid's surface, or a cut point its split adds farther than the distance
   // from its triangles, or a surface hidden beneath it, or beneath its half whose corners show
-  // none, while its longest edge exceeds 2·distance, kept only when the surface shows beneath
-  // it); the splits are then closed under their parents, so the mesh stays conforming.
+  // none, or, when it shows only a speck, beneath it farther than the distance from the speck,
+  // while its longest edge exceeds the distance, kept only when the surface shows beneath it);
+  // the splits are then closed under their parents, so the mesh stays conforming.
   // Then up to `collapse_rounds` rounds of edge collapses (distance_query.cpp): an edge is collapsed
   // into one of its ends when the same tests pass on the result (every new triangle's centre
   // within the distance of the grid's surface along its normal, unless its edges are within
@@ -111,8 +112,10 @@ public:
   // collapses (collapse_rounds 0) each triangle lies in its tetrahedron, so the surface is free
   // of self-intersections; collapses move triangles out of their tetrahedra and, in thin
   // places, do not exclude them. Not guaranteed, and measured (bench/distance.py,
-  // docs/RESULTS.md): the distance everywhere, and parts smaller than 2·distance that no corner
-  // shows, which are left out. distance 0 gives the grid's own surface exactly (no collapses).
+  // docs/RESULTS.md): the distance everywhere, and parts that no corner shows, which are left out
+  // (measured on the shared MR heads at 2 voxels: no piece of the grid's surface wider than
+  // 2·distance; at 1 voxel a few 2-4 voxels wide, 2 voxels from a larger surface that hid them).
+  // distance 0 gives the grid's own surface exactly (no collapses).
   // Thread-safe. With `cancel`, once *cancel is raised the query stops within a stage's part (a
   // subtree of the refinement, a chunk of probes) and throws ExtractCancelled (extractor.hpp):
   // the viewer drops a surface the page no longer wants (a rest surface the next drag overtook).
