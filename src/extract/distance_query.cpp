@@ -920,8 +920,7 @@ private:
   // longest2: the squared length of the tetrahedron's longest edge.
   bool splits(const Node& n, double longest2, const Corner& mid, int i, int j, const Point added[2], const bool cut[2]) const {
     count_test(n.sub);
-    const auto code = static_cast<std::uint8_t>(q_.above(n.c[0].value) | (q_.above(n.c[1].value) << 1) | (q_.above(n.c[2].value) << 2) |
-                                                (q_.above(n.c[3].value) << 3));
+    const std::uint8_t code = code_of(n);
     const double d2 = q_.distance * q_.distance;
     if (code == 0 || code == 15) return longest2 > q_.hidden * q_.hidden;  // hidden beneath
     // Every point of a triangle with edges up to L lies within L/√3 of a corner: of a cut point.
@@ -930,18 +929,11 @@ private:
     if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value) && longest2 > q_.hidden * q_.hidden)
       return true;  // hidden between
     if (sheets_between(n, i, j, 4 * d2)) return true;
-    const Case& cs = kCases[code];
-    Point tris[2][3];
-    for (int k = 0; k < cs.triangles; ++k)
-      for (int v = 0; v < 3; ++v) tris[k][v] = n.cut[kEdgeOf[cs.tri[k][v].below][cs.tri[k][v].above]];
-    for (int s = 0; s < 2; ++s) {
-      if (!cut[s]) continue;
-      double best = std::numeric_limits<double>::infinity();
-      for (int k = 0; k < cs.triangles; ++k) best = std::min(best, distance2_to_triangle(added[s], tris[k][0], tris[k][1], tris[k][2]));
-      if (best > d2) return true;
-    }
-    for (int k = 0; k < cs.triangles; ++k)
-      if (triangle_far(tris[k][0], tris[k][1], tris[k][2], n)) return true;
+    const Shown s = shown(n);
+    for (int a = 0; a < 2; ++a)
+      if (cut[a] && !near_shown(added[a], s)) return true;
+    for (int k = 0; k < s.count; ++k)
+      if (triangle_far(s.tri[k][0], s.tri[k][1], s.tri[k][2], n)) return true;
     return false;
   }
 
