@@ -25,10 +25,11 @@
 //   search beneath finds more surface (look_beneath): in the half of it whose corners all lie on
 //   one side, or, when it shows only a speck, a part farther than the distance from the speck. A
 //   speck of surface must not hide the rest of the tetrahedron.
-// Hidden parts inside tetrahedra no longer than the distance are left out, and so are the splits
-// made to look for them: a split for a
-// hidden surface is kept only when some tetrahedron beneath it shows the surface at its corners,
-// so a part left out costs its neighbours no closure. Tetrahedra whose longest edge is within the
+// Hidden parts inside tetrahedra no longer than the distance are left out (and parts beside a
+// larger surface inside a tetrahedron that shows it, not searched: the distance tests' triangles
+// do not reach them), and so are the splits made to look for them: a split for a hidden surface
+// is kept only when some tetrahedron beneath it shows the surface at its corners, so a part left
+// out costs its neighbours no closure. Tetrahedra whose longest edge is within the
 // distance are not probed: every point of their triangles lies within it of a cut point. A small
 // triangle in a larger tetrahedron is probed all the same: the probe along its normal also finds
 // the grid's surface bulging away from it inside the tetrahedron, which its corners cannot show
