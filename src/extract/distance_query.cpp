@@ -206,7 +206,6 @@ struct Query {
   const BisectionHierarchy& h;
   double iso;
   double distance;  // voxels of the smallest spacing
-  double hidden;    // a surface no corner shows is looked for in tetrahedra longer than this (voxels)
   bool everything;  // distance 0: every diamond with a surface beneath is split
   Point unit;       // voxels of the smallest spacing per lattice step, per axis
   Marks& split;     // diamonds split (their test, or the closure)
@@ -772,12 +771,10 @@ private:
     const bool shows = shows_surface(n);
     const double longest2 = this->longest2(n);
     const bool split = q_.forced(id) || q_.everything || splits(n, longest2, mid, i, j, added, cut);
-    if (!split && !(shows && longest2 > q_.hidden * q_.hidden)) return shows;
-    const auto& e = order_table::kTable[n.order];
+    if (!split && !(shows && longest2 > q_.distance * q_.distance)) return shows;
     Node a = n, b = n;  // a: the midpoint in slot j; b: in slot i
     a.parent = b.parent = &n;
-    a.t[static_cast<std::size_t>(j)] = m, a.order = e.at_j, a.c[j] = mid;
-    b.t[static_cast<std::size_t>(i)] = m, b.order = e.at_i, b.c[i] = mid;
+    place_halves(n, mid, i, j, a, b);
     for (int s = 0; s < 2; ++s) {
       if (!cut[s]) continue;
       a.cut[kEdgeOf[j][others[s]]] = added[s];
@@ -823,7 +820,7 @@ private:
       node(hiding == &a ? b : a, depth + 1);
     } else {
       const Shown s = shown(*a.parent);
-      if (!s.within(q_.hidden)) return false;  // a larger surface: see above
+      if (!s.within(q_.distance)) return false;  // a larger surface: see above
       const bool more_in_a = !a_hides && hides_far(a, s), more_in_b = !more_in_a && !b_hides && hides_far(b, s);
       if (!more_in_a && !more_in_b) return false;
       if (!a_hides) node(a, depth + 1);
@@ -862,12 +859,12 @@ private:
   }
   // Does n hide a part of the surface farther than the distance from s (the triangles of the
   // tetrahedron being tested, n inside it) that the refinement would find: a cut point of a
-  // tetrahedron beneath n longer than `hidden`, or of its halves? Reads the grid only: no marks,
+  // tetrahedron beneath n longer than the distance, or of its halves? Reads the grid only: no marks,
   // no probes. Pruned where nothing beneath can be that far: a diamond with nothing beneath (its
   // span), or a tetrahedron within the distance of one of s's triangles (its corners are: the
   // distance to a triangle is convex).
   bool hides_far(const Node& n, const Shown& s) const {
-    if (longest2(n) <= q_.hidden * q_.hidden || within_shown(n, s)) return false;
+    if (longest2(n) <= q_.distance * q_.distance || within_shown(n, s)) return false;
     Node h[2];
     int i, j;
     if (!halves_of(n, h[0], h[1], i, j)) return false;
@@ -897,13 +894,16 @@ private:
     Coord m;
     std::uint32_t id;
     if (!tet_inside(q_.lat, n.t) || !refinement(n.t, n.order, m, i, j) || !worth_deciding(m, id)) return false;
-    const Corner mid{m, id, q_.g.values[id]};
-    const auto& e = order_table::kTable[n.order];
-    a.t = b.t = n.t;
-    a.c[0] = b.c[0] = n.c[0], a.c[1] = b.c[1] = n.c[1], a.c[2] = b.c[2] = n.c[2], a.c[3] = b.c[3] = n.c[3];
-    a.t[static_cast<std::size_t>(j)] = m, a.order = e.at_j, a.c[j] = mid;
-    b.t[static_cast<std::size_t>(i)] = m, b.order = e.at_i, b.c[i] = mid;
+    place_halves(n, {m, id, q_.g.values[id]}, i, j, a, b);
     return true;
+  }
+  // The halves' tetrahedra, orders and corners (a: the midpoint in slot j; b: in slot i), the rest
+  // of a and b left as they are.
+  static void place_halves(const Node& n, const Corner& mid, int i, int j, Node& a, Node& b) {
+    const auto h = halves(n.t, n.order, mid.at, i, j);
+    a.t = h[0].tet, a.order = h[0].order, b.t = h[1].tet, b.order = h[1].order;
+    for (int k = 0; k < 4; ++k) a.c[k] = b.c[k] = n.c[k];
+    a.c[j] = b.c[i] = mid;
   }
 
   double longest2(const Node& n) const {
@@ -923,12 +923,12 @@ private:
     count_test(n.sub);
     const std::uint8_t code = code_of(n);
     const double d2 = q_.distance * q_.distance;
-    if (code == 0 || code == 15) return longest2 > q_.hidden * q_.hidden;  // hidden beneath
+    if (code == 0 || code == 15) return longest2 > d2;  // hidden beneath
     // Every point of a triangle with edges up to L lies within L/√3 of a corner: of a cut point.
     if (longest2 <= 3 * d2) return false;
     const bool mid_above = q_.above(mid.value);
-    if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value) && longest2 > q_.hidden * q_.hidden)
-      return true;  // hidden between
+    if (mid_above != q_.above(n.c[i].value) && mid_above != q_.above(n.c[j].value))
+      return true;  // hidden between (longer than √3·distance)
     if (sheets_between(n, i, j, 4 * d2)) return true;
     const Shown s = shown(n);
     for (int a = 0; a < 2; ++a)
@@ -1697,8 +1697,8 @@ struct ProbeOnlyQuery {
   tbb::enumerable_thread_specific<std::size_t> tested{0};
   Query q;
   ProbeOnlyQuery(const PreparedGrid& grid, double iso, double distance, const Point& unit)
-      : index(make_hierarchy_index(grid)), q{index->lat,   index->numbers, index->lining, grid.grid, *grid.hierarchy, iso,    distance,
-                                             2 * distance, false,          unit,          split,     marked,          tested, nullptr} {}
+      : index(make_hierarchy_index(grid)), q{index->lat, index->numbers, index->lining, grid.grid, *grid.hierarchy, iso,    distance,
+                                             false,      unit,           split,         marked,    tested,          nullptr} {}
 };
 
 }  // namespace
@@ -1846,7 +1846,6 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
                 g,
                 h,
                 iso,
-                distance,
                 distance,
                 distance == 0,
                 {g.source.spacing[0] / smallest, g.source.spacing[1] / smallest, g.source.spacing[2] / smallest},
