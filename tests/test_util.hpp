@@ -346,4 +346,21 @@ inline EdgeCensus edge_census(const adaptiso::Mesh& m, const adaptiso::Dims& dim
   return r;
 }
 
+// Each vertex's piece of the mesh (vertices joined by triangles): one vertex of the piece stands
+// for all of it, so two vertices share a piece exactly when their entries are equal.
+inline std::vector<std::uint32_t> vertex_pieces(const adaptiso::Mesh& m) {
+  std::vector<std::uint32_t> root(m.vertex_count());
+  std::iota(root.begin(), root.end(), 0u);
+  const auto find = [&](std::uint32_t v) {
+    while (root[v] != v) v = root[v] = root[root[v]];  // halving the path as it goes
+    return v;
+  };
+  for (const auto& t : m.triangles) {
+    root[find(t[0])] = find(t[1]);
+    root[find(t[1])] = find(t[2]);
+  }
+  for (std::uint32_t v = 0; v < root.size(); ++v) root[v] = find(v);
+  return root;
+}
+
 }  // namespace testutil

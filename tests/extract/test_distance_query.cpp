@@ -677,17 +677,11 @@ namespace {
 // (their bounding box's largest side) that the query's surface leaves out: farther than the
 // distance from it on average (voxels). A piece the query keeps lies within about the distance.
 std::size_t pieces_left_out(const Mesh& grid_surface, const Mesh& query, double voxel, double distance, double wider_than) {
-  std::vector<std::uint32_t> root(grid_surface.vertex_count());
-  for (std::uint32_t v = 0; v < root.size(); ++v) root[v] = v;
-  std::function<std::uint32_t(std::uint32_t)> find = [&](std::uint32_t v) { return root[v] == v ? v : root[v] = find(root[v]); };
-  for (const auto& t : grid_surface.triangles) {
-    root[find(t[0])] = find(t[1]);
-    root[find(t[1])] = find(t[2]);
-  }
+  const std::vector<std::uint32_t> piece_of = testutil::vertex_pieces(grid_surface);
   std::map<std::uint32_t, Mesh> pieces;
   std::vector<std::uint32_t> at(grid_surface.vertex_count(), ~0u);  // a vertex's number in its piece
   for (const auto& t : grid_surface.triangles) {
-    Mesh& piece = pieces[find(t[0])];
+    Mesh& piece = pieces[piece_of[t[0]]];
     std::array<std::uint32_t, 3> own;
     for (int k = 0; k < 3; ++k) {
       if (at[t[k]] == ~0u) {

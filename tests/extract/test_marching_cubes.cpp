@@ -160,16 +160,8 @@ int expected_pieces(int m) {
 }
 
 int mesh_pieces(const Mesh& mesh) {
-  std::vector<std::uint32_t> parent(mesh.vertex_count());
-  std::iota(parent.begin(), parent.end(), 0u);
-  std::function<std::uint32_t(std::uint32_t)> find = [&](std::uint32_t a) { return parent[a] == a ? a : parent[a] = find(parent[a]); };
-  for (const auto& t : mesh.triangles) {
-    parent[find(t[0])] = find(t[1]);
-    parent[find(t[1])] = find(t[2]);
-  }
-  std::set<std::uint32_t> roots;
-  for (std::uint32_t v = 0; v < mesh.vertex_count(); ++v) roots.insert(find(v));
-  return static_cast<int>(roots.size());
+  const std::vector<std::uint32_t> piece = testutil::vertex_pieces(mesh);
+  return static_cast<int>(std::set<std::uint32_t>(piece.begin(), piece.end()).size());
 }
 
 }  // namespace

@@ -127,15 +127,12 @@ private:
 // The largest distance from `from`'s vertices to `to` (those of closed pieces of `from` that `to`
 // dropped whole and that span at most `small` left out), and from `to`'s triangle centres to `from`.
 std::pair<double, double> checked_points(const Mesh& from, const Mesh& to, double small) {
-  std::vector<std::uint32_t> parent(from.vertex_count());
-  std::iota(parent.begin(), parent.end(), 0u);
-  std::function<std::uint32_t(std::uint32_t)> find = [&](std::uint32_t v) { return parent[v] == v ? v : parent[v] = find(parent[v]); };
-  for (const auto& t : from.triangles) parent[find(t[1])] = find(t[0]), parent[find(t[2])] = find(t[0]);
+  const std::vector<std::uint32_t> piece = testutil::vertex_pieces(from);
   const std::set<std::array<float, 3>> kept(to.positions.begin(), to.positions.end());
   std::map<std::uint32_t, std::pair<P, P>> box;
   std::set<std::uint32_t> survives;
   for (std::uint32_t v = 0; v < from.vertex_count(); ++v) {
-    const std::uint32_t r = find(v);
+    const std::uint32_t r = piece[v];
     auto [it, fresh] = box.try_emplace(r, at(from, v), at(from, v));
     for (int k = 0; k < 3; ++k)
       it->second.first[k] = std::min(it->second.first[k], at(from, v)[k]),
@@ -145,8 +142,8 @@ std::pair<double, double> checked_points(const Mesh& from, const Mesh& to, doubl
   double vertices = 0, centres = 0;
   ToMesh to_to(to), to_from(from);
   for (std::uint32_t v = 0; v < from.vertex_count(); ++v) {
-    const auto& [lo, hi] = box[find(v)];
-    if (!survives.count(find(v)) && std::hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) <= small) continue;
+    const auto& [lo, hi] = box[piece[v]];
+    if (!survives.count(piece[v]) && std::hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) <= small) continue;
     vertices = std::max(vertices, to_to(at(from, v)));
   }
   for (const auto& t : to.triangles) {
