@@ -35,7 +35,7 @@ int main(int argc, char** argv) {
   const auto isos = bench::parse_list(argv[2]);
   const auto distances = bench::parse_list(argv[3]);
   const int reps = argc > 4 ? std::atoi(argv[4]) : 5;
-  const bool write = argc > 5 && std::string(argv[5]) != "-";
+  const bool write = argc > 5 && *argv[5] && std::string(argv[5]) != "-";  // "" or "-": no files
   const auto rounds = argc > 6 ? bench::parse_list(argv[6]) : std::vector<double>{double(kDefaultCollapseRounds)};
   for (double iso : isos)
     for (double d : distances)
@@ -57,10 +57,10 @@ int main(int argc, char** argv) {
         std::printf(
             "{\"iso\": %g, \"distance\": %g, \"rounds\": %d, \"seconds\": %.5f, \"cpu_mean\": %.5f, \"refine_mean\": %.5f, "
             "\"walk_mean\": %.5f, \"march_mean\": %.5f, \"collapse_mean\": %.5f, "
-            "\"triangles\": %zu, \"vertices\": %zu, \"collapsed\": %zu, \"tested\": %zu, \"refined\": %zu, \"closure\": %zu, "
+            "\"triangles\": %zu, \"vertices\": %zu, \"collapsed\": %zu, \"collapse_rounds\": %zu, \"collapses_failed\": %zu, \"tested\": %zu, \"refined\": %zu, \"closure\": %zu, "
             "\"visited\": %zu, \"marched\": %zu, \"setup_seconds\": %.3f}\n",
             iso, d, int(r), seconds, cpu, refine / reps, walk / reps, march / reps, collapse / reps, st.triangles, st.vertices,
-            st.collapsed, st.tested, st.refined, st.closure, st.visited, st.tetrahedra, setup);
+            st.collapsed, st.collapse_rounds, st.collapses_failed, st.tested, st.refined, st.closure, st.visited, st.tetrahedra, setup);
         std::fflush(stdout);
       }
 }

@@ -529,6 +529,9 @@ py::dict distance_stats(const DistanceQueryStats& s) {
   d["walk_seconds"] = s.walk_seconds;
   d["march_seconds"] = s.march_seconds;
   d["collapsed_edges"] = s.collapsed;
+  d["collapse_rounds"] = s.collapse_rounds;
+  d["collapses_probed"] = s.collapses_probed;
+  d["collapses_failed"] = s.collapses_failed;
   d["collapse_seconds"] = s.collapse_seconds;
   return d;
 }

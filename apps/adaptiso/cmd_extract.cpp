@@ -262,6 +262,9 @@ void record_within(Record& record, const Mesh& mesh, const DistanceQueryStats& s
           {"walk_seconds", st.walk_seconds},
           {"march_seconds", st.march_seconds},
           {"collapsed_edges", st.collapsed},
+          {"collapse_rounds", st.collapse_rounds},
+          {"collapses_probed", st.collapses_probed},
+          {"collapses_failed", st.collapses_failed},
           {"collapse_seconds", st.collapse_seconds}},
          fmt::format("within about {:g} voxels of the grid's surface", st.distance), seconds);
 }

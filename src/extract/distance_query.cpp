@@ -1326,6 +1326,8 @@ struct Collapse {
   std::uint32_t v, u;
 };
 
+thread_local std::function<void(const std::vector<SeenCollapse>&)> collapse_observer;  // observe_collapse_rounds
+
 // Vertex → triangles, and each vertex's ring (sorted) and whether it lies on the surface's border.
 // Rebuilt each round in the same buffers; the rings only for the vertices asked (build_rings,
 // ensure_ring): a surface made together chooses each block of vertices on one process.
@@ -1404,6 +1406,7 @@ public:
   Collapser(const Query& q, Mesh& mesh, double smallest, ShareTransport* share)
       : q_(q), mesh_(mesh), d2_(q.distance * q.distance), share_(share) {
     resize_big(at_, mesh.positions.size());
+    assign_big(failed_, mesh.positions.size(), std::uint64_t{0});
     const GridSource& s = q.g.source;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, at_.size(), 16384), [&](const auto& r) {
       for (std::size_t v = r.begin(); v < r.end(); ++v) {
@@ -1431,6 +1434,14 @@ public:
     });
     q_.throw_if_cancelled();  // before any collapse is applied: the probes of some were skipped
     if (P > 1) share::combine_at_zero(*share_, std::span(pass), [](std::uint8_t& own, std::uint8_t theirs) { own |= theirs; });
+    if (collapse_observer) show_observer(s, chosen, pass);
+    for (std::size_t i = 0; i < chosen.size(); ++i)
+      if (!pass[i]) {
+        stars_.ensure_ring(mesh_, chosen[i].v);  // another process's block: its ring is not built here
+        failed_[chosen[i].v] |= std::uint64_t{1} << ring_slot(s, chosen[i]);
+      }
+    failed_probes_ += static_cast<std::size_t>(std::count(pass.begin(), pass.end(), 0));
+    probed_ += chosen.size();
     std::vector<std::uint8_t> dead(mesh_.triangles.size(), 0);
     std::size_t applied = 0;
     for (std::size_t i = 0; i < chosen.size(); ++i) {
@@ -1438,6 +1449,7 @@ public:
       const auto [v, u] = chosen[i];
       for (std::uint32_t k = s.start[v]; k < s.start[v + 1]; ++k) {
         auto& t = mesh_.triangles[s.tris[k]];
+        for (std::uint32_t w : t) failed_[w] = 0;  // its star changes (v's ring, u, v)
         if (has(t, u))
           dead[s.tris[k]] = 1;
         else
@@ -1451,6 +1463,10 @@ public:
     mesh_.triangles.resize(o);
     return applied;
   }
+
+  // The collapses chosen and probed, and those whose probes failed, over the rounds so far.
+  std::size_t probed() const { return probed_; }
+  std::size_t failed_probes() const { return failed_probes_; }
 
   // Drops the vertices no triangle uses any more, keeping the others' order.
   void compact() {
@@ -1475,6 +1491,25 @@ private:
   ShareTransport* share_;  // null: this process alone
   std::vector<Point> at_;  // grid frame, voxels of the smallest spacing
   Stars stars_;
+  // Per vertex, the collapses whose probes failed (bit i: into the i-th vertex of its ring, which
+  // is sorted), while its star stays as it was: the probes read only the star's triangles and the
+  // fixed positions, so they would fail again. Cleared when a collapse changes the star.
+  std::vector<std::uint64_t> failed_;
+  std::size_t probed_ = 0, failed_probes_ = 0;
+
+  void show_observer(const Stars& s, const std::vector<Collapse>& chosen, const std::vector<std::uint8_t>& pass) const {
+    std::vector<SeenCollapse> seen(chosen.size());
+    for (std::size_t i = 0; i < chosen.size(); ++i) {
+      seen[i].v = chosen[i].v, seen[i].u = chosen[i].u, seen[i].passed = pass[i] != 0;
+      for (std::uint32_t k = s.start[chosen[i].v]; k < s.start[chosen[i].v + 1]; ++k) {
+        auto t = mesh_.triangles[s.tris[k]];
+        std::rotate(t.begin(), std::min_element(t.begin(), t.end()), t.end());
+        seen[i].star.push_back(t);
+      }
+      std::sort(seen[i].star.begin(), seen[i].star.end());
+    }
+    collapse_observer(seen);
+  }
 
   static bool has(const std::array<std::uint32_t, 3>& t, std::uint32_t u) { return t[0] == u || t[1] == u || t[2] == u; }
   static double dot(const Point& x, const Point& y) { return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]; }
@@ -1591,21 +1626,29 @@ private:
     return !s.border[v] && nv >= 4 && nv <= 64;  // valence 3: the link condition would also need its edges
   }
 
-  // v into its nearest neighbour that is not locked and passes (links, keeps_shape), locking v's ring.
+  // The slot of c.u in c.v's ring (collapsible: at most 64).
+  static int ring_slot(const Stars& s, const Collapse& c) {
+    const std::uint32_t* rv = s.ring_of(c.v);
+    return static_cast<int>(std::lower_bound(rv, rv + s.ring_count[c.v], c.u) - rv);
+  }
+
+  // v into its nearest neighbour that is not locked, did not fail its probes with v's star as it
+  // is, and passes (links, keeps_shape), locking v's ring.
   void choose_at(const Stars& s, std::uint32_t v, std::vector<std::uint8_t>& locked, std::vector<Collapse>& out) const {
     struct Near {
       double d2;
       std::uint32_t u;
+      int slot;
       bool operator<(const Near& o) const { return d2 < o.d2 || (d2 == o.d2 && u < o.u); }
     } order[64];
     const int nv = static_cast<int>(s.ring_count[v]);
     const std::uint32_t* rv = s.ring_of(v);
     const Point& pv = at_[v];
-    for (int i = 0; i < nv; ++i) order[i] = {distance2(at_[rv[i]], pv), rv[i]};
+    for (int i = 0; i < nv; ++i) order[i] = {distance2(at_[rv[i]], pv), rv[i], i};
     std::sort(order, order + nv);
     for (int i = 0; i < nv; ++i) {
       const Collapse c{v, order[i].u};
-      if (locked[c.u] || !links(s, c) || !keeps_shape(s, c)) continue;
+      if (locked[c.u] || (failed_[v] >> order[i].slot & 1) || !links(s, c) || !keeps_shape(s, c)) continue;
       out.push_back(c);
       locked[v] = locked[c.u] = 1;
       for (int k = 0; k < nv; ++k) locked[rv[k]] = 1;
@@ -1675,17 +1718,21 @@ private:
 // (the next would remove fewer still at about the same cost). Rounds mostly remove a fifth to a
 // quarter (the 512×512×120 MR head at 0.5 voxels: 7.27 M → 5.76 M → 4.66 M, 1.5 s a round); the
 // rule was set when its collapses probed the wrong frame and removed 1.7 %, then 0.8 %.
-std::size_t collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds, ShareTransport* share) {
-  if (rounds == 0) return 0;
+struct CollapseCounts {
+  std::size_t collapsed = 0, rounds = 0, probed = 0, failed = 0;
+};
+CollapseCounts collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds, ShareTransport* share) {
+  CollapseCounts n;
+  if (rounds == 0) return n;
   Collapser c(q, mesh, smallest, share);
-  std::size_t total = 0;
   for (int r = 0; r < rounds; ++r) {
-    const std::size_t before = mesh.triangles.size(), n = c.round();
-    total += n;
-    if (32 * n < before) break;  // 2·n triangles removed, fewer than before / 16
+    const std::size_t before = mesh.triangles.size(), applied = c.round();
+    n.collapsed += applied, ++n.rounds;
+    if (32 * applied < before) break;  // 2·applied triangles removed, fewer than before / 16
   }
-  if (total) c.compact();
-  return total;
+  if (n.collapsed) c.compact();
+  n.probed = c.probed(), n.failed = c.failed_probes();
+  return n;
 }
 
 // A query for the test hooks (compare_probe_routes, collapse_test_says_far), which probe and
@@ -1704,6 +1751,8 @@ struct ProbeOnlyQuery {
 }  // namespace
 
 std::size_t shared_refinement_fallbacks() { return refinement_fallbacks.load(); }
+
+void observe_collapse_rounds(std::function<void(const std::vector<SeenCollapse>&)> observer) { collapse_observer = std::move(observer); }
 
 ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, const std::vector<std::array<double, 3>>& points,
                                       const std::vector<std::int32_t>& from_halves) {
@@ -1923,7 +1972,7 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   }
   const std::size_t marched = counts[0], visited = counts[1];
   const auto t4 = Clock::now();
-  const std::size_t collapsed = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr) : 0;
+  const CollapseCounts collapses = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr) : CollapseCounts{};
   if (stats) {
     stats->iso = iso;
     stats->distance = distance;
@@ -1938,7 +1987,10 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     stats->refine_seconds = std::chrono::duration<double>(t1 - t0).count();
     stats->walk_seconds = std::chrono::duration<double>(t2 - t1).count();
     stats->march_seconds = std::chrono::duration<double>(t4 - t2).count();  // the clip with the march
-    stats->collapsed = collapsed;
+    stats->collapsed = collapses.collapsed;
+    stats->collapse_rounds = collapses.rounds;
+    stats->collapses_probed = collapses.probed;
+    stats->collapses_failed = collapses.failed;
     stats->collapse_seconds = std::chrono::duration<double>(Clock::now() - t4).count();
   }
   return mesh;

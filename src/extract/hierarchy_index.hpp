@@ -7,6 +7,7 @@
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -135,5 +136,17 @@ ProbeRouteCounts compare_probe_routes(const PreparedGrid& grid, double iso, cons
 // `normal` (voxels of the smallest spacing, in the grid's frame)?
 bool collapse_test_says_far(const PreparedGrid& grid, double iso, double distance, const std::array<double, 3>& centre,
                             const std::array<double, 3>& normal);
+
+// For the tests of the collapses (distance_query.cpp): called after each round's probes, in the
+// round's order, with every chosen collapse (v into u, vertex numbers of the march's mesh, which
+// stay until the last round), whether its probes passed, and v's star as the round saw it (its
+// triangles, each rotated to start at its smallest number, sorted). Set for one thread's queries
+// (thread_local); empty: nothing is called, and no star is gathered.
+struct SeenCollapse {
+  std::uint32_t v = 0, u = 0;
+  bool passed = false;
+  std::vector<std::array<std::uint32_t, 3>> star;
+};
+void observe_collapse_rounds(std::function<void(const std::vector<SeenCollapse>&)> observer);
 
 }  // namespace adaptiso::detail
