@@ -1407,6 +1407,9 @@ public:
       : q_(q), mesh_(mesh), d2_(q.distance * q.distance), share_(share) {
     resize_big(at_, mesh.positions.size());
     assign_big(failed_, mesh.positions.size(), std::uint64_t{0});
+    assign_big(first_removed_, mesh.positions.size(), kNone);
+    assign_big(last_removed_, mesh.positions.size(), kNone);
+    assign_big(next_removed_, mesh.positions.size(), kNone);
     const GridSource& s = q.g.source;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, at_.size(), 16384), [&](const auto& r) {
       for (std::size_t v = r.begin(); v < r.end(); ++v) {
@@ -1455,6 +1458,7 @@ public:
         else
           for (auto& w : t) w = w == v ? u : w;
       }
+      hand_over(v, u);
       ++applied;
     }
     std::size_t o = 0;
@@ -1495,6 +1499,39 @@ private:
   // is sorted), while its star stays as it was: the probes read only the star's triangles and the
   // fixed positions, so they would fail again. Cleared when a collapse changes the star.
   std::vector<std::uint64_t> failed_;
+  // The vertices removed so far, each held by a vertex that stays (a list per holder: first, last,
+  // next): a removed vertex goes to u with those v held. Each was within the distance of the
+  // triangles that replaced it; a later collapse of its holder must keep it so (probes_pass), or
+  // rounds would carry the surface away from them: without it the CT bunny's surface at 0.5
+  // voxels lay 0.51 voxels from the grid's at the 95th percentile after 16 rounds.
+  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
+  std::vector<std::uint32_t> first_removed_, last_removed_, next_removed_;
+
+  void hand_over(std::uint32_t v, std::uint32_t u) {
+    // v, then what v held, appended to what u holds.
+    next_removed_[v] = first_removed_[v];
+    const std::uint32_t head = v, tail = last_removed_[v] == kNone ? v : last_removed_[v];
+    if (first_removed_[u] == kNone)
+      first_removed_[u] = head;
+    else
+      next_removed_[last_removed_[u]] = head;
+    last_removed_[u] = tail;
+    first_removed_[v] = last_removed_[v] = kNone;
+  }
+  // Every vertex v holds within the distance of the new triangles.
+  bool keeps_removed(const Stars& s, const Collapse& c) const {
+    for (std::uint32_t w = first_removed_[c.v]; w != kNone; w = next_removed_[w]) {
+      bool near = false;
+      for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1] && !near; ++k) {
+        if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
+        Point b[3];
+        moved(s, k, c, b);
+        near = distance2_to_triangle(at_[w], b[0], b[1], b[2]) <= d2_;
+      }
+      if (!near) return false;
+    }
+    return true;
+  }
   std::size_t probed_ = 0, failed_probes_ = 0;
 
   void show_observer(const Stars& s, const std::vector<Collapse>& chosen, const std::vector<std::uint8_t>& pass) const {
@@ -1507,6 +1544,14 @@ private:
         seen[i].star.push_back(t);
       }
       std::sort(seen[i].star.begin(), seen[i].star.end());
+      for (std::uint32_t k = s.start[chosen[i].v]; k < s.start[chosen[i].v + 1]; ++k) {
+        if (has(mesh_.triangles[s.tris[k]], chosen[i].u)) continue;
+        Point b[3];
+        moved(s, k, chosen[i], b);
+        seen[i].made.push_back({b[0], b[1], b[2]});
+      }
+      seen[i].held.push_back(at_[chosen[i].v]);
+      for (std::uint32_t w = first_removed_[chosen[i].v]; w != kNone; w = next_removed_[w]) seen[i].held.push_back(at_[w]);
     }
     collapse_observer(seen);
   }
@@ -1697,6 +1742,7 @@ private:
   // Every new triangle's centre within the distance of the grid's surface, as the refinement
   // tests its triangles: within it of a corner or of v (cut points), or probed.
   bool probes_pass(const Stars& s, const Collapse& c) const {
+    if (!keeps_removed(s, c)) return false;
     for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
       if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
       Point b[3];

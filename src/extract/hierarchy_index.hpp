@@ -140,12 +140,17 @@ bool collapse_test_says_far(const PreparedGrid& grid, double iso, double distanc
 // For the tests of the collapses (distance_query.cpp): called after each round's probes, in the
 // round's order, with every chosen collapse (v into u, vertex numbers of the march's mesh, which
 // stay until the last round), whether its probes passed, and v's star as the round saw it (its
-// triangles, each rotated to start at its smallest number, sorted). Set for one thread's queries
+// triangles, each rotated to start at its smallest number, sorted), the triangles it makes and the
+// removed vertices it must keep near them. Set for one thread's queries
 // (thread_local); empty: nothing is called, and no star is gathered.
 struct SeenCollapse {
   std::uint32_t v = 0, u = 0;
   bool passed = false;
   std::vector<std::array<std::uint32_t, 3>> star;
+  // In the probes' frame (voxels of the smallest spacing): the triangles the collapse makes, and
+  // v with the vertices removed before that v holds (each must stay within the distance of them).
+  std::vector<std::array<std::array<double, 3>, 3>> made;
+  std::vector<std::array<double, 3>> held;
 };
 void observe_collapse_rounds(std::function<void(const std::vector<SeenCollapse>&)> observer);
 
