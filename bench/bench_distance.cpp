@@ -57,7 +57,8 @@ int main(int argc, char** argv) {
         std::printf(
             "{\"iso\": %g, \"distance\": %g, \"rounds\": %d, \"seconds\": %.5f, \"cpu_mean\": %.5f, \"refine_mean\": %.5f, "
             "\"walk_mean\": %.5f, \"march_mean\": %.5f, \"collapse_mean\": %.5f, "
-            "\"triangles\": %zu, \"vertices\": %zu, \"collapsed\": %zu, \"collapse_rounds\": %zu, \"collapses_failed\": %zu, \"tested\": %zu, \"refined\": %zu, \"closure\": %zu, "
+            "\"triangles\": %zu, \"vertices\": %zu, \"collapsed\": %zu, \"collapse_rounds\": %zu, \"collapses_failed\": %zu, \"tested\": "
+            "%zu, \"refined\": %zu, \"closure\": %zu, "
             "\"visited\": %zu, \"marched\": %zu, \"setup_seconds\": %.3f}\n",
             iso, d, int(r), seconds, cpu, refine / reps, walk / reps, march / reps, collapse / reps, st.triangles, st.vertices,
             st.collapsed, st.collapse_rounds, st.collapses_failed, st.tested, st.refined, st.closure, st.visited, st.tetrahedra, setup);

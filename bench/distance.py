@@ -4,7 +4,7 @@ run. For each volume and iso-value, on the bisection grid `prepare` makes by def
 
 - adaptiso --distance D --collapse R: `extract GRID --iso V --distance D --collapse R` for each D and
   each R of --collapse (rounds of edge collapses after the march; 0: every triangle inside its
-  tetrahedron; 2: the default), and the grid's own surface (D = "grid");
+  tetrahedron; 8: the default), and the grid's own surface (D = "grid");
 - flying edges: VTK's vtkFlyingEdges3D (SMP, `peer_bench fe`), the reference for time and triangles;
 - flying edges + meshoptimizer at D: that surface simplified with the same distance as target
   (`bench_simplify MESH D·voxel 0`), its time added to flying edges';
@@ -21,7 +21,7 @@ loaded grid costs adaptiso the query alone; the query's one-time set-up per load
 beside the grid. The peers need `peer_bench` and `bench_simplify` (scripts/bench.sh builds them into
 build/peers, -DADAPTISO_BUILD_PEERS=ON); without them their rows are left out with a message.
 
-Usage: bench/distance.py --build BUILD [--data DIR] [--work DIR] [--distances 0.5,1,2] [--collapse 0,2] [--query-only]
+Usage: bench/distance.py --build BUILD [--data DIR] [--work DIR] [--distances 0.5,1,2] [--collapse 0,8] [--query-only]
                          [--repeat 3] [--out RECORDS.json] [DATASET[:ISO,...] ...]
 """
 import argparse
@@ -60,7 +60,7 @@ def main():
     ap.add_argument("--data", default=os.environ.get("ADAPTISO_DATA", "../shared/data"))
     ap.add_argument("--work", default="build/distance-work")
     ap.add_argument("--distances", default="0.5,1,2")
-    ap.add_argument("--collapse", default="0,2", help="rounds of edge collapses after the query, one row each")
+    ap.add_argument("--collapse", default="0,8", help="rounds of edge collapses after the query, one row each (8: the default)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per timing (fastest kept)")
     ap.add_argument("--query-only", action="store_true",
                     help="the grid's surface, the query at each D and the peers (flying edges, flying edges + meshoptimizer at each D, OpenVDB); "

@@ -740,8 +740,8 @@ distance (bisection grids): the fewest triangles within about this many voxels (
 spacing) of the grid's surface, refined where this surface needs it; every vertex is one of the
 full surface's (HierarchyQuery::extract_within).
 collapse (with distance): up to this many rounds of edge collapses after the march, each checked
-by the same tests (a quarter fewer triangles a round on the CT scans measured, 1-2 % on MR with
-thick slices; a round removing under a sixteenth is the last; default 2); 0 keeps every triangle
+by the same tests (a fifth to a quarter fewer triangles a round on the CT and MR scans measured;
+a round removing under a sixteenth is the last; default 8, 2 is faster); 0 keeps every triangle
 inside its tetrahedron. ValueError outside 0..16.
 comm (with distance): an mpi4py communicator whose every process calls extract with the same
 arguments on the same grid: they make the surface together (the refinement, the walk and the

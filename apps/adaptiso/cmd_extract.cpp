@@ -234,8 +234,8 @@ struct DistanceFlags {
             ->check(non_negative_number());
     cmd->add_option("--collapse", collapse,
                     fmt::format("With --distance: up to this many rounds of edge collapses after the march, each checked by the same "
-                                "tests (a quarter fewer triangles a round on the CT scans measured, 1-2 % on MR with thick slices; a "
-                                "round removing under a sixteenth is the last); 0 keeps every triangle inside its tetrahedron (default {})",
+                                "tests (a fifth to a quarter fewer triangles a round on the CT and MR scans measured; a round removing "
+                                "under a sixteenth is the last); 2 is faster, 0 keeps every triangle inside its tetrahedron (default {})",
                                 kDefaultCollapseRounds))
         ->check(CLI::Range(0, kMaxCollapseRounds))
         ->needs(d);

@@ -49,16 +49,19 @@ struct DistanceQueryStats {
   std::size_t visited = 0;     // tetrahedra the final walk met
   std::size_t triangles = 0, vertices = 0;
   bool in_range = true;
-  std::size_t collapsed = 0;  // edges collapsed after the march (each removes two triangles)
+  std::size_t collapsed = 0;         // edges collapsed after the march (each removes two triangles)
   std::size_t collapse_rounds = 0;   // rounds run (a round removing under a sixteenth is the last)
   std::size_t collapses_probed = 0;  // collapses chosen and probed, over the rounds
   std::size_t collapses_failed = 0;  // of those, the ones whose probes failed (not tried again while v's star stays)
   double refine_seconds = 0, walk_seconds = 0, march_seconds = 0, collapse_seconds = 0;
 };
 
-// Rounds of edge collapses after the distance query's march (extract_within): on the CT bunny
-// each round about a quarter fewer triangles, for 0.5-0.7× the query's time.
-inline constexpr int kDefaultCollapseRounds = 2;
+// Rounds of edge collapses after the distance query's march (extract_within). Each round removes
+// a fifth to a quarter of the triangles, on a smaller mesh than the last, so eight cost 1.4-1.8×
+// the time of two for a third to a quarter of their triangles, still within the distance (the CT
+// bunny at iso 1600.5 and 0.5 voxels: 91 k → 32 k triangles, p95 from the grid's surface 0.37 →
+// 0.45 voxels; at 2 voxels 55 k → 14 k, 0.94 → 1.55; 2026-12-07). 2 or 0 for speed.
+inline constexpr int kDefaultCollapseRounds = 8;
 inline constexpr int kMaxCollapseRounds = 16;
 
 class ShareTransport;  // select_shares.hpp
@@ -100,8 +103,11 @@ public:
   // within the distance of the grid's surface along its normal, unless its edges are within
   // √3·distance; the removed vertex within the distance of the new triangles), no new triangle
   // turns by more than 60°, and the link condition holds; vertices on the surface's border stay.
-  // A round removing less than a sixteenth of the triangles is the last. Measured (2026-12-07), a
-  // round removes a fifth to a quarter: the CT bunny at iso 1600.5 157,114 → 119,784 → 91,552 at
+  // Every removed vertex is held by a vertex that stays (the one it went to), and a collapse of a
+  // holder keeps every vertex it holds within the distance of the triangles it makes too. A
+  // collapse whose probes failed is not tried again while v's star stays as it was. A round
+  // removing less than a sixteenth of the triangles is the last. Measured (2026-12-07), the first
+  // rounds remove a fifth to a quarter: the CT bunny at iso 1600.5 157,114 → 119,784 → 91,552 at
   // 0.5 voxels, 92,796 → 69,934 → 52,330 at 2; the 512×512×120 MR head at iso 120.5 (slices 3.7
   // voxels apart) 7,268,646 → 5,757,276 → 4,661,426 at 0.5. The probes are made in the grid's
   // frame (the mesh's world positions taken back through the volume's origin and direction).

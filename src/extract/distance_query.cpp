@@ -1294,8 +1294,10 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, c
 // into u when the refinement's own tests pass on the result (every new triangle's centre within
 // the distance of the grid's surface: within it of a corner or of v, else probed as the
 // refinement probes, unless every point of the triangle lies within the distance of a corner; v
-// within the distance of the new triangles), no new triangle turns by more than 60°, and the link
-// condition keeps the surface 2-manifold. Vertices on the surface's border (the box) stay. A
+// and the vertices removed before that v holds within the distance of the new triangles), no new
+// triangle turns by more than 60°, and the link condition keeps the surface 2-manifold. A
+// collapse whose probes failed is not chosen again while v's star stays (Collapser::failed_).
+// Vertices on the surface's border (the box) stay. A
 // round's collapses have disjoint stars (a collapse locks v's ring), so they are chosen in vertex
 // order without the probes, the probes then run in parallel, and the chosen collapses whose probes
 // pass are applied: the same surface for any thread count. The vertices that stay keep their order
@@ -2018,7 +2020,8 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   }
   const std::size_t marched = counts[0], visited = counts[1];
   const auto t4 = Clock::now();
-  const CollapseCounts collapses = distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr) : CollapseCounts{};
+  const CollapseCounts collapses =
+      distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr) : CollapseCounts{};
   if (stats) {
     stats->iso = iso;
     stats->distance = distance;

@@ -600,8 +600,8 @@ double distance_to_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const V
   const Vec3 n = cross(sub(b, a), sub(c, a));
   const double n2 = dot(n, n);
   if (n2 > 0) {
-    const bool inside = dot(cross(sub(b, a), sub(p, a)), n) >= 0 && dot(cross(sub(c, b), sub(p, b)), n) >= 0 &&
-                        dot(cross(sub(a, c), sub(p, c)), n) >= 0;
+    const bool inside =
+        dot(cross(sub(b, a), sub(p, a)), n) >= 0 && dot(cross(sub(c, b), sub(p, b)), n) >= 0 && dot(cross(sub(a, c), sub(p, c)), n) >= 0;
     if (inside) return std::abs(dot(sub(p, a), n)) / std::sqrt(n2);
   }
   return std::min({to_segment(a, b), to_segment(b, c), to_segment(c, a)});
@@ -869,8 +869,10 @@ TEST(DistanceQuery, CollapsesProbeTheGridWhereverTheVolumeSitsInTheWorld) {
     for (double distance : {0.5, 1.5}) {
       SCOPED_TRACE(testing::Message() << "mirror " << mirror << " distance " << distance);
       DistanceQueryStats expected, got;
-      const Mesh want = at_origin_query.extract_within(iso, distance, &expected);
-      const Mesh m = query.extract_within(iso, distance, &got);
+      // Two rounds: each round's choices start from the last round's, so a choice tipped by the
+      // floats' last bits tips more of them round after round (eight: 2-5 % of the triangles).
+      const Mesh want = at_origin_query.extract_within(iso, distance, &expected, 2);
+      const Mesh m = query.extract_within(iso, distance, &got, 2);
       ASSERT_GT(expected.collapsed, 100u);
       // World positions are floats: taken back to the grid frame they differ in the last bits,
       // which may tip a rare choice.
