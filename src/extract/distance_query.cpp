@@ -1769,15 +1769,18 @@ private:
 struct CollapseCounts {
   std::size_t collapsed = 0, rounds = 0, probed = 0, failed = 0;
 };
-CollapseCounts collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds, ShareTransport* share) {
+CollapseCounts collapse_edges(const Query& q, Mesh& mesh, double smallest, int rounds, ShareTransport* share, const Progress& progress) {
   CollapseCounts n;
   if (rounds == 0) return n;
   Collapser c(q, mesh, smallest, share);
+  report(progress, "collapse", 0);
   for (int r = 0; r < rounds; ++r) {
     const std::size_t before = mesh.triangles.size(), applied = c.round();
     n.collapsed += applied, ++n.rounds;
+    report(progress, "collapse", double(r + 1) / rounds);
     if (32 * applied < before) break;  // 2·applied triangles removed, fewer than before / 16
   }
+  report(progress, "collapse", 1);
   if (n.collapsed) c.compact();
   n.probed = c.probed(), n.failed = c.failed_probes();
   return n;
@@ -1895,17 +1898,17 @@ void gather_dealt(ShareTransport& t, Dealing& d) {
 }  // namespace detail
 
 Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds,
-                                    const std::atomic<bool>* cancel) const {
-  return within(iso, distance, stats, collapse_rounds, cancel, nullptr);
+                                    const std::atomic<bool>* cancel, const Progress& progress) const {
+  return within(iso, distance, stats, collapse_rounds, cancel, nullptr, progress);
 }
 
 Mesh HierarchyQuery::extract_within(ShareTransport& share, double iso, double distance, DistanceQueryStats* stats,
                                     int collapse_rounds) const {
-  return within(iso, distance, stats, collapse_rounds, nullptr, &share);
+  return within(iso, distance, stats, collapse_rounds, nullptr, &share, {});
 }
 
 Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds, const std::atomic<bool>* cancel,
-                            ShareTransport* share) const {
+                            ShareTransport* share, const Progress& progress) const {
   using namespace detail;
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
@@ -1961,6 +1964,7 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   const auto refine_roots = [&] {
     tbb::parallel_for(0, 6, [&](int r) { refine.tetrahedron(roots[static_cast<std::size_t>(r)], root_order(r), 0); });
   };
+  report(progress, "refine", 0);
   refine_roots();
   q.throw_if_cancelled();  // the marks go back cleared however the query ends (Lease)
   if (shared) {
@@ -1978,6 +1982,8 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   const std::size_t refined = pending.size();
   const std::size_t closure = close_upwards(q, std::move(pending));
   const auto t1 = Clock::now();
+  report(progress, "refine", 1);
+  report(progress, "march", 0);
 
   const FinalRule rule{q};
   const Traversal<FinalRule> walk(lat, rule);
@@ -2019,9 +2025,10 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     share->broadcast(std::as_writable_bytes(std::span(counts)));
   }
   const std::size_t marched = counts[0], visited = counts[1];
+  report(progress, "march", 1);
   const auto t4 = Clock::now();
   const CollapseCounts collapses =
-      distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr) : CollapseCounts{};
+      distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr, progress) : CollapseCounts{};
   if (stats) {
     stats->iso = iso;
     stats->distance = distance;

@@ -15,6 +15,8 @@
 #include <map>
 #include <random>
 #include <set>
+#include <string>
+#include <string_view>
 
 #include "adaptiso/extractor.hpp"
 #include "adaptiso/hierarchy_query.hpp"
@@ -642,6 +644,35 @@ TEST(DistanceQuery, ACollapseKeepsTheVerticesRemovedBeforeWithinTheDistance) {
     EXPECT_EQ(far, 0u);
     EXPECT_GT(collapsed.triangle_count(), 0u);
   }
+}
+
+// Eight rounds of collapses on the 512×512×120 MR head take 8 s, and the command line said
+// nothing through them: the query now tells its stages, in order, each from 0 to 1, the
+// collapses after each round.
+TEST(DistanceQuery, TheQueryTellsItsStagesInOrder) {
+  const Volume v = make_synthetic("torus", 41, ScalarType::f32);
+  const HierarchyQuery query(testutil::prepared_at(v, 0.01, true));
+  const ValueRange r = value_range(v);
+  std::vector<std::pair<std::string, double>> heard;
+  DistanceQueryStats st;
+  query.extract_within(r.min + 0.5 * (r.max - r.min), 0.5, &st, 4, nullptr,
+                       [&](std::string_view stage, double f) { heard.emplace_back(std::string(stage), f); });
+  ASSERT_GT(st.collapse_rounds, 1u);
+  std::vector<std::string> stages;
+  for (std::size_t i = 0; i < heard.size(); ++i) {
+    EXPECT_GE(heard[i].second, 0.0);
+    EXPECT_LE(heard[i].second, 1.0);
+    if (stages.empty() || stages.back() != heard[i].first) {
+      stages.push_back(heard[i].first);
+      EXPECT_EQ(heard[i].second, 0.0) << heard[i].first;
+    } else {
+      EXPECT_GE(heard[i].second, heard[i - 1].second) << heard[i].first;
+    }
+    if (i + 1 == heard.size() || heard[i + 1].first != heard[i].first) EXPECT_EQ(heard[i].second, 1.0) << heard[i].first;
+  }
+  EXPECT_EQ(stages, (std::vector<std::string>{"refine", "march", "collapse"}));
+  const auto rounds = std::count_if(heard.begin(), heard.end(), [](const auto& h) { return h.first == "collapse"; });
+  EXPECT_EQ(static_cast<std::size_t>(rounds), st.collapse_rounds + 2);  // 0, after each round, 1
 }
 
 TEST(DistanceQuery, RoundsOutsideTheirRangeAreRefusedAndDistanceZeroCollapsesNothing) {
