@@ -1497,6 +1497,12 @@ private:
   ShareTransport* share_;  // null: this process alone
   std::vector<Point> at_;  // grid frame, voxels of the smallest spacing
   Stars stars_;
+  // The triangles a collapse makes: v's star without the two on the edge, v moved to u (a
+  // collapsible star has at most 60 triangles), made once for the held vertices and the probes.
+  struct Made {
+    Point tri[60][3];
+    int count = 0;
+  };
   // Per vertex, the collapses whose probes failed (bit i: into the i-th vertex of its ring, which
   // is sorted), while its star stays as it was: the probes read only the star's triangles and the
   // fixed positions, so they would fail again. Cleared when a collapse changes the star.
@@ -1521,15 +1527,11 @@ private:
     first_removed_[v] = last_removed_[v] = kNone;
   }
   // Every vertex v holds within the distance of the new triangles.
-  bool keeps_removed(const Stars& s, const Collapse& c) const {
+  bool keeps_removed(const Collapse& c, const Made& made) const {
     for (std::uint32_t w = first_removed_[c.v]; w != kNone; w = next_removed_[w]) {
       bool near = false;
-      for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1] && !near; ++k) {
-        if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
-        Point b[3];
-        moved(s, k, c, b);
-        near = distance2_to_triangle(at_[w], b[0], b[1], b[2]) <= d2_;
-      }
+      for (int k = 0; k < made.count && !near; ++k)
+        near = distance2_to_triangle(at_[w], made.tri[k][0], made.tri[k][1], made.tri[k][2]) <= d2_;
       if (!near) return false;
     }
     return true;
@@ -1546,12 +1548,8 @@ private:
         seen[i].star.push_back(t);
       }
       std::sort(seen[i].star.begin(), seen[i].star.end());
-      for (std::uint32_t k = s.start[chosen[i].v]; k < s.start[chosen[i].v + 1]; ++k) {
-        if (has(mesh_.triangles[s.tris[k]], chosen[i].u)) continue;
-        Point b[3];
-        moved(s, k, chosen[i], b);
-        seen[i].made.push_back({b[0], b[1], b[2]});
-      }
+      const Made made = made_by(s, chosen[i]);
+      for (int k = 0; k < made.count; ++k) seen[i].made.push_back({made.tri[k][0], made.tri[k][1], made.tri[k][2]});
       seen[i].held.push_back(at_[chosen[i].v]);
       for (std::uint32_t w = first_removed_[chosen[i].v]; w != kNone; w = next_removed_[w]) seen[i].held.push_back(at_[w]);
     }
@@ -1570,6 +1568,12 @@ private:
   void moved(const Stars& s, std::uint32_t k, const Collapse& c, Point out[3]) const {
     const auto& t = mesh_.triangles[s.tris[k]];
     for (int i = 0; i < 3; ++i) out[i] = t[static_cast<std::size_t>(i)] == c.v ? at_[c.u] : at_[t[static_cast<std::size_t>(i)]];
+  }
+  Made made_by(const Stars& s, const Collapse& c) const {
+    Made m;
+    for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k)
+      if (!has(mesh_.triangles[s.tris[k]], c.u)) moved(s, k, c, m.tri[m.count++]);
+    return m;
   }
 
   // The collapses of a round, without the probes: each vertex into the nearest neighbour that
@@ -1744,11 +1748,10 @@ private:
   // Every new triangle's centre within the distance of the grid's surface, as the refinement
   // tests its triangles: within it of a corner or of v (cut points), or probed.
   bool probes_pass(const Stars& s, const Collapse& c) const {
-    if (!keeps_removed(s, c)) return false;
-    for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
-      if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
-      Point b[3];
-      moved(s, k, c, b);
+    const Made made = made_by(s, c);
+    if (!keeps_removed(c, made)) return false;
+    for (int k = 0; k < made.count; ++k) {
+      const Point* b = made.tri[k];
       // A triangle whose corners (on the grid's surface) cover it is not probed, as in the refinement.
       if (corners_cover(b[0], b[1], b[2], d2_)) continue;
       const Point n = normal(b[0], b[1], b[2]);
