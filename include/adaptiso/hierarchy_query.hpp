@@ -104,9 +104,10 @@ public:
   // within the distance of the grid's surface along its normal, unless its edges are within
   // √3·distance; the removed vertex within the distance of the new triangles), no new triangle
   // turns by more than 60°, and the link condition holds; vertices on the surface's border stay.
-  // Every removed vertex is held by a vertex that stays (the one it went to), and a collapse of a
-  // holder keeps every vertex it holds within the distance of the triangles it makes too. A
-  // collapse whose probes failed is not tried again while v's star stays as it was. A round
+  // Every removed vertex is held by a vertex that stays (the one it went to), and a collapse keeps
+  // every vertex held by v or by v's ring within the distance of the holder's star as it leaves it
+  // (a triangle another collapse of the round changes does not count). A collapse whose own tests
+  // failed is not tried again while v's star stays as it was. A round
   // removing less than a sixteenth of the triangles is the last. Measured (2026-12-07), the first
   // rounds remove a fifth to a quarter: the CT bunny at iso 1600.5 157,114 → 119,784 → 91,552 at
   // 0.5 voxels, 92,796 → 69,934 → 52,330 at 2; the 512×512×120 MR head at iso 120.5 (slices 3.7
@@ -114,7 +115,9 @@ public:
   // frame (the mesh's world positions taken back through the volume's origin and direction).
   // Guaranteed: every mesh vertex is a vertex of the grid's own surface, bit for bit (the cut of a
   // coarse edge is placed on the grid's cut edge inside it); the surface is watertight and
-  // 2-manifold where the grid's is, oriented, and the same for any thread count; the centre (and
+  // 2-manifold where the grid's is, oriented, and the same for any thread count; every vertex of
+  // the march (each a vertex of the grid's surface) lies within the distance of the collapsed
+  // surface (the vertices that stay are on it, each removed one near its holder's star); the centre (and
   // when longer than 3·distance the corner quarters' centres) of every triangle of a tetrahedron
   // whose longest edge exceeds the distance, and the centre of every triangle a collapse made,
   // was found within it of the grid's surface along the triangle's normal (most

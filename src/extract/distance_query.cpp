@@ -1428,29 +1428,35 @@ public:
     stars_.build(mesh_);
     const std::vector<Collapse> chosen = choose();  // checks the flag before it returns
     const Stars& s = stars_;
-    std::vector<std::uint8_t> pass(chosen.size(), 1);
+    const RoundChoice choice = round_choice(s, chosen);
+    std::vector<std::uint8_t> pass(chosen.size(), kPassed);
+    std::vector<std::uint32_t> depends(chosen.size(), 0);
     const std::size_t chunk = 256;
     const std::size_t P = share_ ? static_cast<std::size_t>(share_->processes()) : 1,
                       me = share_ ? static_cast<std::size_t>(share_->process()) : 0;
     tbb::parallel_for(std::size_t{0}, (chosen.size() + chunk - 1) / chunk, [&](std::size_t c) {
       if (q_.cancelled()) return;
       const std::size_t end = std::min(chosen.size(), (c + 1) * chunk);
-      for (std::size_t i = c * chunk; i < end; ++i) pass[i] = c % P == me ? probes_pass(s, chosen[i]) : 0;
+      for (std::size_t i = c * chunk; i < end; ++i) pass[i] = c % P == me ? verdict(s, chosen[i], choice, depends[i]) : 0;
     });
     q_.throw_if_cancelled();  // before any collapse is applied: the probes of some were skipped
-    if (P > 1) share::combine_at_zero(*share_, std::span(pass), [](std::uint8_t& own, std::uint8_t theirs) { own |= theirs; });
+    if (P > 1) {
+      share::combine_at_zero(*share_, std::span(pass), [](std::uint8_t& own, std::uint8_t theirs) { own |= theirs; });
+      share::combine_at_zero(*share_, std::span(depends), [](std::uint32_t& own, std::uint32_t theirs) { own |= theirs; });
+    }
+    wait_for_the_next_round(pass, depends);
     if (collapse_observer) show_observer(s, chosen, pass);
     for (std::size_t i = 0; i < chosen.size(); ++i)
-      if (!pass[i]) {
+      if (pass[i] == kFailed) {
         stars_.ensure_ring(mesh_, chosen[i].v);  // another process's block: its ring is not built here
         failed_[chosen[i].v] |= std::uint64_t{1} << ring_slot(s, chosen[i]);
       }
-    failed_probes_ += static_cast<std::size_t>(std::count(pass.begin(), pass.end(), 0));
+    failed_probes_ += static_cast<std::size_t>(std::count_if(pass.begin(), pass.end(), [](std::uint8_t p) { return p != kPassed; }));
     probed_ += chosen.size();
     std::vector<std::uint8_t> dead(mesh_.triangles.size(), 0);
     std::size_t applied = 0;
     for (std::size_t i = 0; i < chosen.size(); ++i) {
-      if (!pass[i]) continue;
+      if (pass[i] != kPassed) continue;
       const auto [v, u] = chosen[i];
       for (std::uint32_t k = s.start[v]; k < s.start[v + 1]; ++k) {
         auto& t = mesh_.triangles[s.tris[k]];
@@ -1501,6 +1507,7 @@ private:
   // collapsible star has at most 60 triangles), made once for the held vertices and the probes.
   struct Made {
     Point tri[60][3];
+    std::array<std::uint32_t, 3> id[60];  // its vertices, v already u
     int count = 0;
   };
   // Per vertex, the collapses whose probes failed (bit i: into the i-th vertex of its ring, which
@@ -1536,12 +1543,104 @@ private:
     }
     return true;
   }
+  // A collapse that passed relying on a triangle another collapse of the round changes waits when
+  // that one passed too (the codes before any wait: the same on every process, in any order).
+  static void wait_for_the_next_round(std::vector<std::uint8_t>& pass, const std::vector<std::uint32_t>& depends) {
+    std::vector<std::uint8_t> waits(pass.size(), 0);
+    for (std::size_t i = 0; i < pass.size(); ++i) waits[i] = pass[i] == kPassed && depends[i] != 0 && pass[depends[i] - 1] == kPassed;
+    for (std::size_t i = 0; i < pass.size(); ++i)
+      if (waits[i]) pass[i] = kRingHeld;
+  }
+  // A round's chosen collapses, and per triangle the one whose star holds it (the stars are
+  // disjoint).
+  struct RoundChoice {
+    const std::vector<Collapse>& chosen;
+    std::vector<std::uint32_t> touched;
+  };
+  RoundChoice round_choice(const Stars& s, const std::vector<Collapse>& chosen) const {
+    RoundChoice r{chosen, std::vector<std::uint32_t>(mesh_.triangles.size(), kNone)};
+    tbb::parallel_for(std::size_t{0}, chosen.size(), [&](std::size_t i) {
+      for (std::uint32_t k = s.start[chosen[i].v]; k < s.start[chosen[i].v + 1]; ++k) r.touched[s.tris[k]] = static_cast<std::uint32_t>(i);
+    });
+    return r;
+  }
+  // What v's ring holds, within the distance of each holder's star as this collapse leaves it:
+  // the collapse takes the triangles through v out of the ring's stars (and puts the new ones in),
+  // so a vertex a neighbour holds may have been near only those. Within the distance of the
+  // holder itself, a vertex is near its star. The round's collapses are probed at once, so a
+  // triangle another collapse j of the round changes is a witness as it is only while j is not
+  // applied: `depends` names that j (+1; 0: none), and the collapse waits for the next round if
+  // j passes. One such j at most.
+  bool keeps_ring_held(const Stars& s, const Collapse& c, const Made& made, const RoundChoice& round, std::uint32_t& depends) const {
+    std::uint32_t ring[64];  // collapsible: at most 64
+    int n = 0;
+    for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k)
+      for (std::uint32_t w : mesh_.triangles[s.tris[k]])
+        if (w != c.v && std::find(ring, ring + n, w) == ring + n) ring[n++] = w;
+    depends = 0;
+    for (int r = 0; r < n; ++r) {
+      const std::uint32_t h = ring[r];
+      for (std::uint32_t w = first_removed_[h]; w != kNone; w = next_removed_[w]) {
+        if (distance2(at_[w], at_[h]) <= d2_) continue;
+        const std::uint32_t near = near_star_after(s, c, h, at_[w], made, round);
+        if (near == kAlways) continue;
+        if (near == kNone || (depends != 0 && depends != near + 1)) return false;
+        depends = near + 1;
+      }
+    }
+    return true;
+  }
+  // Whether p lies within the distance of h's star after c, whatever the round's other
+  // collapses (kAlways): of a triangle c makes through h, of one of h's others that no collapse
+  // changes, or, for another collapse j, of one of j's triangles through h both as it is and as j
+  // would leave it (moved to j's u, or made by j); else only while the j of a triangle it is near
+  // is not applied (j), or not at all (kNone).
+  static constexpr std::uint32_t kAlways = kNone - 1;
+  std::uint32_t near_star_after(const Stars& s, const Collapse& c, std::uint32_t h, const Point& p, const Made& made,
+                                const RoundChoice& round) const {
+    for (int k = 0; k < made.count; ++k)
+      if (has(made.id[k], h) && distance2_to_triangle(p, made.tri[k][0], made.tri[k][1], made.tri[k][2]) <= d2_) return kAlways;
+    // The other collapses through h's star (a few), and whether p is near their triangles before and after.
+    struct Other {
+      std::uint32_t j;
+      bool before, after;
+    } other[64];
+    int others = 0;
+    for (std::uint32_t k = s.start[h]; k < s.start[h + 1]; ++k) {
+      const auto& t = mesh_.triangles[s.tris[k]];
+      if (has(t, c.v)) continue;
+      const std::uint32_t j = round.touched[s.tris[k]];
+      const bool near = distance2_to_triangle(p, at_[t[0]], at_[t[1]], at_[t[2]]) <= d2_;
+      if (j == kNone) {
+        if (near) return kAlways;
+        continue;
+      }
+      int o = 0;
+      while (o < others && other[o].j != j) ++o;
+      if (o == others) {
+        if (others == 64) continue;  // a vertex of valence over 128: the rest are no witnesses
+        other[others++] = {j, false, false};
+      }
+      other[o].before = other[o].before || near;
+      const Collapse& oc = round.chosen[j];
+      if (!other[o].after && !has(t, oc.u)) {
+        Point moved_t[3];
+        for (int i = 0; i < 3; ++i) moved_t[i] = at_[t[static_cast<std::size_t>(i)] == oc.v ? oc.u : t[static_cast<std::size_t>(i)]];
+        other[o].after = distance2_to_triangle(p, moved_t[0], moved_t[1], moved_t[2]) <= d2_;
+      }
+      if (other[o].before && other[o].after) return kAlways;
+    }
+    for (int o = 0; o < others; ++o)
+      if (other[o].before) return other[o].j;
+    return kNone;
+  }
   std::size_t probed_ = 0, failed_probes_ = 0;
 
   void show_observer(const Stars& s, const std::vector<Collapse>& chosen, const std::vector<std::uint8_t>& pass) const {
     std::vector<SeenCollapse> seen(chosen.size());
     for (std::size_t i = 0; i < chosen.size(); ++i) {
-      seen[i].v = chosen[i].v, seen[i].u = chosen[i].u, seen[i].passed = pass[i] != 0;
+      seen[i].v = chosen[i].v, seen[i].u = chosen[i].u, seen[i].passed = pass[i] == kPassed;
+      seen[i].ring_held_failed = pass[i] == kRingHeld;
       for (std::uint32_t k = s.start[chosen[i].v]; k < s.start[chosen[i].v + 1]; ++k) {
         auto t = mesh_.triangles[s.tris[k]];
         std::rotate(t.begin(), std::min_element(t.begin(), t.end()), t.end());
@@ -1571,8 +1670,13 @@ private:
   }
   Made made_by(const Stars& s, const Collapse& c) const {
     Made m;
-    for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k)
-      if (!has(mesh_.triangles[s.tris[k]], c.u)) moved(s, k, c, m.tri[m.count++]);
+    for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
+      auto t = mesh_.triangles[s.tris[k]];
+      if (has(t, c.u)) continue;
+      for (auto& w : t) w = w == c.v ? c.u : w;
+      m.id[m.count] = t;
+      moved(s, k, c, m.tri[m.count++]);
+    }
     return m;
   }
 
@@ -1745,11 +1849,19 @@ private:
     return false;
   }
 
+  // A collapse's verdict: passed, failed its own tests (which read only v's star, what v holds and
+  // the fixed positions: not tried again while they stay), or failed what its ring holds (which
+  // other collapses change: tried again). Codes ORed over processes (the others' 0).
+  static constexpr std::uint8_t kFailed = 0, kPassed = 1, kRingHeld = 2;
+  std::uint8_t verdict(const Stars& s, const Collapse& c, const RoundChoice& round, std::uint32_t& depends) const {
+    const Made made = made_by(s, c);
+    if (!keeps_removed(c, made) || !probes_pass(c, made)) return kFailed;
+    return keeps_ring_held(s, c, made, round, depends) ? kPassed : kRingHeld;
+  }
+
   // Every new triangle's centre within the distance of the grid's surface, as the refinement
   // tests its triangles: within it of a corner or of v (cut points), or probed.
-  bool probes_pass(const Stars& s, const Collapse& c) const {
-    const Made made = made_by(s, c);
-    if (!keeps_removed(c, made)) return false;
+  bool probes_pass(const Collapse& c, const Made& made) const {
     for (int k = 0; k < made.count; ++k) {
       const Point* b = made.tri[k];
       // A triangle whose corners (on the grid's surface) cover it is not probed, as in the refinement.
