@@ -53,7 +53,7 @@ struct DistanceQueryStats {
   std::size_t collapsed = 0;         // edges collapsed after the march (each removes two triangles)
   std::size_t collapse_rounds = 0;   // rounds run (a round removing under a sixteenth is the last)
   std::size_t collapses_probed = 0;  // collapses chosen and probed, over the rounds
-  std::size_t collapses_failed = 0;  // of those, the ones whose probes failed (not tried again while v's star stays)
+  std::size_t collapses_failed = 0;  // of those, not applied (own tests failed, or the ring's held vertices: below)
   double refine_seconds = 0, walk_seconds = 0, march_seconds = 0, collapse_seconds = 0;
 };
 
