@@ -1593,8 +1593,9 @@ private:
   // Whether p lies within the distance of h's star after c, whatever the round's other
   // collapses (kAlways): of a triangle c makes through h, of one of h's others that no collapse
   // changes, or, for another collapse j, of one of j's triangles through h both as it is and as j
-  // would leave it (moved to j's u, or made by j); else only while the j of a triangle it is near
-  // is not applied (j), or not at all (kNone).
+  // would leave it (moved to j's u); else only while the j of a triangle it is near is not applied
+  // (j), or not at all (kNone). When h is j's u, j's triangles through h all go, and the ones j
+  // makes are not looked at: such a collapse waits more often than it must.
   static constexpr std::uint32_t kAlways = kNone - 1;
   std::uint32_t near_star_after(const Stars& s, const Collapse& c, std::uint32_t h, const Point& p, const Made& made,
                                 const RoundChoice& round) const {
