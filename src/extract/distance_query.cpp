@@ -1294,8 +1294,9 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, c
 // into u when the refinement's own tests pass on the result (every new triangle's centre within
 // the distance of the grid's surface: within it of a corner or of v, else probed as the
 // refinement probes, unless every point of the triangle lies within the distance of a corner; v
-// and the vertices removed before that v holds within the distance of the new triangles), no new
-// triangle turns by more than 60°, and the link condition keeps the surface 2-manifold. A
+// and the vertices removed before that v holds within the distance of the new triangles, and
+// those v's ring holds within the distance of their holders' stars as the collapse leaves them),
+// no new triangle turns by more than 60°, and the link condition keeps the surface 2-manifold. A
 // collapse whose probes failed is not chosen again while v's star stays (Collapser::failed_).
 // Vertices on the surface's border (the box) stay. A
 // round's collapses have disjoint stars (a collapse locks v's ring), so they are chosen in vertex

@@ -146,7 +146,7 @@ bool collapse_test_says_far(const PreparedGrid& grid, double iso, double distanc
 struct SeenCollapse {
   std::uint32_t v = 0, u = 0;
   bool passed = false;
-  bool ring_held_failed = false;  // failed only what its ring holds (tried again)
+  bool ring_held_failed = false;  // failed only what its ring holds, or waited (tried again after a round)
   std::vector<std::array<std::uint32_t, 3>> star;
   // In the probes' frame (voxels of the smallest spacing): the triangles the collapse makes, and
   // v with the vertices removed before that v holds (each must stay within the distance of them).
