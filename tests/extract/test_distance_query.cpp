@@ -308,13 +308,22 @@ TEST(DistanceQuery, ProcessesTogetherMakeOneProcesssSurface) {
   lobb.spacing = {1.0, 0.8, 1.3};
   Volume thin = field({70, 33, 2}, {1, 1, 1}, [](double x, double y, double z) { return std::sin(0.3 * x) * std::cos(0.2 * y) + 0.1 * z; });
   Volume torus = make_synthetic("torus", 65, ScalarType::f32);
+  // Collapses that wait on another's verdict or fail what their ring holds: the processes combine
+  // those verdicts too, so some must happen here (counted in the one process's runs).
+  std::size_t waited = 0;
+  detail::observe_collapse_rounds([&](const std::vector<detail::SeenCollapse>& round) {
+    for (const auto& c : round) waited += c.ring_held_failed;
+  });
+  struct StopObserving {
+    ~StopObserving() { detail::observe_collapse_rounds({}); }  // also when an ASSERT returns early
+  } stop;
   for (const Volume* v : {&noise, &lobb, &thin, &torus}) {
     const auto grid = testutil::prepared_at(*v, 0.01, true);
     const HierarchyQuery query(grid);
     const ValueRange r = value_range(*v);
     for (double f : {0.35, 0.6, 1.5})  // 1.5: outside the range, an empty surface
       for (double distance : {0.0, 0.5, 2.0})
-        for (int rounds : {0, 2}) {
+        for (int rounds : {0, 2, kDefaultCollapseRounds}) {
           const double iso = r.min + f * (r.max - r.min);
           DistanceQueryStats alone_st;
           const Mesh alone = query.extract_within(iso, distance, &alone_st, rounds);
@@ -338,6 +347,7 @@ TEST(DistanceQuery, ProcessesTogetherMakeOneProcesssSurface) {
           }
         }
   }
+  EXPECT_GT(waited, 0u);
 }
 
 // A process asking for another surface (iso, distance, rounds) or holding a grid of another shape
