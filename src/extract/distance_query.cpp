@@ -1585,6 +1585,8 @@ private:
   // applied: `depends` names that j (+1; 0: none), and the collapse waits for the next round if
   // j passes. One such j at most.
   bool keeps_ring_held(const Stars& s, const Collapse& c, const Made& made, const RoundChoice& round, std::uint32_t& depends) const {
+    // From v's star, not Stars::ring_of: under a transport v's ring is built only on the process
+    // that chose v's block, and building it here would race with the other probes.
     std::uint32_t ring[64];  // collapsible: at most 64
     int n = 0;
     for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k)
@@ -1638,9 +1640,9 @@ private:
       other[o].before = other[o].before || near;
       const Collapse& oc = round.chosen[j];
       if (!other[o].after && !has(t, oc.u)) {
-        Point moved_t[3];
-        for (int i = 0; i < 3; ++i) moved_t[i] = at_[t[static_cast<std::size_t>(i)] == oc.v ? oc.u : t[static_cast<std::size_t>(i)]];
-        other[o].after = distance2_to_triangle(p, moved_t[0], moved_t[1], moved_t[2]) <= d2_;
+        Point after[3];
+        corners(moved(t, oc), after);
+        other[o].after = distance2_to_triangle(p, after[0], after[1], after[2]) <= d2_;
       }
       if (other[o].before && other[o].after) return kAlways;
     }
@@ -1677,19 +1679,22 @@ private:
   }
   static Point normal(const Point& a, const Point& b, const Point& c) { return cross(minus(b, a), minus(c, a)); }
 
-  // Triangle k of v's star with v moved to u.
-  void moved(const Stars& s, std::uint32_t k, const Collapse& c, Point out[3]) const {
-    const auto& t = mesh_.triangles[s.tris[k]];
-    for (int i = 0; i < 3; ++i) out[i] = t[static_cast<std::size_t>(i)] == c.v ? at_[c.u] : at_[t[static_cast<std::size_t>(i)]];
+  // Triangle t with c's v moved to its u, and a triangle's corners.
+  static std::array<std::uint32_t, 3> moved(std::array<std::uint32_t, 3> t, const Collapse& c) {
+    for (auto& w : t) w = w == c.v ? c.u : w;
+    return t;
+  }
+  void corners(const std::array<std::uint32_t, 3>& t, Point out[3]) const {
+    for (int i = 0; i < 3; ++i) out[i] = at_[t[static_cast<std::size_t>(i)]];
   }
   Made made_by(const Stars& s, const Collapse& c) const {
     Made m;
     for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
-      auto t = mesh_.triangles[s.tris[k]];
+      const auto& t = mesh_.triangles[s.tris[k]];
       if (has(t, c.u)) continue;
-      for (auto& w : t) w = w == c.v ? c.u : w;
-      m.id[m.count] = t;
-      moved(s, k, c, m.tri[m.count++]);
+      m.id[m.count] = moved(t, c);
+      corners(m.id[m.count], m.tri[m.count]);
+      ++m.count;
     }
     return m;
   }
@@ -1845,10 +1850,10 @@ private:
   bool keeps_shape(const Stars& s, const Collapse& c) const {
     double best = std::numeric_limits<double>::infinity();
     for (std::uint32_t k = s.start[c.v]; k < s.start[c.v + 1]; ++k) {
-      if (has(mesh_.triangles[s.tris[k]], c.u)) continue;
-      Point b[3];
-      moved(s, k, c, b);
       const auto& t = mesh_.triangles[s.tris[k]];
+      if (has(t, c.u)) continue;
+      Point b[3];
+      corners(moved(t, c), b);
       const Point n0 = normal(at_[t[0]], at_[t[1]], at_[t[2]]), n1 = normal(b[0], b[1], b[2]);
       const double l0 = std::sqrt(dot(n0, n0)), l1 = std::sqrt(dot(n1, n1));
       if (!(l1 > 1e-12) || dot(n0, n1) < 0.5 * l0 * l1) return false;
