@@ -1326,17 +1326,17 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, c
 // so that the trail climbs less (the gathering and sorting cost more than the shorter climbs saved).
 // Where a round's time goes (2026-12-07, timed inside, eight rounds at D = 0.5, 2 cores): on the
 // FLAIR brain (934 k triangles → 214 k) the stars 5-21 ms a round, the rings 15-38, the rest of the
-// choice 22-46, the verdicts 57-69 and applying 4-14; of the verdicts' CPU the probes take about
-// 60 %, the ring's held vertices 30 % (from the second round on) and v's own 12 %. On the CT bunny
-// (157 k → 40 k) the verdicts 15-30 ms a round, mostly probes, and the choice (one block, serial)
-// 7-20 ms. Tried and not kept, both the same PLY bytes on nine shared grids: a shape that fails
-// keeps_shape marked in failed_ like failed probes (it reads only v's star), the choice within
-// the noise (the bunny 81-99 ms over eight rounds against 90-91, FLAIR 414-426 against 372-417);
-// a witness per held vertex, the triangle of its holder's star it was last found near, taken as
-// it is while that triangle stays (no distance computed): only 20 % of the ring's checks found
-// theirs in the later rounds (most stars change every round), and the ring's check took as long.
-// Nor a looser turn limit (75° or 90° instead of 60°): no fewer triangles (the bunny +1-2 %, FLAIR
-// +1-2 % at 0.5 and -4-6 % at 2), so the distance tests, not the shapes, set the floor.
+// choice 22-46, the verdicts 57-69 and applying 4-14; of the verdicts' CPU over the eight rounds
+// the probes took 58 %, the ring's held vertices 31 % (none in the first round) and v's own 11 %.
+// On the CT bunny (157 k → 40 k) the verdicts 15-30 ms a round, mostly probes, and the choice (one
+// block, serial) 7-20 ms. Tried and not kept, both the same PLY bytes on nine shared grids: a shape
+// that fails keeps_shape marked in failed_ like failed probes (it reads only v's star), the choice
+// within the noise (the bunny 81-99 ms over eight rounds against 90-91, FLAIR 414-426 against
+// 372-417); a witness per held vertex, the triangle of its holder's star it was last found near,
+// taken as it is while that triangle stays (no distance computed): only 20 % of the ring's checks
+// found theirs in the later rounds (most stars change every round), and the ring's check took as
+// long. Nor a looser turn limit (75° or 90° instead of 60°): no fewer triangles (the bunny +1-2 %,
+// FLAIR +1-2 % at 0.5 and -4-6 % at 2), so the distance tests, not the shapes, set the floor.
 
 struct Collapse {
   std::uint32_t v, u;
