@@ -1335,8 +1335,9 @@ Mesh assemble_shared(const Query& q, ShareTransport& t, const ChunkPlan& plan, c
 // 372-417); a witness per held vertex, the triangle of its holder's star it was last found near,
 // taken as it is while that triangle stays (no distance computed): only 20 % of the ring's checks
 // found theirs in the later rounds (most stars change every round), and the ring's check took as
-// long. Nor a looser turn limit (75° or 90° instead of 60°): no fewer triangles (the bunny +1-2 %,
-// FLAIR +1-2 % at 0.5 and -4-6 % at 2), so the distance tests, not the shapes, set the floor.
+// long. Nor a looser turn limit (75° or 90° instead of 60°): a few per cent either way (the bunny
+// +1-2 % at 0.5 and 2, FLAIR and the stent +1-3 % at 0.5 and -3-6 % at 2), so the distance tests,
+// not the shapes, set the floor.
 
 struct Collapse {
   std::uint32_t v, u;
