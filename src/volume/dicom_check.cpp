@@ -239,6 +239,8 @@ DicomSummary check_dicom_bytes(std::span<const unsigned char> bytes, const std::
     while (at < bytes.size() && r.u16(at) == 0x0002) {
       Element e = read_element(r, at);
       if (e.length == kUndefined) r.fail("undefined length in the file meta information", at);
+      // GDCM asserts on a sequence there ("Should not happen"; fuzz_dicom found it in CI).
+      if (e.vr == "SQ") r.fail(fmt::format("a sequence (VR SQ) in the file meta information, element (0002,{:04x})", e.element), at);
       if (e.element == 0x0010) syntax = trim(text_value(r, e).c_str());
       at = e.value + e.length;
     }

@@ -383,6 +383,23 @@ TEST(HostileVtk, LegacyHeaderEndingWithoutNewlineIsRefusedNotOutOfRange) {
   expect_refused(t / "v.vtk", "v.vtk");
 }
 
+TEST(HostileDicom, ASequenceInTheFileMetaInformationIsRefusedNotAGdcmAssert) {
+  // Found by fuzz_dicom in a CI run: GDCM's reader of group 0002 asserts on an element of VR SQ
+  // (the process aborted). Here one of length 2 after the group length, as the fuzzer's file had.
+  TempDir t("hostile");
+  const std::string b = minimal_dicom("0", "1");
+  const std::size_t after_group_length = 128 + 4 + 12;
+  ASSERT_EQ(b.substr(128, 4), "DICM");
+  const std::uint16_t tag[2] = {0x2, 0x9b01};
+  const std::uint32_t length = 2;
+  std::string sq(reinterpret_cast<const char*>(tag), 4);
+  sq += "SQ" + std::string(2, '\0');
+  sq.append(reinterpret_cast<const char*>(&length), 4);
+  sq += std::string(2, '\0');
+  testutil::write_bytes(t / "sq.dcm", b.substr(0, after_group_length) + sq + b.substr(after_group_length));
+  expect_refused(t / "sq.dcm", "sq.dcm", "a sequence (VR SQ) in the file meta information");
+}
+
 TEST(HostileDicom, ElementRunningPastTheEndAfterThePixelDataIsRefusedNotAGdcmAssert) {
   TempDir t("hostile");
   std::string b = minimal_dicom("0", "1");
