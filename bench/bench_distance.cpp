@@ -59,9 +59,10 @@ int main(int argc, char** argv) {
             "\"walk_mean\": %.5f, \"march_mean\": %.5f, \"collapse_mean\": %.5f, "
             "\"triangles\": %zu, \"vertices\": %zu, \"collapsed\": %zu, \"collapse_rounds\": %zu, \"collapses_failed\": %zu, \"tested\": "
             "%zu, \"refined\": %zu, \"closure\": %zu, "
-            "\"visited\": %zu, \"marched\": %zu, \"setup_seconds\": %.3f}\n",
+            "\"visited\": %zu, \"marched\": %zu, \"specks\": %zu, \"speck_triangles\": %zu, \"setup_seconds\": %.3f}\n",
             iso, d, int(r), seconds, cpu, refine / reps, walk / reps, march / reps, collapse / reps, st.triangles, st.vertices,
-            st.collapsed, st.collapse_rounds, st.collapses_failed, st.tested, st.refined, st.closure, st.visited, st.tetrahedra, setup);
+            st.collapsed, st.collapse_rounds, st.collapses_failed, st.tested, st.refined, st.closure, st.visited, st.tetrahedra, st.specks,
+            st.speck_triangles, setup);
         std::fflush(stdout);
       }
 }

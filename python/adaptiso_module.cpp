@@ -528,6 +528,8 @@ py::dict distance_stats(const DistanceQueryStats& s) {
   d["refine_seconds"] = s.refine_seconds;
   d["walk_seconds"] = s.walk_seconds;
   d["march_seconds"] = s.march_seconds;
+  d["specks_dropped"] = s.specks;
+  d["speck_triangles"] = s.speck_triangles;
   d["collapsed_edges"] = s.collapsed;
   d["collapse_rounds"] = s.collapse_rounds;
   d["collapses_probed"] = s.collapses_probed;

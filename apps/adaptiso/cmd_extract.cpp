@@ -261,6 +261,8 @@ void record_within(Record& record, const Mesh& mesh, const DistanceQueryStats& s
           {"refine_seconds", st.refine_seconds},
           {"walk_seconds", st.walk_seconds},
           {"march_seconds", st.march_seconds},
+          {"specks_dropped", st.specks},
+          {"speck_triangles", st.speck_triangles},
           {"collapsed_edges", st.collapsed},
           {"collapse_rounds", st.collapse_rounds},
           {"collapses_probed", st.collapses_probed},

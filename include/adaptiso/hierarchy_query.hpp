@@ -50,6 +50,8 @@ struct DistanceQueryStats {
   std::size_t visited = 0;     // tetrahedra the final walk met
   std::size_t triangles = 0, vertices = 0;
   bool in_range = true;
+  std::size_t specks = 0,
+              speck_triangles = 0;   // pieces smaller than the distance dropped (after the march and the collapses), and their triangles
   std::size_t collapsed = 0;         // edges collapsed after the march (each removes two triangles)
   std::size_t collapse_rounds = 0;   // rounds run (a round removing under a sixteenth is the last)
   std::size_t collapses_probed = 0;  // collapses chosen and probed, over the rounds
@@ -116,8 +118,11 @@ public:
   // frame (the mesh's world positions taken back through the volume's origin and direction).
   // Guaranteed: every mesh vertex is a vertex of the grid's own surface, bit for bit (the cut of a
   // coarse edge is placed on the grid's cut edge inside it); the surface is watertight and
-  // 2-manifold where the grid's is, oriented, and the same for any thread count; every vertex of
-  // the march (each a vertex of the grid's surface) lies within the distance of the collapsed
+  // 2-manifold where the grid's is, oriented, and the same for any thread count; no piece of it
+  // is smaller than the distance (a piece whose bounding box, in the grid's frame, has a diagonal
+  // under it is dropped after the march, and again after the collapses, which shrink pieces: a
+  // speck of noise; stats->specks counts them); every vertex of the march (each a vertex of the
+  // grid's surface) outside a dropped piece lies within the distance of the collapsed
   // surface (the vertices that stay are on it, each removed one near its holder's star); the centre (and
   // when longer than 3·distance the corner quarters' centres) of every triangle of a tetrahedron
   // whose longest edge exceeds the distance, and the centre of every triangle a collapse made,

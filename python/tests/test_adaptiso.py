@@ -292,6 +292,7 @@ def test_surface_within_a_distance_has_the_full_surfaces_vertices():
     marched = grid.extract(15.0, distance=1.0, collapse=0)
     assert near.faces.shape[0] < marched.faces.shape[0] and near.stats["collapsed_edges"] > 0
     assert marched.stats["collapsed_edges"] == 0
+    assert near.stats["specks_dropped"] == 0 and near.stats["speck_triangles"] == 0  # one sphere: no speck
     assert set(map(tuple, near.vertices.tolist())) <= set(map(tuple, marched.vertices.tolist()))
     for bad in (-1, 17):
         with pytest.raises(ValueError):

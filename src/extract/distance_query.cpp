@@ -43,8 +43,11 @@
 //    conforming mesh. A set: the same for any thread count.
 // 3. Walk the marked hierarchy (traversal.hpp) and march its cut leaves in walk order, each mesh
 //    vertex on the grid's cut edge inside the coarse edge; vertices numbered by first use,
-//    chunk-parallel (march_detail.hpp).
-// 4. Rounds of edge collapses checked by the same tests (below, "Edge collapses").
+//    chunk-parallel (march_detail.hpp). Clipped to the volume's box, and pieces smaller than the
+//    distance dropped (specks.hpp: their bounding box's diagonal under it), before the collapses,
+//    which cannot thin a closed piece below four triangles.
+// 4. Rounds of edge collapses checked by the same tests (below, "Edge collapses"), and the pieces
+//    they shrank below the distance dropped.
 //
 // Tried and not kept: whole cubes of the hierarchy contoured as marching cubes along their 12
 // axis edges (loops of their faces' segments, the face diagonals' cuts dropped between whole
@@ -74,6 +77,7 @@
 #include "extract/box_clip.hpp"
 #include "extract/hierarchy_index.hpp"
 #include "extract/march_detail.hpp"
+#include "extract/specks.hpp"
 #include "extract/triangle_cover.hpp"
 #include "grid/share_agree.hpp"
 #include "grid/traversal.hpp"
@@ -2160,10 +2164,12 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     assemble(q, found, remap, mesh);
     for (const Found& f : found) counts[0] += f.leaves, counts[1] += f.visited;
   }
+  Specks specks;
   if (me == 0) {
     // Clipped before the collapses: its cut points on the volume's far faces are border vertices,
     // which the collapses keep as they keep every border, so the surface still ends on the box.
     clip_to_volume_box(mesh, g.source);
+    specks = drop_specks(mesh, g.source, distance);
   }
   std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
   if (shared) {                      // process 0's surface and counts on every process, for the collapses
@@ -2171,12 +2177,17 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     share::broadcast_vector(*share, mesh.normals);
     share::broadcast_vector(*share, mesh.triangles);
     share->broadcast(std::as_writable_bytes(std::span(counts)));
+    share->broadcast(std::as_writable_bytes(std::span(&specks, 1)));
   }
   const std::size_t marched = counts[0], visited = counts[1];
   report(progress, "march", 1);
   const auto t4 = Clock::now();
   const CollapseCounts collapses =
       distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr, progress) : CollapseCounts{};
+  if (collapses.collapsed > 0) {  // the collapses shrink pieces' boxes (every process holds the same mesh)
+    const Specks shrunk = drop_specks(mesh, g.source, distance);
+    specks.pieces += shrunk.pieces, specks.triangles += shrunk.triangles;
+  }
   if (stats) {
     stats->iso = iso;
     stats->distance = distance;
@@ -2188,6 +2199,8 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     stats->triangles = mesh.triangle_count();
     stats->vertices = mesh.vertex_count();
     stats->in_range = iso >= g.source.min && iso <= g.source.max;
+    stats->specks = specks.pieces;
+    stats->speck_triangles = specks.triangles;
     stats->refine_seconds = std::chrono::duration<double>(t1 - t0).count();
     stats->walk_seconds = std::chrono::duration<double>(t2 - t1).count();
     stats->march_seconds = std::chrono::duration<double>(t4 - t2).count();  // the clip with the march
