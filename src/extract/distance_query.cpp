@@ -1393,7 +1393,7 @@ private:
     const std::uint32_t n_tris = start[v + 1] - start[v];
     ring_count[v] = 0;
     border[v] = n_tris > 60;
-    if (border[v]) return;
+    if (border[v] || (n_tris <= 8 && closed_fan(mesh, v, n_tris))) return;
     // The distinct neighbours with their counts (a linear search among half a dozen), then sorted:
     // half the entries to sort, and fewer mispredicted swaps, than sorting all a dozen first.
     std::uint32_t neighbour[120], count[120];
@@ -1413,6 +1413,46 @@ private:
     const std::uint32_t n = std::min(m, n_tris + 1);  // room for a border vertex's extra neighbour
     std::copy(neighbour, neighbour + n, &ring[start[v] + v]);
     ring_count[v] = n;
+  }
+  // The common case without a branch on the data: v's star of up to 8 triangles, each giving the
+  // edge opposite v in the triangle's order (from, to). When the froms are distinct and the tos
+  // are the same set, every neighbour lies in exactly two triangles: an inner vertex, whose ring is
+  // the sorted froms (what build_ring's search finds). Otherwise false, and build_ring decides as
+  // before. Most vertices have at most 8 triangles (87-92 % on the FLAIR brain, the PD brain and
+  // the CT bunny); the search's mispredicted branches took half of build_ring's time.
+  bool closed_fan(const Mesh& mesh, std::uint32_t v, std::uint32_t n_tris) {
+    constexpr std::uint32_t kPad = ~std::uint32_t{0};
+    std::array<std::uint32_t, 8> from, to;
+    from.fill(kPad), to.fill(kPad);
+    for (std::uint32_t k = 0; k < n_tris; ++k) {
+      const auto& t = mesh.triangles[tris[start[v] + k]];
+      const int at = t[1] == v ? 1 : t[2] == v ? 2 : 0;
+      from[k] = t[(at + 1) % 3], to[k] = t[(at + 2) % 3];
+    }
+    sort8(from), sort8(to);
+    bool inner = true;
+    for (std::uint32_t i = 0; i < 8; ++i) inner &= from[i] == to[i];
+    for (std::uint32_t i = 0; i + 1 < n_tris; ++i) inner &= from[i] < from[i + 1];
+    if (!inner) return false;
+    std::copy(from.begin(), from.begin() + n_tris, &ring[start[v] + v]);
+    ring_count[v] = n_tris;
+    return true;
+  }
+  // Green's 19-comparator network for 8 keys (checked on all 256 inputs of 0s and 1s), unrolled
+  // with constant indices so that the keys stay in registers and each exchange is two cmovs.
+  template <int I, int J>
+  static void exchange(std::array<std::uint32_t, 8>& a) {
+    const std::uint32_t x = a[I], y = a[J];
+    const bool swap = y < x;
+    a[I] = swap ? y : x, a[J] = swap ? x : y;
+  }
+  static void sort8(std::array<std::uint32_t, 8>& a) {
+    exchange<0, 2>(a), exchange<1, 3>(a), exchange<4, 6>(a), exchange<5, 7>(a);
+    exchange<0, 4>(a), exchange<1, 5>(a), exchange<2, 6>(a), exchange<3, 7>(a);
+    exchange<0, 1>(a), exchange<2, 3>(a), exchange<4, 5>(a), exchange<6, 7>(a);
+    exchange<2, 4>(a), exchange<3, 5>(a);
+    exchange<1, 4>(a), exchange<3, 6>(a);
+    exchange<1, 2>(a), exchange<3, 4>(a), exchange<5, 6>(a);
   }
 };
 
