@@ -740,7 +740,8 @@ the normals point to (lower values); Mesh.stats holds the command line's figures
 max_error (bisection grids): a coarser error than the prepared one, from the grid's hierarchy.
 distance (bisection grids): the fewest triangles within about this many voxels (of the smallest
 spacing) of the grid's surface, refined where this surface needs it; every vertex is one of the
-full surface's (HierarchyQuery::extract_within).
+full surface's (HierarchyQuery::extract_within). Pieces smaller than the distance (bounding box's
+diagonal under it) are dropped as specks: stats["specks_dropped"], stats["speck_triangles"].
 collapse (with distance): up to this many rounds of edge collapses after the march, each checked
 by the same tests (a fifth to a quarter fewer triangles a round on the CT and MR scans measured;
 a round removing under a sixteenth is the last; default 8, 2 is faster); 0 keeps every triangle

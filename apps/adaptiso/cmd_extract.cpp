@@ -268,7 +268,9 @@ void record_within(Record& record, const Mesh& mesh, const DistanceQueryStats& s
           {"collapses_probed", st.collapses_probed},
           {"collapses_failed", st.collapses_failed},
           {"collapse_seconds", st.collapse_seconds}},
-         fmt::format("within about {:g} voxels of the grid's surface", st.distance), seconds);
+         fmt::format("within about {:g} voxels of the grid's surface{}", st.distance,
+                     st.specks ? fmt::format(" ({} piece{} smaller than that dropped)", st.specks, st.specks == 1 ? "" : "s") : ""),
+         seconds);
 }
 
 // Surfaces made by all the processes of a transport (hierarchy_query.hpp), written as `written` says.
