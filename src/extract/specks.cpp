@@ -38,14 +38,19 @@ Specks drop_specks(Mesh& mesh, const GridSource& source, double diagonal) {
   if (!(diagonal > 0) || mesh.triangles.empty()) return {};
   Pieces pieces(n);
   for (const auto& t : mesh.triangles) pieces.join(t[0], t[1]), pieces.join(t[0], t[2]);
-  // Each piece's box, on its root's slot (a vertex of no triangle is a piece of its own: it goes
-  // with the renumbering below whatever its box).
-  constexpr float kInf = std::numeric_limits<float>::infinity();
-  std::vector<std::array<float, 6>> box(n, {kInf, kInf, kInf, -kInf, -kInf, -kInf});
-  const double smallest = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
+  // The pieces numbered in their roots' order (a root is its piece's smallest vertex, so it comes
+  // first), then each piece's box (a vertex of no triangle is a piece of its own: it goes with the
+  // renumbering below whatever its box).
   std::vector<std::uint32_t> piece(n);
+  std::uint32_t count = 0;
   for (std::uint32_t v = 0; v < n; ++v) {
-    piece[v] = pieces.root(v);
+    const std::uint32_t r = pieces.root(v);
+    piece[v] = r == v ? count++ : piece[r];
+  }
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  std::vector<std::array<float, 6>> box(count, {kInf, kInf, kInf, -kInf, -kInf, -kInf});
+  const double smallest = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
+  for (std::uint32_t v = 0; v < n; ++v) {
     const auto& w = mesh.positions[v];
     const Vec3 g = world_to_grid(source.origin, source.direction, {w[0], w[1], w[2]});
     auto& b = box[piece[v]];
@@ -54,14 +59,13 @@ Specks drop_specks(Mesh& mesh, const GridSource& source, double diagonal) {
       b[k] = std::min(b[k], x), b[k + 3] = std::max(b[k + 3], x);
     }
   }
-  // A speck: a root whose box's diagonal is under `diagonal`.
-  std::vector<std::uint8_t> speck(n, 0);
+  // A speck: a piece whose box's diagonal is under `diagonal`.
+  std::vector<std::uint8_t> speck(count, 0);
   Specks dropped;
-  for (std::uint32_t v = 0; v < n; ++v) {
-    if (piece[v] != v) continue;
+  for (std::uint32_t p = 0; p < count; ++p) {
     double d2 = 0;
-    for (int k = 0; k < 3; ++k) d2 += std::pow(double(box[v][k + 3]) - box[v][k], 2);
-    speck[v] = d2 < diagonal * diagonal;
+    for (int k = 0; k < 3; ++k) d2 += std::pow(double(box[p][k + 3]) - box[p][k], 2);
+    speck[p] = d2 < diagonal * diagonal;
   }
   std::vector<std::array<float, 6>>().swap(box);
   for (const auto& t : mesh.triangles) {
