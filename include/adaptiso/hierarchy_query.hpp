@@ -50,8 +50,8 @@ struct DistanceQueryStats {
   std::size_t visited = 0;     // tetrahedra the final walk met
   std::size_t triangles = 0, vertices = 0;
   bool in_range = true;
-  std::size_t specks = 0,
-              speck_triangles = 0;   // pieces smaller than the distance dropped (after the march and the collapses), and their triangles
+  // Pieces smaller than the distance dropped (after the march and after the collapses), and their triangles.
+  std::size_t specks = 0, speck_triangles = 0;
   std::size_t collapsed = 0;         // edges collapsed after the march (each removes two triangles)
   std::size_t collapse_rounds = 0;   // rounds run (a round removing under a sixteenth is the last)
   std::size_t collapses_probed = 0;  // collapses chosen and probed, over the rounds
