@@ -76,6 +76,13 @@ def compare(exe, mesh, ref, voxel):
     return (0.5 * (a["mean_voxels"] + b["mean_voxels"]), max(a["p95_voxels"], b["p95_voxels"]), d["hausdorff_voxels"], d["a_triangles"])
 
 
+def compare_ways(exe, mesh, ref, voxel):
+    """The 95th percentile distance from the first mesh to the second and back, in voxels: a surface
+    within a distance bounds the first way; the second also counts the pieces it dropped."""
+    d = json.loads(run([exe, "compare", mesh, ref, "--voxel", f"{voxel:.9g}", "--json"]))
+    return d["a_to_b"]["p95_voxels"], d["b_to_a"]["p95_voxels"]
+
+
 def distance(exe, mesh, ref, voxel):
     """Symmetric mean and 95th percentile distance between two meshes in voxels, and the first's triangles."""
     mean, p95, _, triangles = compare(exe, mesh, ref, voxel)

@@ -15,7 +15,9 @@ run. For each volume and iso-value, on the bisection grid `prepare` makes by def
 
 Per row: triangles and their ratio to flying edges', mean / p95 / max symmetric distance to the
 full-resolution surface (`adaptiso mc`, voxels of the smallest spacing), for adaptiso's rows also
-mean / p95 against the grid's own surface (what --distance bounds), and seconds (the tools' own
+mean / p95 against the grid's own surface (what --distance bounds), with the p95 each way in
+brackets (to the grid: what --distance promises; from the grid: also the pieces under --min-piece
+dropped, as far as they lay from the rest), and seconds (the tools' own
 timings, fastest of --repeat, no file I/O) with their ratio to flying edges'. A new iso-value on a
 loaded grid costs adaptiso the query alone; the query's one-time set-up per loaded grid is printed
 beside the grid. The peers need `peer_bench` and `bench_simplify` (scripts/bench.sh builds them into
@@ -30,7 +32,7 @@ import os
 import subprocess
 import sys
 
-from defaults import compare, last_json, main_input, run
+from defaults import compare, compare_ways, last_json, main_input, run
 
 DEFAULT = ["ct_bunny_stanford:1600.5", "dicom_mr_head_t1_vsseg:120.5", "ct_chest_lidc2:100.5", "mr_brain_flair:90.5",
            "ct_head_headsq_quarter:1000.5", "sci_neghip:50.5"]
@@ -80,7 +82,7 @@ def main():
     distances = [float(x) for x in a.distances.split(",")]
     records = []
 
-    print("| volume | iso | method | D | triangles | ÷ FE | mean / p95 / max to mc | mean / p95 to grid | seconds | ÷ FE |")
+    print("| volume | iso | method | D | triangles | ÷ FE | mean / p95 / max to mc | mean / p95 to grid (to / from) | seconds | ÷ FE |")
     print("|---|---:|---|---:|---:|---:|---|---|---:|---:|")
     for spec in a.datasets or DEFAULT:
         name, _, isos = spec.partition(":")
@@ -109,7 +111,8 @@ def main():
                 grid_cell = "–"
                 if against_grid:
                     rec["grid_mean"], rec["grid_p95"], rec["grid_max"], _ = compare(exe, path, own, voxel)
-                    grid_cell = f"{rec['grid_mean']:.3f} / {rec['grid_p95']:.3f}"
+                    rec["grid_p95_to"], rec["grid_p95_from"] = compare_ways(exe, path, own, voxel)
+                    grid_cell = f"{rec['grid_mean']:.3f} / {rec['grid_p95']:.3f} ({rec['grid_p95_to']:.2f} / {rec['grid_p95_from']:.2f})"
                 tri_ratio = f"{triangles / fe_rec['triangles']:.3f}" if fe_rec else "–"
                 time_ratio = f"{seconds / fe_rec['seconds']:.2f}" if fe_rec else "–"
                 label = extra.get("label", "–" if d is None else f"{d:g}")

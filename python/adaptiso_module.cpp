@@ -530,6 +530,7 @@ py::dict distance_stats(const DistanceQueryStats& s) {
   d["march_seconds"] = s.march_seconds;
   d["specks_dropped"] = s.specks;
   d["speck_triangles"] = s.speck_triangles;
+  d["min_piece_voxels"] = s.min_piece;
   d["collapsed_edges"] = s.collapsed;
   d["collapse_rounds"] = s.collapse_rounds;
   d["collapses_probed"] = s.collapses_probed;
@@ -690,10 +691,11 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
       .def(
           "extract",
           [](py::handle self, double iso, std::optional<double> max_error, bool relative, std::optional<double> distance,
-             std::optional<int> collapse, const py::object& comm) {
+             std::optional<int> collapse, const py::object& comm, std::optional<double> min_piece) {
             Grid& g = grid_of(self);
             if (max_error && distance) throw py::value_error("max_error and distance: give one of them");
             if (collapse && !distance) throw py::value_error("collapse needs distance");
+            if (min_piece && !distance) throw py::value_error("min_piece needs distance");
             if (!comm.is_none() && !distance) throw py::value_error("comm needs distance: only surfaces at a distance are made together");
             const auto together = python::comm_transport(comm);  // null for one process
             Mesh mesh;
@@ -710,10 +712,10 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
                 const auto hierarchy = g.hierarchy();
                 const int rounds = collapse.value_or(kDefaultCollapseRounds);
                 if (together)  // collective: not cancelled on one process alone
-                  mesh = hierarchy->extract_within(*together, value, *distance, &*within, rounds);
+                  mesh = hierarchy->extract_within(*together, value, *distance, &*within, rounds, min_piece);
                 else
                   interruptible([&](const std::atomic<bool>* cancel) {
-                    mesh = hierarchy->extract_within(value, *distance, &*within, rounds, cancel);
+                    mesh = hierarchy->extract_within(value, *distance, &*within, rounds, cancel, {}, min_piece);
                   });
               } else if (max_error) {
                 const double e = relative ? from_fraction(range, *max_error, FractionOf::width, "max_error") : *max_error;
@@ -731,8 +733,8 @@ ValueError: NaN or Inf values (how many, and the first as voxel x,y,z), a spacin
             return make_mesh(std::move(mesh), within ? distance_stats(*within) : query ? query_stats(*query) : extract_stats(*full));
           },
           py::arg("iso"), py::arg("max_error") = py::none(), py::arg("relative") = false, py::arg("distance") = py::none(),
-          py::arg("collapse") = py::none(), py::arg("comm") = py::none(),
-          R"(extract(iso, max_error=None, relative=False, distance=None, collapse=None, comm=None) -> Mesh
+          py::arg("collapse") = py::none(), py::arg("comm") = py::none(), py::arg("min_piece") = py::none(),
+          R"(extract(iso, max_error=None, relative=False, distance=None, collapse=None, comm=None, min_piece=None) -> Mesh
 
 The iso-surface at iso as a Mesh, which unpacks as (vertices float32 (N, 3), faces uint32 (M, 3),
 normals float32 (N, 3)): world coordinates (x, y, z), faces counter-clockwise seen from the side
@@ -740,8 +742,9 @@ the normals point to (lower values); Mesh.stats holds the command line's figures
 max_error (bisection grids): a coarser error than the prepared one, from the grid's hierarchy.
 distance (bisection grids): the fewest triangles within about this many voxels (of the smallest
 spacing) of the grid's surface, refined where this surface needs it; every vertex is one of the
-full surface's (HierarchyQuery::extract_within). Pieces smaller than the distance (bounding box's
-diagonal under it) are dropped as specks: stats["specks_dropped"], stats["speck_triangles"].
+full surface's (HierarchyQuery::extract_within). Pieces smaller than min_piece voxels (bounding
+box's diagonal under it; default the distance) are dropped as specks: stats["specks_dropped"],
+stats["speck_triangles"]; min_piece=0 keeps every piece (a small lesion, say).
 collapse (with distance): up to this many rounds of edge collapses after the march, each checked
 by the same tests (a fifth to a quarter fewer triangles a round on the CT and MR scans measured;
 a round removing under a sixteenth is the last; default 8, 2 is faster); 0 keeps every triangle

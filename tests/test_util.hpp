@@ -9,6 +9,7 @@
 #include <array>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -361,6 +362,24 @@ inline std::vector<std::uint32_t> vertex_pieces(const adaptiso::Mesh& m) {
   }
   for (std::uint32_t v = 0; v < root.size(); ++v) root[v] = find(v);
   return root;
+}
+
+// Each piece's bounding box's diagonal (world units), by its entry in vertex_pieces.
+inline std::map<std::uint32_t, double> piece_diagonals(const adaptiso::Mesh& m, const std::vector<std::uint32_t>& piece_of) {
+  std::map<std::uint32_t, std::pair<std::array<float, 3>, std::array<float, 3>>> box;
+  for (std::uint32_t w = 0; w < m.vertex_count(); ++w) {
+    auto [it, fresh] = box.try_emplace(piece_of[w], m.positions[w], m.positions[w]);
+    for (int a = 0; a < 3; ++a)
+      it->second.first[a] = std::min(it->second.first[a], m.positions[w][a]),
+      it->second.second[a] = std::max(it->second.second[a], m.positions[w][a]);
+  }
+  std::map<std::uint32_t, double> diagonal;
+  for (const auto& [piece, b] : box) {
+    double d2 = 0;
+    for (int a = 0; a < 3; ++a) d2 += std::pow(double(b.second[a]) - b.first[a], 2);
+    diagonal.emplace(piece, std::sqrt(d2));
+  }
+  return diagonal;
 }
 
 }  // namespace testutil

@@ -224,7 +224,8 @@ nlohmann::json query_all(std::shared_ptr<const PreparedGrid> prepared, const Mes
 struct DistanceFlags {
   double distance = -1;
   int collapse = kDefaultCollapseRounds;
-  CLI::Option* option = nullptr;  // --distance, for the options that need it
+  std::optional<double> min_piece;  // unset: the distance
+  CLI::Option* option = nullptr;    // --distance, for the options that need it
   bool given() const { return distance >= 0; }
   void add(CLI::App* cmd) {
     auto* d = option =
@@ -238,6 +239,11 @@ struct DistanceFlags {
                                 "under a sixteenth is the last); 2 is faster, 0 keeps every triangle inside its tetrahedron (default {})",
                                 kDefaultCollapseRounds))
         ->check(CLI::Range(0, kMaxCollapseRounds))
+        ->needs(d);
+    cmd->add_option("--min-piece", min_piece,
+                    "With --distance: drop the surface's pieces whose bounding box has a diagonal under this many voxels (default: "
+                    "the distance, a speck of noise; 0 keeps every piece, a small lesion say)")
+        ->check(non_negative_number())
         ->needs(d);
   }
 };
@@ -261,6 +267,7 @@ void record_within(Record& record, const Mesh& mesh, const DistanceQueryStats& s
           {"refine_seconds", st.refine_seconds},
           {"walk_seconds", st.walk_seconds},
           {"march_seconds", st.march_seconds},
+          {"min_piece_voxels", st.min_piece},
           {"specks_dropped", st.specks},
           {"speck_triangles", st.speck_triangles},
           {"collapsed_edges", st.collapsed},
@@ -269,7 +276,9 @@ void record_within(Record& record, const Mesh& mesh, const DistanceQueryStats& s
           {"collapses_failed", st.collapses_failed},
           {"collapse_seconds", st.collapse_seconds}},
          fmt::format("within about {:g} voxels of the grid's surface{}", st.distance,
-                     st.specks ? fmt::format(" ({} piece{} smaller than that dropped)", st.specks, st.specks == 1 ? "" : "s") : ""),
+                     st.specks ? fmt::format(" ({} piece{} smaller than {} dropped)", st.specks, st.specks == 1 ? "" : "s",
+                                             st.min_piece == st.distance ? "that" : fmt::format("{:g} voxels", st.min_piece))
+                               : ""),
          seconds);
 }
 
@@ -289,13 +298,13 @@ nlohmann::json distance_all(std::shared_ptr<const PreparedGrid> prepared, const 
   auto all = write_all(*prepared, mesh_out, isos, out, written, [&](double iso, auto&& record) {
     DistanceQueryStats st;
     TerminalProgress tp(show_progress);  // eight rounds of collapses on a 512×512×120 MR head: 8 s
-    Mesh m = query.extract_within(iso, flags.distance, &st, flags.collapse, nullptr, tp.callback());
+    Mesh m = query.extract_within(iso, flags.distance, &st, flags.collapse, nullptr, tp.callback(), flags.min_piece);
     tp.finish();
     record_within(record, m, st);
   });
   for (auto& made : write_all(*prepared, mesh_out, together.isos, out, together.written, [&](double iso, auto&&record) {
          DistanceQueryStats st;
-         record_within(record, query.extract_within(*together.transport, iso, flags.distance, &st, flags.collapse), st);
+         record_within(record, query.extract_within(*together.transport, iso, flags.distance, &st, flags.collapse, flags.min_piece), st);
        }))
     all.push_back(std::move(made));
   return all;

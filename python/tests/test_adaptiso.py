@@ -270,6 +270,17 @@ def test_coarser_error_from_the_hierarchy():
     assert grid.coarsen(1.0).tetrahedron_count < grid.tetrahedron_count
 
 
+def test_min_piece_keeps_the_pieces_the_distance_drops():
+    rng = np.random.default_rng(7)
+    grid = adaptiso.prepare(adaptiso.Volume(rng.random((24, 23, 22)).astype(np.float32)), max_error=0.02, relative=True)
+    dropped = grid.extract(0.5, distance=2.0, collapse=0)
+    kept = grid.extract(0.5, distance=2.0, collapse=0, min_piece=0)
+    assert dropped.stats["specks_dropped"] > 0 and kept.stats["specks_dropped"] == 0  # noise: many small pieces
+    assert kept.faces.shape[0] == dropped.faces.shape[0] + dropped.stats["speck_triangles"]
+    more = grid.extract(0.5, distance=2.0, collapse=0, min_piece=4.0)
+    assert more.stats["specks_dropped"] > dropped.stats["specks_dropped"]
+
+
 def test_surface_within_a_distance_has_the_full_surfaces_vertices():
     v = adaptiso.Volume(sphere_distance((50, 51, 52), (24.5, 25.0, 25.5)))
     grid = adaptiso.prepare(v, max_error=0.005, relative=True)
@@ -293,6 +304,12 @@ def test_surface_within_a_distance_has_the_full_surfaces_vertices():
     assert near.faces.shape[0] < marched.faces.shape[0] and near.stats["collapsed_edges"] > 0
     assert marched.stats["collapsed_edges"] == 0
     assert near.stats["specks_dropped"] == 0 and near.stats["speck_triangles"] == 0  # one sphere: no speck
+    assert near.stats["min_piece_voxels"] == 1.0  # the distance, by default
+    assert grid.extract(15.0, distance=1.0, min_piece=0).stats["min_piece_voxels"] == 0.0
+    with pytest.raises(ValueError):
+        grid.extract(15.0, min_piece=1.0)  # needs distance
+    with pytest.raises(ValueError):
+        grid.extract(15.0, distance=1.0, min_piece=-1)
     assert set(map(tuple, near.vertices.tolist())) <= set(map(tuple, marched.vertices.tolist()))
     for bad in (-1, 17):
         with pytest.raises(ValueError):

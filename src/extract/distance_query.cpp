@@ -2039,19 +2039,24 @@ namespace {
 // any share is made: a process whose arguments were refused (`bad`) or differ from process 0's
 // with its own message, the others naming it (share::agree). Otherwise a process would throw alone
 // and leave the others waiting, or their shares would be of different surfaces.
-void agree_on_the_surface(ShareTransport& t, std::exception_ptr bad, double iso, double distance, int rounds, std::size_t vertices,
-                          const Lattice& lat) {
-  const std::array<std::uint64_t, 7> mine{
-      std::bit_cast<std::uint64_t>(iso),    std::bit_cast<std::uint64_t>(distance), static_cast<std::uint64_t>(rounds),  vertices,
-      static_cast<std::uint64_t>(lat.X[0]), static_cast<std::uint64_t>(lat.X[1]),   static_cast<std::uint64_t>(lat.X[2])};
+void agree_on_the_surface(ShareTransport& t, std::exception_ptr bad, double iso, double distance, double piece, int rounds,
+                          std::size_t vertices, const Lattice& lat) {
+  const std::array<std::uint64_t, 8> mine{std::bit_cast<std::uint64_t>(iso),
+                                          std::bit_cast<std::uint64_t>(distance),
+                                          std::bit_cast<std::uint64_t>(piece),
+                                          static_cast<std::uint64_t>(rounds),
+                                          vertices,
+                                          static_cast<std::uint64_t>(lat.X[0]),
+                                          static_cast<std::uint64_t>(lat.X[1]),
+                                          static_cast<std::uint64_t>(lat.X[2])};
   auto zero = mine;
   if (share::differs_from_zero(t, zero) && !bad)
     bad = std::make_exception_ptr(InputError(fmt::format(
-        "process {} asked for another surface than process 0 (iso {}, distance {}, {} rounds of collapses, a grid of {} vertices on a "
-        "{}x{}x{} lattice; process 0: iso {}, distance {}, {} rounds, {} vertices, {}x{}x{}): every process must ask for the same "
-        "surface of the same grid",
-        t.process(), iso, distance, rounds, vertices, mine[4], mine[5], mine[6], std::bit_cast<double>(zero[0]),
-        std::bit_cast<double>(zero[1]), zero[2], zero[3], zero[4], zero[5], zero[6])));
+        "process {} asked for another surface than process 0 (iso {}, distance {}, pieces from {}, {} rounds of collapses, a grid of {} "
+        "vertices on a {}x{}x{} lattice; process 0: iso {}, distance {}, pieces from {}, {} rounds, {} vertices, {}x{}x{}): every "
+        "process must ask for the same surface of the same grid",
+        t.process(), iso, distance, piece, rounds, vertices, mine[5], mine[6], mine[7], std::bit_cast<double>(zero[0]),
+        std::bit_cast<double>(zero[1]), std::bit_cast<double>(zero[2]), zero[3], zero[4], zero[5], zero[6], zero[7])));
   share::agree(t, bad, "the surface made together");
 }
 
@@ -2090,17 +2095,17 @@ void gather_dealt(ShareTransport& t, Dealing& d) {
 }  // namespace detail
 
 Mesh HierarchyQuery::extract_within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds,
-                                    const std::atomic<bool>* cancel, const Progress& progress) const {
-  return within(iso, distance, stats, collapse_rounds, cancel, nullptr, progress);
+                                    const std::atomic<bool>* cancel, const Progress& progress, std::optional<double> min_piece) const {
+  return within(iso, distance, stats, collapse_rounds, cancel, nullptr, progress, min_piece);
 }
 
-Mesh HierarchyQuery::extract_within(ShareTransport& share, double iso, double distance, DistanceQueryStats* stats,
-                                    int collapse_rounds) const {
-  return within(iso, distance, stats, collapse_rounds, nullptr, &share, {});
+Mesh HierarchyQuery::extract_within(ShareTransport& share, double iso, double distance, DistanceQueryStats* stats, int collapse_rounds,
+                                    std::optional<double> min_piece) const {
+  return within(iso, distance, stats, collapse_rounds, nullptr, &share, {}, min_piece);
 }
 
 Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* stats, int collapse_rounds, const std::atomic<bool>* cancel,
-                            ShareTransport* share, const Progress& progress) const {
+                            ShareTransport* share, const Progress& progress, std::optional<double> min_piece) const {
   using namespace detail;
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
@@ -2114,12 +2119,15 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
       throw OptionError("distance", fmt::format("must be a non-negative number of voxels, got {}", distance));
     if (collapse_rounds < 0 || collapse_rounds > kMaxCollapseRounds)
       throw OptionError("collapse", fmt::format("must be a number of rounds from 0 to {}, got {}", kMaxCollapseRounds, collapse_rounds));
+    if (min_piece && (!(*min_piece >= 0) || !std::isfinite(*min_piece)))
+      throw OptionError("min-piece", fmt::format("must be a non-negative number of voxels, got {}", *min_piece));
   } catch (const OptionError&) {
     bad = std::current_exception();
   }
   const bool shared = share && share->processes() > 1;
+  const double piece = min_piece.value_or(distance);
   if (shared)
-    agree_on_the_surface(*share, bad, iso, distance, collapse_rounds, g.vertex_count(), lat);
+    agree_on_the_surface(*share, bad, iso, distance, piece, collapse_rounds, g.vertex_count(), lat);
   else if (bad)
     std::rethrow_exception(bad);
   const double smallest = std::min({g.source.spacing[0], g.source.spacing[1], g.source.spacing[2]});
@@ -2209,7 +2217,7 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     // Clipped before the collapses: its cut points on the volume's far faces are border vertices,
     // which the collapses keep as they keep every border, so the surface still ends on the box.
     clip_to_volume_box(mesh, g.source);
-    specks = drop_specks(mesh, g.source, distance);
+    specks = drop_specks(mesh, g.source, piece);
   }
   std::vector<Found>().swap(found);  // the triangles' keys: not held through the collapses
   if (shared) {                      // process 0's surface and counts on every process, for the collapses
@@ -2225,7 +2233,7 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
   const CollapseCounts collapses =
       distance > 0 ? collapse_edges(q, mesh, smallest, collapse_rounds, shared ? share : nullptr, progress) : CollapseCounts{};
   if (collapses.collapsed > 0) {  // the collapses shrink pieces' boxes (every process holds the same mesh)
-    const Specks shrunk = drop_specks(mesh, g.source, distance);
+    const Specks shrunk = drop_specks(mesh, g.source, piece);
     specks.pieces += shrunk.pieces, specks.triangles += shrunk.triangles;
   }
   if (stats) {
@@ -2239,6 +2247,7 @@ Mesh HierarchyQuery::within(double iso, double distance, DistanceQueryStats* sta
     stats->triangles = mesh.triangle_count();
     stats->vertices = mesh.vertex_count();
     stats->in_range = iso >= g.source.min && iso <= g.source.max;
+    stats->min_piece = piece;
     stats->specks = specks.pieces;
     stats->speck_triangles = specks.triangles;
     stats->refine_seconds = std::chrono::duration<double>(t1 - t0).count();

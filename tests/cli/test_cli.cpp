@@ -14,6 +14,7 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <nlohmann/json.hpp>
 
 #include "adaptiso/grid_file.hpp"
@@ -856,6 +857,39 @@ TEST(ExtractCli, CollapseRoundsOutOfRangeOrWithoutADistanceAreRefused) {
   // Each collapse removes two triangles; specks the collapses shrank below the distance go too.
   EXPECT_EQ(a["triangles"].get<int>() - b["triangles"].get<int>(),
             2 * b["collapsed_edges"].get<int>() + b["speck_triangles"].get<int>() - a["speck_triangles"].get<int>());
+}
+
+// --min-piece: the smallest piece kept (default the distance; 0 keeps every piece, a small lesion
+// a reader wants); the summary line names it when it is not the distance.
+TEST(ExtractCli, MinPieceKeepsOrDropsSmallPiecesAndNeedsADistance) {
+  TempDir t("cli_min_piece");
+  ASSERT_EQ(testutil::run_cli("generate noise --size 24 -o " + (t / "n.nrrd")).code, 0);
+  ASSERT_EQ(testutil::run_cli("prepare " + (t / "n.nrrd") + " --quiet -o " + (t / "g.adg")).code, 0);
+  const std::string extract = "extract " + (t / "g.adg") + " --relative --iso 0.5 --distance 2 --collapse 0 ";
+  expect_refused(testutil::run_cli("extract " + (t / "g.adg") + " --relative --iso 0.5 --min-piece 1 -o " + (t / "m.ply")), "--distance",
+                 "--min-piece without --distance");
+  expect_refused(testutil::run_cli(extract + "--min-piece -1 -o " + (t / "m.ply")), "--min-piece", "--min-piece -1");
+  expect_refused(testutil::run_cli(extract + "--min-piece nan -o " + (t / "m.ply")), "--min-piece", "--min-piece nan");
+  EXPECT_FALSE(std::filesystem::exists(t / "m.ply"));
+  std::map<std::string, nlohmann::json> made;
+  for (const std::string piece : {"", "0", "3"}) {
+    const auto r = testutil::run_cli(extract + (piece.empty() ? "" : "--min-piece " + piece + " ") + "--json -o " + (t / "m.ply"));
+    ASSERT_EQ(r.code, 0) << r.err;
+    made[piece] = nlohmann::json::parse(r.out)["surfaces"][0];
+    const auto line = testutil::run_cli(extract + (piece.empty() ? "" : "--min-piece " + piece + " ") + "-o " + (t / "m.ply"));
+    const int specks = made[piece]["specks_dropped"].get<int>();
+    const std::string said = piece.empty()  ? "pieces smaller than that dropped"
+                             : piece == "3" ? "pieces smaller than 3 voxels dropped"
+                                            : "dropped";
+    EXPECT_EQ((line.out + line.err).find(said) != std::string::npos, specks > 0) << line.out << line.err;
+  }
+  EXPECT_EQ(made[""]["min_piece_voxels"], 2.0);
+  EXPECT_EQ(made["0"]["specks_dropped"], 0);
+  EXPECT_GT(made[""]["specks_dropped"].get<int>(), 0);  // noise: many small pieces
+  EXPECT_GT(made["3"]["specks_dropped"].get<int>(), made[""]["specks_dropped"].get<int>());
+  // Without collapses the pieces dropped are exactly the difference.
+  for (const std::string piece : {"", "3"})
+    EXPECT_EQ(made["0"]["triangles"].get<int>(), made[piece]["triangles"].get<int>() + made[piece]["speck_triangles"].get<int>());
 }
 
 TEST(ExtractCli, MaxDisplacementOnAGridPreparedWithoutItIsRefused) {

@@ -688,23 +688,13 @@ TEST(DistanceQuery, EveryVertexOfTheMarchStaysWithinTheDistanceOfTheCollapsedSur
       // its vertices within the distance of a collapsed piece whose box's diagonal was under it).
       const std::vector<std::uint32_t> piece_of = testutil::vertex_pieces(marched);
       std::set<std::array<float, 3>> kept(collapsed.positions.begin(), collapsed.positions.end());
-      std::map<std::uint32_t, std::pair<std::array<float, 3>, std::array<float, 3>>> gone;  // piece: its box
       std::set<std::uint32_t> stays;
       for (std::uint32_t w = 0; w < marched.vertex_count(); ++w)
         if (kept.count(marched.positions[w])) stays.insert(piece_of[w]);
-      for (std::uint32_t w = 0; w < marched.vertex_count(); ++w) {
-        if (stays.count(piece_of[w])) continue;
-        auto [it, fresh] = gone.try_emplace(piece_of[w], marched.positions[w], marched.positions[w]);
-        for (int a = 0; a < 3; ++a)
-          it->second.first[a] = std::min(it->second.first[a], marched.positions[w][a]),
-          it->second.second[a] = std::max(it->second.second[a], marched.positions[w][a]);
-      }
+      std::map<std::uint32_t, double> gone = testutil::piece_diagonals(marched, piece_of);  // piece: its box's diagonal
+      std::erase_if(gone, [&](const auto& p) { return stays.count(p.first) > 0; });
       EXPECT_EQ(gone.size(), st.specks - at_march.specks);
-      for (const auto& [piece, box] : gone) {
-        double d2 = 0;
-        for (int a = 0; a < 3; ++a) d2 += std::pow(box.second[a] - box.first[a], 2);
-        EXPECT_LT(std::sqrt(d2), 3 * distance * smallest(k.spacing) * (1 + 1e-6));
-      }
+      for (const auto& [piece, diagonal] : gone) EXPECT_LT(diagonal, 3 * distance * smallest(k.spacing) * (1 + 1e-6));
       const double reach = distance * smallest(k.spacing);  // world units
       std::vector<Vec3> lo, hi;                             // each triangle's box, to skip the far ones
       for (const auto& t : collapsed.triangles) {
@@ -1124,19 +1114,8 @@ TEST(DistanceQuery, PiecesSmallerThanTheDistanceAreDroppedAndNoLargerOne) {
       SCOPED_TRACE(testing::Message() << "distance " << distance << ", rounds " << rounds);
       DistanceQueryStats st;
       const Mesh mesh = query.extract_within(0.0, distance, &st, rounds);
-      const std::vector<std::uint32_t> piece_of = testutil::vertex_pieces(mesh);
-      std::map<std::uint32_t, std::pair<std::array<float, 3>, std::array<float, 3>>> box;
-      for (std::uint32_t w = 0; w < mesh.vertex_count(); ++w) {
-        auto [it, fresh] = box.try_emplace(piece_of[w], mesh.positions[w], mesh.positions[w]);
-        for (int a = 0; a < 3; ++a)
-          it->second.first[a] = std::min(it->second.first[a], mesh.positions[w][a]),
-          it->second.second[a] = std::max(it->second.second[a], mesh.positions[w][a]);
-      }
-      for (const auto& [piece, b] : box) {
-        double d2 = 0;
-        for (int a = 0; a < 3; ++a) d2 += std::pow(b.second[a] - b.first[a], 2);
-        EXPECT_GE(std::sqrt(d2) / voxel, distance * (1 - 1e-6));
-      }
+      const auto box = testutil::piece_diagonals(mesh, testutil::vertex_pieces(mesh));  // piece: its box's diagonal
+      for (const auto& [piece, diagonal] : box) EXPECT_GE(diagonal / voxel, distance * (1 - 1e-6));
       if (distance <= 1) {
         EXPECT_EQ(box.size(), 1 + blobs.size());
         EXPECT_EQ(st.specks, 0u);
@@ -1146,6 +1125,27 @@ TEST(DistanceQuery, PiecesSmallerThanTheDistanceAreDroppedAndNoLargerOne) {
       // leaves them all out, as it leaves out parts no corner shows).
       if (distance == 5) EXPECT_GE(st.specks, 1u);
       EXPECT_EQ(st.speck_triangles == 0, st.specks == 0);
+      EXPECT_EQ(st.min_piece, distance);
     }
   }
+  // Another smallest piece: 0 keeps every piece (the blobs the default drops at 5 voxels), 5 drops
+  // the blobs at 2 voxels, which keeps them by default.
+  const auto pieces = [](const Mesh& m) { return testutil::piece_diagonals(m, testutil::vertex_pieces(m)).size(); };
+  for (const int rounds : {0, kDefaultCollapseRounds}) {
+    SCOPED_TRACE(testing::Message() << "rounds " << rounds);
+    DistanceQueryStats by_default, keeping, dropping, at_two;
+    const Mesh dropped = query.extract_within(0.0, 5, &by_default, rounds);
+    const Mesh kept = query.extract_within(0.0, 5, &keeping, rounds, nullptr, {}, 0.0);
+    EXPECT_EQ(keeping.specks, 0u);
+    EXPECT_EQ(keeping.min_piece, 0.0);
+    EXPECT_GE(by_default.specks, 1u);
+    EXPECT_EQ(pieces(kept), 1 + by_default.specks);  // the collapses cannot thin a closed blob away
+    if (rounds == 0) EXPECT_EQ(kept.triangle_count(), dropped.triangle_count() + by_default.speck_triangles);
+    const std::size_t found = pieces(query.extract_within(0.0, 2, &at_two, rounds)) - 1;
+    EXPECT_GE(found, 1u);
+    EXPECT_EQ(pieces(query.extract_within(0.0, 2, &dropping, rounds, nullptr, {}, 5.0)), 1u);
+    EXPECT_EQ(dropping.specks, found);
+  }
+  for (const double bad : {-1.0, std::nan(""), std::numeric_limits<double>::infinity()})
+    EXPECT_THROW(query.extract_within(0.0, 1, nullptr, 0, nullptr, {}, bad), OptionError);
 }
