@@ -45,7 +45,7 @@ check distance "$W/ml.adg" --iso 0.3,0.5,0.7 --relative --distance 1
 check distance-no-collapse "$W/noise.adg" --iso 60,128,200 --distance 0.5 --collapse 0
 check distance-together "$W/n.adg" --iso 0.35,0.5 --relative --distance 0.5 --rank-share surfaces
 check distance-together-no-collapse "$W/noise.adg" --iso 60,128 --distance 0.5 --collapse 0 --rank-share surfaces
-check distance-in-turn "$W/n.adg" --iso 0.35,0.5,0.6 --relative --distance 1 --rank-share values
+check distance-in-turn "$W/noise.adg" --iso 60,128,200 --distance 1 --rank-share values
 check coarser "$W/noise.adg" --iso 60,90,128,160,200 --max-error 40
 check simplified "$W/noise.adg" --iso 90,128,160 --simplify 0.5
 
