@@ -18,6 +18,7 @@
 #include <cstring>
 #include <mutex>
 #include <new>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -49,6 +50,7 @@ struct Ask {
   std::uint64_t id;
   double iso, distance;
   std::int32_t rounds;
+  std::optional<double> min_piece;
 };
 
 class Bytes {
@@ -110,7 +112,7 @@ std::vector<std::byte> answer(const HierarchyQuery& query, const Ask& ask, const
   };
   try {
     DistanceQueryStats stats;
-    const Mesh mesh = query.extract_within(ask.iso, ask.distance, &stats, ask.rounds, &cancel);
+    const Mesh mesh = query.extract_within(ask.iso, ask.distance, &stats, ask.rounds, &cancel, {}, ask.min_piece);
     // Written once, in place: the rank holds the mesh and its message, no third copy.
     out.bytes.reserve(sizeof ask.id + 1 + sizeof stats + 3 * 8 +
                       12 * (mesh.positions.size() + mesh.normals.size() + mesh.triangles.size()));
@@ -158,11 +160,11 @@ struct RankSurfaces::State {
     busy[static_cast<std::size_t>(rank)] = false;
   }
 
-  Mesh make(const HierarchyQuery& local, double iso, double distance, int rounds, DistanceQueryStats* stats,
-            const std::atomic<bool>* cancel, int* process) {
+  Mesh make(const HierarchyQuery& local, double iso, double distance, int rounds, std::optional<double> min_piece,
+            DistanceQueryStats* stats, const std::atomic<bool>* cancel, int* process) {
     const auto [rank, id] = take();
     *process = rank;
-    if (rank == 0) return local.extract_within(iso, distance, stats, rounds, cancel);
+    if (rank == 0) return local.extract_within(iso, distance, stats, rounds, cancel, {}, min_piece);
     struct GiveBack {
       State& s;
       int rank;
@@ -170,6 +172,7 @@ struct RankSurfaces::State {
     } give_back_on_exit{*this, rank};
     Bytes ask;  // field by field: the struct's padding is not sent
     ask.put(id), ask.put(iso), ask.put(distance), ask.put(static_cast<std::int32_t>(rounds));
+    ask.put(static_cast<std::uint8_t>(min_piece.has_value())), ask.put(min_piece.value_or(0.0));
     {
       std::lock_guard lock(mpi);
       ranks.send_message(rank, kAsk, ask.bytes);
@@ -233,9 +236,9 @@ RankSurfaces::~RankSurfaces() {
 }
 
 DistanceSurfaces RankSurfaces::hook() {
-  return
-      [s = state_](const HierarchyQuery& local, double iso, double distance, int rounds, DistanceQueryStats* stats,
-                   const std::atomic<bool>* cancel, int* process) { return s->make(local, iso, distance, rounds, stats, cancel, process); };
+  return [s = state_](const HierarchyQuery& local, double iso, double distance, int rounds, std::optional<double> min_piece,
+                      DistanceQueryStats* stats, const std::atomic<bool>* cancel,
+                      int* process) { return s->make(local, iso, distance, rounds, min_piece, stats, cancel, process); };
 }
 
 void answer_distance_queries(Ranks& ranks, const HierarchyQuery& query) {
@@ -254,6 +257,9 @@ void answer_distance_queries(Ranks& ranks, const HierarchyQuery& query) {
     Reader in(got);
     Ask ask;
     ask.id = in.get<std::uint64_t>(), ask.iso = in.get<double>(), ask.distance = in.get<double>(), ask.rounds = in.get<std::int32_t>();
+    const bool own_piece = in.get<std::uint8_t>() != 0;
+    const double piece = in.get<double>();
+    if (own_piece) ask.min_piece = piece;
     std::atomic<bool> cancel{false}, done{false};
     std::vector<std::byte> reply;
     // The query runs beside this thread, which alone speaks MPI and listens for its cancel.

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -30,8 +31,9 @@ namespace adaptiso {
 // same grid (apps/adaptiso/view_ranks.cpp), so the library stays free of MPI. Called from the
 // connection threads, several at once; honours `cancel` as extract_within does and throws what it
 // throws (ExtractCancelled, OptionError, std::bad_alloc).
-using DistanceSurfaces = std::function<Mesh(const HierarchyQuery& local, double iso, double distance, int collapse_rounds,
-                                            DistanceQueryStats* stats, const std::atomic<bool>* cancel, int* process)>;
+using DistanceSurfaces =
+    std::function<Mesh(const HierarchyQuery& local, double iso, double distance, int collapse_rounds, std::optional<double> min_piece,
+                       DistanceQueryStats* stats, const std::atomic<bool>* cancel, int* process)>;
 
 struct ViewOptions {
   std::string host = "127.0.0.1";

@@ -155,6 +155,12 @@ std::string seconds_text(double s) { return fmt::format("{:.6f}", s); }
 // each (tests/view/test_view_server.cpp checks both ways).
 constexpr const char* kApiRoutes[] = {"/api/info", "/api/surface", "/api/reference", "/api/export", "/api/points", "/api/tetrahedra"};
 
+// distance= and what goes with it: collapse= (rounds of edge collapses) and min_piece= (voxels).
+struct Within {
+  double distance;
+  int collapse;
+  std::optional<double> min_piece;
+};
 }  // namespace
 
 struct ViewServer::Impl {
@@ -192,7 +198,7 @@ struct ViewServer::Impl {
   bool host_allowed(const httplib::Request& req) const;
   void info(const httplib::Request& req, httplib::Response& res);
   void surface(const httplib::Request& req, httplib::Response& res);
-  Mesh surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats,
+  Mesh surface_within(const Served& s, double iso, const Within& within, DistanceQueryStats* stats,
                       const std::atomic<bool>* cancel = nullptr, int* process = nullptr);
   void reference(const httplib::Request& req, httplib::Response& res);
   void download(const httplib::Request& req, httplib::Response& res);
@@ -203,11 +209,17 @@ struct ViewServer::Impl {
 
 namespace {
 
-// collapse= (rounds of edge collapses) goes with distance= only.
-int collapse_rounds(const detail::QueryParams& params, bool distance) {
+// distance=, and collapse= and min_piece=, which go with it only.
+std::optional<Within> parse_within(const detail::QueryParams& params) {
   const int rounds = detail::parse_rounds(params, "collapse", kDefaultCollapseRounds, kMaxCollapseRounds);
-  if (!distance && params.count("collapse")) throw detail::BadRequest("collapse= needs distance=");
-  return rounds;
+  const auto distance = detail::parse_optional(params, "distance");
+  const auto min_piece = detail::parse_optional(params, "min_piece");
+  if (!distance) {
+    if (params.count("collapse")) throw detail::BadRequest("collapse= needs distance=");
+    if (min_piece) throw detail::BadRequest("min_piece= needs distance=");
+    return std::nullopt;
+  }
+  return Within{*distance, rounds, min_piece};
 }
 
 detail::SessionOptions session_options(const ViewOptions& o) {
@@ -432,8 +444,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
   const std::string id = client_id(req.params);
   const auto error = parse_optional(req.params, "error");
   const auto budget = parse_optional(req.params, "budget");
-  const auto distance = parse_optional(req.params, "distance");
-  const int collapse = collapse_rounds(req.params, distance.has_value());
+  const auto distance = parse_within(req.params);
   const bool compact = compact_format(req.params);
   const Served s = distance ? served_now() : served_whole();
   auto common_headers = [&](const std::string& body_encoding) {
@@ -448,7 +459,7 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
     std::optional<detail::RunningQueries::Ticket> ticket;
     if (req.params.count("client")) ticket.emplace(running, id);
     int process = 0;
-    const Mesh mesh = surface_within(s, iso, *distance, collapse, &st, ticket ? ticket->cancel() : nullptr, &process);
+    const Mesh mesh = surface_within(s, iso, *distance, &st, ticket ? ticket->cancel() : nullptr, &process);
     const auto t0 = std::chrono::steady_clock::now();
     std::string body = compact ? encode_mesh_compact(mesh) : encode_mesh(mesh);
     const double encode = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -461,7 +472,9 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
     res.set_header("X-Incremental", "0");
     res.set_header("X-In-Range", st.in_range ? "1" : "0");
     res.set_header("X-Level", "0");
-    res.set_header("X-Distance", fmt::format("{:.17g}", *distance));
+    res.set_header("X-Distance", fmt::format("{:.17g}", distance->distance));
+    res.set_header("X-Min-Piece", fmt::format("{:.17g}", st.min_piece));
+    res.set_header("X-Specks", std::to_string(st.specks));
     res.set_header("X-Rank", std::to_string(process));
     // The vertices lie on the grid's own surface, whose error bound this is.
     res.set_header("X-Error-Bound", fmt::format("{:.17g}", surface_error(s.grid->stats)));
@@ -505,17 +518,20 @@ void ViewServer::Impl::surface(const httplib::Request& req, httplib::Response& r
 
 // The surface within distance= voxels of the grid's (a bisection grid's hierarchy query): one
 // stateless query, no page state; its memory reserved for the time of the query.
-Mesh ViewServer::Impl::surface_within(const Served& s, double iso, double distance, int collapse, DistanceQueryStats* stats,
+Mesh ViewServer::Impl::surface_within(const Served& s, double iso, const Within& within, DistanceQueryStats* stats,
                                       const std::atomic<bool>* cancel, int* process) {
   if (!s.query) throw BadRequest("distance= needs a bisection grid (this one keeps no hierarchy)");
-  if (!(distance >= 0) || !std::isfinite(distance)) throw BadRequest("distance must be a non-negative number of voxels");
+  if (!(within.distance >= 0) || !std::isfinite(within.distance)) throw BadRequest("distance must be a non-negative number of voxels");
+  if (within.min_piece && (!(*within.min_piece >= 0) || !std::isfinite(*within.min_piece)))
+    throw BadRequest("min_piece must be a non-negative number of voxels");
   const std::size_t expected = sessions.expected_triangles(Sessions::Transient::distance, iso, tetrahedron_count(*s.grid) / 8);
   const auto room = sessions.reserve(kDistanceBytesPerTriangle * expected);
   DistanceQueryStats own;
   if (!stats) stats = &own;
   int made_by = 0;
-  Mesh mesh = opt.distance_surfaces ? opt.distance_surfaces(*s.query, iso, distance, collapse, stats, cancel, &made_by)
-                                    : s.query->extract_within(iso, distance, stats, collapse, cancel);
+  Mesh mesh = opt.distance_surfaces
+                  ? opt.distance_surfaces(*s.query, iso, within.distance, within.collapse, within.min_piece, stats, cancel, &made_by)
+                  : s.query->extract_within(iso, within.distance, stats, within.collapse, cancel, {}, within.min_piece);
   if (process) *process = made_by;
   // The peak follows the marched triangles, collapses or not: those are what the next estimate counts.
   sessions.record_triangles(Sessions::Transient::distance, iso, stats->triangles + 2 * stats->collapsed);
@@ -531,15 +547,14 @@ void ViewServer::Impl::download(const httplib::Request& req, httplib::Response& 
   const double distance = parse_optional(req.params, "simplify").value_or(0);
   SimplifyOptions how;
   how.checked = parse_flag(req.params, "checked");
-  const auto within = parse_optional(req.params, "distance");
-  const int collapse = collapse_rounds(req.params, within.has_value());
+  const auto within = parse_within(req.params);
   const std::string format = export_format(req.params);
   const Served s = within ? served_now() : served_whole();
   if (within && error) throw BadRequest("distance= cannot be combined with error=");
   Mesh mesh;
   double error_bound = surface_error(s.grid->stats);
   if (within) {
-    mesh = surface_within(s, iso, *within, collapse, nullptr);
+    mesh = surface_within(s, iso, *within, nullptr);
   } else {
     const auto surface = sessions.surface(id, iso, error, std::nullopt);  // the level's lock, until copied
     mesh = surface.extractor().mesh();

@@ -70,6 +70,8 @@ for a, b, q in [(mlone, mltwo, 'api/surface?iso=0.5&distance=1&format=plain'),
                 (mlone, mltwo, 'api/surface?iso=0.3&distance=0.5&collapse=0&format=compact'),
                 (mlone, mltwo, 'api/surface?iso=0.7&distance=2&collapse=3&format=plain'),
                 (mlone, mltwo, 'api/surface?iso=0.5&distance=0&format=plain'),
+                (mlone, mltwo, 'api/surface?iso=0.45&distance=2&min_piece=0&format=plain'),
+                (mlone, mltwo, 'api/surface?iso=0.45&distance=2&min_piece=6&format=plain'),
                 (one, two, 'api/surface?iso=100&distance=2&format=compact'),
                 (one, two, 'api/export?iso=140&distance=2&format=ply')]:
     sa, ba, ha = get(a, q)

@@ -502,7 +502,8 @@ TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
   const nlohmann::json after = nlohmann::json::parse(c.Get("/api/info")->body);
   for (std::size_t k = 1; k < after["levels"].size(); ++k) EXPECT_FALSE(after["levels"][k]["built"].get<bool>()) << k;
   for (const char* bad : {"distance=-1", "distance=nan", "distance=2&error=0.1", "distance=2&budget=1000", "distance=x",
-                          "distance=2&collapse=17", "distance=2&collapse=1.5", "distance=2&collapse=-1", "collapse=1"}) {
+                          "distance=2&collapse=17", "distance=2&collapse=1.5", "distance=2&collapse=-1", "collapse=1",
+                          "distance=2&min_piece=-1", "distance=2&min_piece=nan", "distance=2&min_piece=x", "min_piece=1"}) {
     auto r = c.Get(fmt::format("/api/surface?iso=0.45&client=a&{}", bad));
     EXPECT_EQ(r->status, 400) << bad;
   }
@@ -512,6 +513,25 @@ TEST(ViewServer, SurfacesWithinADistanceAreTheLibrarysAndNeedNoLevels) {
     ASSERT_EQ(r->status, 200) << r->body;
     EXPECT_EQ(r->body, encode_mesh(query.extract_within(0.45, 2, nullptr, rounds))) << rounds;
   }
+  // min_piece= sets the smallest piece kept (the distance by default; 0 keeps every one): the
+  // field's small lobes go at 6 voxels.
+  std::vector<std::size_t> specks;
+  for (double piece : {0.0, 2.0, 6.0}) {
+    auto r = c.Get(fmt::format("/api/surface?iso=0.45&client=a&distance=2&min_piece={}", piece));
+    ASSERT_EQ(r->status, 200) << r->body;
+    DistanceQueryStats st;
+    EXPECT_EQ(r->body, encode_mesh(query.extract_within(0.45, 2, &st, kDefaultCollapseRounds, nullptr, {}, piece))) << piece;
+    EXPECT_EQ(r->get_header_value("X-Specks"), std::to_string(st.specks));
+    EXPECT_EQ(std::stod(r->get_header_value("X-Min-Piece")), piece);
+    auto file = c.Get(fmt::format("/api/export?iso=0.45&client=a&distance=2&min_piece={}&format=ply", piece));
+    ASSERT_EQ(file->status, 200);
+    EXPECT_EQ(file->get_header_value("X-Triangles"), std::to_string(st.triangles)) << piece;
+    specks.push_back(st.specks);
+  }
+  EXPECT_EQ(specks[0], 0u);
+  EXPECT_GT(specks[2], specks[1]);
+  EXPECT_EQ(std::stod(c.Get("/api/surface?iso=0.45&client=a&distance=2")->get_header_value("X-Min-Piece")), 2.0);
+  EXPECT_EQ(c.Get("/api/export?iso=0.45&client=a&min_piece=0&format=ply")->status, 400);
   auto exported = c.Get("/api/export?iso=0.45&client=a&distance=2&format=ply");
   ASSERT_EQ(exported->status, 200);
   EXPECT_EQ(exported->get_header_value("X-Triangles"), std::to_string(query.extract_within(0.45, 2).triangle_count()));
