@@ -21,13 +21,16 @@ fi
 # Unity builds (batches of sources compiled as one): a fresh tree compiles in about half the time
 # (Release: 224 s against 418 s on 2 cores); incremental work in a tree of your own need not use them.
 COMMON=(-G Ninja -DCMAKE_UNITY_BUILD=ON -DADAPTISO_BUILD_TESTS=ON -DADAPTISO_BUILD_APPS=ON -DADAPTISO_BUILD_PEERS=OFF)
-echo "== Release build"
+# Each stage says when it starts (seconds since this script did): where the suite's time goes.
+stage() { echo "== $1 (at $SECONDS s)"; }
+stage "Release build"
 cmake -S . -B build/release "${COMMON[@]}" -DCMAKE_BUILD_TYPE=Release -DADAPTISO_SANITIZE=OFF -DADAPTISO_BUILD_BENCH=ON -DADAPTISO_BUILD_PYTHON=ON >/dev/null
 cmake --build build/release -j "$JOBS"
 # python_module (the Python tests against the staging install) is left out: the next stage runs
 # the same tests against pip's install, which is what a Python user gets.
+stage "Release tests"
 (cd build/release && ctest --output-on-failure --no-tests=error -j "$JOBS" --timeout 900 -E '^python_module$')
-echo "== Python package through pip"
+stage "Python package through pip"
 # As a Python user installs it (README "Python"): a venv that sees Debian's numpy, scikit-image and
 # VTK, `pip install --no-build-isolation .` (setup.py builds the adaptiso_python target of the
 # Release tree above, so nothing is compiled again), the Python tests against that installed copy,
@@ -50,7 +53,7 @@ print('wheel:', adaptiso.__version__, adaptiso.marching_cubes(np.random.rand(8, 
 left=$(find "$PIPTEST/fresh/lib" -iname '*adaptiso*')
 [ -z "$left" ] || { echo "pip uninstall left: $left"; exit 1; }
 unset ADAPTISO_CMAKE_BUILD_DIR
-echo "== ASan + UBSan build"
+stage "ASan + UBSan build"
 # The compile, not the tests, is most of this stage. -O1 -g1: GCC took 2.8x as long to compile
 # with ASan at -O2 -g (delaunay.cpp: 264 s against 94 s). clang: the tree in 0.77x GCC's CPU time
 # (bisection_bricks.cpp 59 s against 95 s), and a second compiler's warnings and UBSan checks; the
@@ -61,6 +64,8 @@ CC=clang CXX=clang++ cmake -S . -B build/asan-clang "${COMMON[@]}" -DCMAKE_BUILD
 cmake --build build/asan-clang -j "$JOBS"
 export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
 export LSAN_OPTIONS=suppressions=$(pwd)/tests/lsan.supp:print_suppressions=0
+stage "ASan + UBSan tests"
 (cd build/asan-clang && ctest --output-on-failure --no-tests=error -j "$JOBS" --timeout 1800)
-echo "== fuzzing (a short run of every target; scripts/fuzz.sh SECONDS for a longer one)"
+stage "fuzzing (a short run of every target; scripts/fuzz.sh SECONDS for a longer one)"
 ADAPTISO_FUZZ_SEED=${ADAPTISO_FUZZ_SEED:-1} ./scripts/fuzz.sh "${ADAPTISO_FUZZ_SECONDS:-15}"
+echo "== done in $SECONDS s"
