@@ -137,7 +137,8 @@ public:
   // docs/RESULTS.md): the distance everywhere, and parts that no corner shows, which are left out
   // (measured on the shared MR heads at 2 voxels: no piece of the grid's surface wider than
   // 2·distance; at 1 voxel a few 2-4 voxels wide, 2 voxels from a larger surface that hid them).
-  // distance 0 gives the grid's own surface exactly (no collapses).
+  // distance 0 gives the grid's own surface exactly (no collapses; pieces dropped only under a
+  // min_piece given).
   // Thread-safe. With `cancel`, once *cancel is raised the query stops within a stage's part (a
   // subtree of the refinement, a chunk of probes) and throws ExtractCancelled (extractor.hpp):
   // the viewer drops a surface the page no longer wants (a rest surface the next drag overtook).
