@@ -39,8 +39,7 @@ Specks drop_specks(Mesh& mesh, const GridSource& source, double diagonal) {
   Pieces pieces(n);
   for (const auto& t : mesh.triangles) pieces.join(t[0], t[1]), pieces.join(t[0], t[2]);
   // The pieces numbered in their roots' order (a root is its piece's smallest vertex, so it comes
-  // first), then each piece's box (a vertex of no triangle is a piece of its own: it goes with the
-  // renumbering below whatever its box).
+  // first), then each piece's box (a vertex of no triangle is a piece of its own, a point: a speck).
   std::vector<std::uint32_t> piece(n);
   std::uint32_t count = 0;
   for (std::uint32_t v = 0; v < n; ++v) {
@@ -74,21 +73,18 @@ Specks drop_specks(Mesh& mesh, const GridSource& source, double diagonal) {
     dropped.triangles += s != 0;
   }
   if (dropped.triangles == 0) return {};
-  // Keep the rest, vertices renumbered in their order (first use stays first use).
+  // Keep the rest, vertices renumbered in their order (first use stays first use): a vertex goes
+  // with its piece.
   constexpr std::uint32_t kGone = std::numeric_limits<std::uint32_t>::max();
   std::vector<std::uint32_t> to(n, kGone);
-  std::vector<std::uint8_t> used(n, 0);
   std::size_t kept = 0;
   for (const auto& t : mesh.triangles)
-    if (!speck[piece[t[0]]]) {
-      used[t[0]] = used[t[1]] = used[t[2]] = 1;
-      mesh.triangles[kept++] = t;
-    }
+    if (!speck[piece[t[0]]]) mesh.triangles[kept++] = t;
   mesh.triangles.resize(kept);
   std::uint32_t next = 0;
   const bool normals = mesh.normals.size() == n;
   for (std::uint32_t v = 0; v < n; ++v) {
-    if (!used[v]) continue;
+    if (speck[piece[v]]) continue;
     to[v] = next;
     mesh.positions[next] = mesh.positions[v];
     if (normals) mesh.normals[next] = mesh.normals[v];
