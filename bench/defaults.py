@@ -8,6 +8,7 @@ Usage: bench/defaults.py --build BUILD [--data DIR] [--work DIR] [--errors 0.02,
 Writes a Markdown table on stdout and the records as JSON to --out (default: stdout only).
 """
 import argparse
+import collections
 import json
 import os
 import re
@@ -68,25 +69,23 @@ def run(cmd):
     return r.stdout
 
 
+Comparison = collections.namedtuple("Comparison", "mean p95 max triangles p95_to p95_from")
+
+
 def compare(exe, mesh, ref, voxel):
-    """Symmetric mean, 95th percentile and largest distance between two meshes in voxels, and the
-    first mesh's triangles (adaptiso compare)."""
+    """Symmetric mean, 95th percentile and largest distance between two meshes in voxels, the first
+    mesh's triangles, and the 95th percentile each way (adaptiso compare): a surface within a
+    distance bounds the way to the reference; the way back also counts the pieces it dropped."""
     d = json.loads(run([exe, "compare", mesh, ref, "--voxel", f"{voxel:.9g}", "--json"]))
     a, b = d["a_to_b"], d["b_to_a"]
-    return (0.5 * (a["mean_voxels"] + b["mean_voxels"]), max(a["p95_voxels"], b["p95_voxels"]), d["hausdorff_voxels"], d["a_triangles"])
-
-
-def compare_ways(exe, mesh, ref, voxel):
-    """The 95th percentile distance from the first mesh to the second and back, in voxels: a surface
-    within a distance bounds the first way; the second also counts the pieces it dropped."""
-    d = json.loads(run([exe, "compare", mesh, ref, "--voxel", f"{voxel:.9g}", "--json"]))
-    return d["a_to_b"]["p95_voxels"], d["b_to_a"]["p95_voxels"]
+    return Comparison(0.5 * (a["mean_voxels"] + b["mean_voxels"]), max(a["p95_voxels"], b["p95_voxels"]), d["hausdorff_voxels"],
+                      d["a_triangles"], a["p95_voxels"], b["p95_voxels"])
 
 
 def distance(exe, mesh, ref, voxel):
     """Symmetric mean and 95th percentile distance between two meshes in voxels, and the first's triangles."""
-    mean, p95, _, triangles = compare(exe, mesh, ref, voxel)
-    return mean, p95, triangles
+    c = compare(exe, mesh, ref, voxel)
+    return c.mean, c.p95, c.triangles
 
 
 def last_json(text):

@@ -32,7 +32,7 @@ import os
 import subprocess
 import sys
 
-from defaults import compare, compare_ways, last_json, main_input, run
+from defaults import compare, last_json, main_input, run
 
 DEFAULT = ["ct_bunny_stanford:1600.5", "dicom_mr_head_t1_vsseg:120.5", "ct_chest_lidc2:100.5", "mr_brain_flair:90.5",
            "ct_head_headsq_quarter:1000.5", "sci_neghip:50.5"]
@@ -105,13 +105,13 @@ def main():
                 fe_rec = last_json(run([peer, "fe", src, f"{iso:g}", fe]))
 
             def record(method, d, path, triangles, seconds, against_grid, **extra):
-                mean, p95, worst, _ = compare(exe, path, ref, voxel)
+                mean, p95, worst = compare(exe, path, ref, voxel)[:3]
                 rec = {"dataset": name, "iso": iso, "method": method, "distance": d, "triangles": triangles, "mean": mean, "p95": p95,
                        "max": worst, "seconds": seconds, **extra}
                 grid_cell = "–"
                 if against_grid:
-                    rec["grid_mean"], rec["grid_p95"], rec["grid_max"], _ = compare(exe, path, own, voxel)
-                    rec["grid_p95_to"], rec["grid_p95_from"] = compare_ways(exe, path, own, voxel)
+                    c = compare(exe, path, own, voxel)
+                    rec["grid_mean"], rec["grid_p95"], rec["grid_max"], rec["grid_p95_to"], rec["grid_p95_from"] = c.mean, c.p95, c.max, c.p95_to, c.p95_from
                     grid_cell = f"{rec['grid_mean']:.3f} / {rec['grid_p95']:.3f} ({rec['grid_p95_to']:.2f} / {rec['grid_p95_from']:.2f})"
                 tri_ratio = f"{triangles / fe_rec['triangles']:.3f}" if fe_rec else "–"
                 time_ratio = f"{seconds / fe_rec['seconds']:.2f}" if fe_rec else "–"

@@ -873,10 +873,11 @@ TEST(ExtractCli, MinPieceKeepsOrDropsSmallPiecesAndNeedsADistance) {
   EXPECT_FALSE(std::filesystem::exists(t / "m.ply"));
   std::map<std::string, nlohmann::json> made;
   for (const std::string piece : {"", "0", "3"}) {
-    const auto r = testutil::run_cli(extract + (piece.empty() ? "" : "--min-piece " + piece + " ") + "--json -o " + (t / "m.ply"));
+    const std::string asked = extract + (piece.empty() ? "" : "--min-piece " + piece + " ");
+    const auto r = testutil::run_cli(asked + "--json -o " + (t / "m.ply"));
     ASSERT_EQ(r.code, 0) << r.err;
     made[piece] = nlohmann::json::parse(r.out)["surfaces"][0];
-    const auto line = testutil::run_cli(extract + (piece.empty() ? "" : "--min-piece " + piece + " ") + "-o " + (t / "m.ply"));
+    const auto line = testutil::run_cli(asked + "-o " + (t / "m.ply"));
     const int specks = made[piece]["specks_dropped"].get<int>();
     const std::string said = piece.empty()  ? "pieces smaller than that dropped"
                              : piece == "3" ? "pieces smaller than 3 voxels dropped"
